@@ -1,0 +1,246 @@
+"""Typed configuration schema and the rules between its fields.
+
+The dataclasses below are the schema Hydra composes ``configs/`` onto (registered in
+Hydra's ConfigStore as ``base_config``): a misspelt key or a wrong type fails at
+composition time. :func:`validate` then checks what a type cannot express (ranges and
+rules between fields) and raises :class:`ConfigError` with one line naming the field
+and how to fix it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+__all__ = [
+    "AlgoConfig",
+    "BufferConfig",
+    "CheckpointConfig",
+    "CollectorConfig",
+    "Config",
+    "ConfigError",
+    "EnvConfig",
+    "EvalConfig",
+    "ExplorationConfig",
+    "LoggerConfig",
+    "LossConfig",
+    "NetworkConfig",
+    "OptimConfig",
+    "register_configs",
+    "to_config",
+    "validate",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot run; the message is one line saying what to change."""
+
+
+@dataclass
+class EnvConfig:
+    id: str = "CartPole-v1"  # any registered Gymnasium id with a vector obs and discrete actions
+    max_episode_steps: int | None = None  # None: Gymnasium's registered TimeLimit
+
+
+@dataclass
+class AlgoConfig:
+    name: str = "dqn"  # preset name, recorded in summary.json
+
+
+@dataclass
+class NetworkConfig:
+    head: str = "plain"  # see trl_cartpole.models.HEADS
+    hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])
+    activation: str = "relu"  # relu | tanh | elu | gelu
+
+
+@dataclass
+class ExplorationConfig:
+    schedule: str = "exponential"  # exponential (PyTorch tutorial) | linear (TorchRL)
+    eps_start: float = 0.9
+    eps_end: float = 0.05
+    decay_frames: int = 1000  # exponential: time constant; linear: frames to reach eps_end
+
+
+@dataclass
+class BufferConfig:
+    size: int = 10_000
+    batch_size: int = 128
+
+
+@dataclass
+class LossConfig:
+    gamma: float = 0.99
+    loss_function: str = "smooth_l1"  # smooth_l1 (Huber, as the tutorial) | l2
+    double_dqn: bool = False
+    target_update: str = "soft"  # soft (Polyak, tau) | hard (copy every N updates)
+    tau: float = 0.005
+    hard_update_interval: int = 100  # gradient updates between hard copies
+
+
+@dataclass
+class OptimConfig:
+    lr: float = 1e-4
+    amsgrad: bool = True
+    weight_decay: float = 0.01  # torch.optim.AdamW's default, which the tutorial uses
+    grad_clip: str = "value"  # value | norm | none
+    max_grad: float = 100.0  # the clip value (per element) or the max norm
+
+
+@dataclass
+class CollectorConfig:
+    total_frames: int = 100_000
+    frames_per_batch: int = 1
+    init_random_frames: int = 0  # frames drawn with a uniform random policy first
+    updates_per_batch: int = 1  # gradient steps after each collected batch
+    learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
+
+
+@dataclass
+class EvalConfig:
+    interval_frames: int = 1000  # greedy evaluation every this many frames
+    episodes: int = 20  # episodes per periodic evaluation
+    final_episodes: int = 100  # episodes for the final evaluation of the best policy
+    solve_threshold: float | None = None  # None: Gymnasium's reward_threshold for the env
+    stop_when_solved: bool = True
+    max_steps: int = 10_000  # step cap for an episode of an env with no TimeLimit
+    seed_offset: int = 1_000_000  # eval env seed = seed + seed_offset
+
+
+@dataclass
+class LoggerConfig:
+    backend: str = "csv"  # csv | tensorboard | none
+    progress_bar: bool = True
+    plots: bool = True
+
+
+@dataclass
+class CheckpointConfig:
+    save_best: bool = True  # the best policy by periodic evaluation
+    save_last: bool = True  # the full training state at the end of the run
+    include_buffer: bool = True  # store the replay buffer in the last training state
+
+
+@dataclass
+class Config:
+    seed: int = 0
+    run_dir: str = "runs/${env.id}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
+    device: str = "cpu"
+    num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
+    env: EnvConfig = field(default_factory=EnvConfig)
+    algo: AlgoConfig = field(default_factory=AlgoConfig)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
+    buffer: BufferConfig = field(default_factory=BufferConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    collector: CollectorConfig = field(default_factory=CollectorConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+
+
+if not OmegaConf.has_resolver("now"):
+    OmegaConf.register_new_resolver(
+        "now", lambda pattern: datetime.now().strftime(pattern), use_cache=True
+    )
+
+
+def register_configs() -> None:
+    """Register the schema with Hydra's ConfigStore as ``base_config``."""
+    from hydra.core.config_store import ConfigStore
+
+    ConfigStore.instance().store(name="base_config", node=Config)
+
+
+def to_config(cfg: Config | DictConfig | dict[str, Any]) -> Config:
+    """Return a resolved :class:`Config` from a dataclass, a DictConfig or a plain dict."""
+    if isinstance(cfg, Config):
+        merged = OmegaConf.merge(OmegaConf.structured(Config), OmegaConf.structured(cfg))
+    else:
+        merged = OmegaConf.merge(OmegaConf.structured(Config), cfg)
+    return OmegaConf.to_object(merged)
+
+
+_CHOICES = {
+    "exploration.schedule": ("exponential", "linear"),
+    "loss.loss_function": ("smooth_l1", "l2"),
+    "loss.target_update": ("soft", "hard"),
+    "optim.grad_clip": ("value", "norm", "none"),
+    "logger.backend": ("csv", "tensorboard", "none"),
+    "network.activation": ("relu", "tanh", "elu", "gelu"),
+}
+
+
+def _get(cfg: Config, dotted: str) -> Any:
+    value: Any = cfg
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def validate(cfg: Config) -> Config:
+    """Check ranges and cross-field rules; raise :class:`ConfigError` on the first failure."""
+    for key, options in _CHOICES.items():
+        if _get(cfg, key) not in options:
+            raise ConfigError(
+                f"{key}={_get(cfg, key)!r} is not a known option; choose one of {list(options)}"
+            )
+    checks: list[tuple[bool, str]] = [
+        (0.0 < cfg.loss.gamma <= 1.0, f"loss.gamma={cfg.loss.gamma} must lie in (0, 1]"),
+        (0.0 < cfg.loss.tau <= 1.0, f"loss.tau={cfg.loss.tau} must lie in (0, 1]"),
+        (cfg.loss.hard_update_interval >= 1, "loss.hard_update_interval must be >= 1"),
+        (cfg.buffer.size >= 1, f"buffer.size={cfg.buffer.size} must be >= 1"),
+        (cfg.buffer.batch_size >= 1, f"buffer.batch_size={cfg.buffer.batch_size} must be >= 1"),
+        (
+            cfg.buffer.batch_size <= cfg.buffer.size,
+            f"buffer.batch_size={cfg.buffer.batch_size} is larger than buffer.size="
+            f"{cfg.buffer.size}; lower the batch size or grow the buffer",
+        ),
+        (
+            0.0 <= cfg.exploration.eps_end <= cfg.exploration.eps_start <= 1.0,
+            f"exploration needs 0 <= eps_end <= eps_start <= 1, got eps_start="
+            f"{cfg.exploration.eps_start}, eps_end={cfg.exploration.eps_end}",
+        ),
+        (cfg.exploration.decay_frames >= 1, "exploration.decay_frames must be >= 1"),
+        (cfg.optim.lr > 0, f"optim.lr={cfg.optim.lr} must be > 0"),
+        (cfg.optim.weight_decay >= 0, "optim.weight_decay must be >= 0"),
+        (cfg.optim.max_grad > 0, f"optim.max_grad={cfg.optim.max_grad} must be > 0"),
+        (
+            all(size >= 1 for size in cfg.network.hidden_sizes),
+            f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
+        ),
+        (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
+        (
+            cfg.collector.total_frames >= cfg.collector.frames_per_batch,
+            f"collector.total_frames={cfg.collector.total_frames} must be >= "
+            f"collector.frames_per_batch={cfg.collector.frames_per_batch}",
+        ),
+        (cfg.collector.init_random_frames >= 0, "collector.init_random_frames must be >= 0"),
+        (cfg.collector.updates_per_batch >= 0, "collector.updates_per_batch must be >= 0"),
+        (cfg.collector.learning_starts >= 0, "collector.learning_starts must be >= 0"),
+        (cfg.eval.interval_frames >= 1, "eval.interval_frames must be >= 1"),
+        (cfg.eval.episodes >= 1, "eval.episodes must be >= 1"),
+        (cfg.eval.final_episodes >= 1, "eval.final_episodes must be >= 1"),
+        (cfg.eval.max_steps >= 1, "eval.max_steps must be >= 1"),
+        (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
+        (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
+        (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise ConfigError(message)
+    if cfg.device != "cpu" and not cfg.device.startswith(("cuda", "mps")):
+        raise ConfigError(f"device={cfg.device!r} is not a torch device; use cpu or cuda[:N]")
+    from trl_cartpole.envs import check_env_id  # local import: envs imports gymnasium
+    from trl_cartpole.models import HEADS
+
+    if cfg.network.head not in HEADS:
+        raise ConfigError(
+            f"network.head={cfg.network.head!r} is not a known head; choose one of {sorted(HEADS)}"
+        )
+    check_env_id(cfg.env.id)
+    return cfg

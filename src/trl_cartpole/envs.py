@@ -1,0 +1,95 @@
+"""Environment factory: a Gymnasium env wrapped in TorchRL transforms, and the fit check.
+
+DQN as built here needs a single observation vector and a finite set of actions. The check
+runs on the TorchRL specs of the built env, so the message names what the env really has.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import torch
+from torchrl.data import Categorical, Composite, OneHot
+from torchrl.envs import Compose, DoubleToFloat, GymEnv, RewardSum, StepCounter, TransformedEnv
+
+from trl_cartpole.config import ConfigError
+
+__all__ = ["check_env_fits", "check_env_id", "make_env", "solve_threshold"]
+
+OBSERVATION_KEY = "observation"
+
+
+def check_env_id(env_id: str) -> None:
+    """Raise :class:`ConfigError` if Gymnasium does not know ``env_id``."""
+    try:
+        gym.spec(env_id)
+    except gym.error.Error as error:
+        raise ConfigError(
+            f"env.id={env_id!r} is not a registered Gymnasium env ({error}); "
+            "check the spelling and version suffix, e.g. CartPole-v1"
+        ) from None
+
+
+def solve_threshold(env_id: str, override: float | None = None) -> float | None:
+    """The return that counts as solved: ``override`` or Gymnasium's ``reward_threshold``."""
+    if override is not None:
+        return float(override)
+    threshold = gym.spec(env_id).reward_threshold
+    return None if threshold is None else float(threshold)
+
+
+def check_env_fits(env: TransformedEnv | GymEnv, env_id: str) -> None:
+    """Raise :class:`ConfigError` unless ``env`` has one vector observation and discrete actions."""
+    action_spec = env.action_spec
+    if not isinstance(action_spec, (OneHot, Categorical)):
+        raise ConfigError(
+            f"env {env_id!r} has a {type(action_spec).__name__} action space; "
+            "DQN needs discrete actions (a Gymnasium Discrete space)"
+        )
+    observation_spec = env.observation_spec
+    keys = list(observation_spec.keys(True, True))
+    obs = observation_spec.get(OBSERVATION_KEY, None) if OBSERVATION_KEY in keys else None
+    if obs is None or isinstance(obs, Composite) or len(keys) != 1:
+        raise ConfigError(
+            f"env {env_id!r} has observation entries {keys}; "
+            "DQN here needs one vector observation (a Gymnasium Box of rank 1)"
+        )
+    if obs.ndim != 1:
+        raise ConfigError(
+            f"env {env_id!r} has an observation of shape {tuple(obs.shape)}; "
+            "DQN here needs a vector (rank 1): flatten images or use a vector-state env"
+        )
+
+
+def make_env(
+    env_id: str = "CartPole-v1",
+    seed: int | None = None,
+    device: str | torch.device = "cpu",
+    max_episode_steps: int | None = None,
+) -> TransformedEnv:
+    """Build ``GymEnv(env_id)`` wrapped in ``StepCounter``, ``RewardSum`` (+ ``DoubleToFloat``).
+
+    The returned env writes ``("next", "step_count")`` and ``("next", "episode_reward")`` so the
+    training loop reads episode lengths and returns off the collected batch. Gymnasium's
+    TimeLimit sets ``truncated`` (not ``terminated``) at the step limit, so the TD target keeps
+    bootstrapping there.
+    """
+    check_env_id(env_id)
+    make_kwargs = {} if max_episode_steps is None else {"max_episode_steps": max_episode_steps}
+    try:
+        base_env = GymEnv(env_id, device=device, **make_kwargs)
+    except (ImportError, gym.error.DependencyNotInstalled) as error:
+        raise ConfigError(
+            f"env {env_id!r} needs a package that is not installed ({error})"
+        ) from None
+    try:
+        check_env_fits(base_env, env_id)
+    except ConfigError:
+        base_env.close()
+        raise
+    transforms = [StepCounter(), RewardSum()]
+    if base_env.observation_spec[OBSERVATION_KEY].dtype == torch.float64:
+        transforms.append(DoubleToFloat())
+    env = TransformedEnv(base_env, Compose(*transforms))
+    if seed is not None:
+        env.set_seed(seed)
+    return env

@@ -1,0 +1,314 @@
+"""``train(cfg)``: compose the TorchRL components and run the DQN loop (Mnih et al. 2015).
+
+One collected batch at a time: extend the replay buffer, take ``updates_per_batch`` gradient
+steps on uniform samples, move the target network, step epsilon, sync the collector's policy,
+and every ``eval.interval_frames`` play greedy episodes on a separate env. At the end the best
+policy (by periodic evaluation) is evaluated over ``eval.final_episodes`` episodes and
+``summary.json`` is written.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import random
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import tensordict
+import torch
+import torchrl
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictSequential
+from tqdm.auto import tqdm
+
+from trl_cartpole.buffers import make_replay_buffer
+from trl_cartpole.checkpoint import save_policy, save_training_state
+from trl_cartpole.collectors import make_collector
+from trl_cartpole.config import Config, ConfigError, to_config, validate
+from trl_cartpole.envs import make_env, solve_threshold
+from trl_cartpole.evaluation import EvalResult, evaluate
+from trl_cartpole.exploration import make_exploration
+from trl_cartpole.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.metrics import History, make_logger
+from trl_cartpole.models import make_q_actor
+from trl_cartpole.plotting import plot_dashboard, plot_durations
+from trl_cartpole.update import make_optimizer, make_update
+
+__all__ = ["TRANSITION_KEYS", "prepare_run_dir", "seed_everything", "train"]
+
+# What the replay buffer stores of a collected frame; the rest (Q-values, counters) is dropped.
+TRANSITION_KEYS = (
+    "observation",
+    "action",
+    ("next", "observation"),
+    ("next", "reward"),
+    ("next", "done"),
+    ("next", "terminated"),
+    ("next", "truncated"),
+)
+
+
+def seed_everything(seed: int) -> None:
+    """Seed Python's ``random``, NumPy and torch (the env seeds are set by ``make_env``)."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def prepare_run_dir(run_dir: str | Path) -> Path:
+    """Create ``run_dir`` or raise a one-line ConfigError if it cannot be written."""
+    path = Path(run_dir)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".write-probe"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as error:
+        raise ConfigError(
+            f"run_dir={str(path)!r} is not writable ({error.strerror}); choose another run_dir"
+        ) from None
+    return path
+
+
+def _write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(payload, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+class _Stopwatch:
+    """Wall time with pauses, so evaluation can be left out of the training time."""
+
+    def __init__(self) -> None:
+        self.elapsed = 0.0
+        self._start: float | None = None
+
+    def start(self) -> None:
+        self._start = time.perf_counter()
+
+    def pause(self) -> None:
+        if self._start is not None:
+            self.elapsed += time.perf_counter() - self._start
+            self._start = None
+
+    @property
+    def seconds(self) -> float:
+        running = 0.0 if self._start is None else time.perf_counter() - self._start
+        return self.elapsed + running
+
+
+@dataclass
+class _Progress:
+    frames: int = 0
+    updates: int = 0
+    best_eval: float = -float("inf")
+    best_state: dict[str, torch.Tensor] | None = None
+    frames_to_solve: int | None = None
+    seconds_to_solve: float | None = None
+    last_eval_frame: int = -1
+    history: History = field(default_factory=History)
+
+
+def _log(logger, scalars: dict[str, float], step: int) -> None:
+    if logger is not None:
+        for name, value in scalars.items():
+            logger.log_scalar(name, float(value), step=step)
+
+
+def _record_episodes(batch: TensorDictBase, progress: _Progress, logger) -> None:
+    """Append finished episodes of ``batch`` ``[frames_per_batch]`` to the history and log."""
+    done = batch["next", "done"].reshape(-1)  # [F]
+    if not done.any():
+        return
+    returns = batch["next", "episode_reward"].reshape(-1)[done].tolist()
+    lengths = batch["next", "step_count"].reshape(-1)[done].tolist()
+    for episode_return, length in zip(returns, lengths, strict=True):
+        progress.history.episode_returns.append(episode_return)
+        progress.history.episode_lengths.append(length)
+        _log(logger, {"train/episode_return": episode_return, "train/episode_length": length},
+             progress.frames)
+
+
+def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
+    """Train DQN as configured, write the run directory and return the summary dict."""
+    cfg = validate(to_config(cfg))
+    wall_start = time.perf_counter()
+    torch.set_num_threads(cfg.num_threads)
+    seed_everything(cfg.seed)
+    run_dir = prepare_run_dir(cfg.run_dir)
+    OmegaConf.save(OmegaConf.structured(cfg), run_dir / "config.yaml")
+    threshold = solve_threshold(cfg.env.id, cfg.eval.solve_threshold)
+
+    # --- components: each a stock TorchRL object -------------------------------------------
+    env = make_env(cfg.env.id, cfg.seed, cfg.device, cfg.env.max_episode_steps)
+    eval_env = make_env(
+        cfg.env.id, cfg.seed + cfg.eval.seed_offset, cfg.device, cfg.env.max_episode_steps
+    )
+    actor = make_q_actor(
+        env.observation_spec, env.action_spec, cfg.network.hidden_sizes,
+        cfg.network.activation, cfg.network.head, cfg.device,
+    )
+    exploration = make_exploration(
+        env.action_spec, cfg.exploration.schedule, cfg.exploration.eps_start,
+        cfg.exploration.eps_end, cfg.exploration.decay_frames, cfg.device,
+    )
+    policy = TensorDictSequential(actor, exploration)
+    buffer = make_replay_buffer(cfg.buffer.size, cfg.buffer.batch_size, cfg.device)
+    loss = make_dqn_loss(actor, cfg.loss.gamma, cfg.loss.loss_function, cfg.loss.double_dqn)
+    target_updater = make_target_updater(
+        loss, cfg.loss.target_update, cfg.loss.tau, cfg.loss.hard_update_interval
+    )
+    optimizer = make_optimizer(
+        actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad, cfg.optim.weight_decay
+    )
+    update = make_update(loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad)
+    collector = make_collector(
+        env, policy, cfg.collector.frames_per_batch, cfg.collector.total_frames,
+        cfg.collector.init_random_frames, cfg.device,
+    )
+    logger = make_logger(cfg.logger.backend, run_dir)
+    learning_starts = max(
+        cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
+    )
+
+    progress = _Progress()
+    history = progress.history
+    train_clock = _Stopwatch()
+    bar = tqdm(
+        total=cfg.collector.total_frames, disable=not cfg.logger.progress_bar,
+        unit="frame", dynamic_ncols=True, desc=f"{cfg.env.id} {cfg.algo.name} seed={cfg.seed}",
+    )
+
+    def run_evaluation() -> bool:
+        """Greedy evaluation; keeps the best weights; returns whether the env is solved."""
+        result = evaluate(actor, eval_env, cfg.eval.episodes, cfg.eval.max_steps)
+        progress.last_eval_frame = progress.frames
+        history.eval_frames.append(progress.frames)
+        history.eval_returns.append(result.mean)
+        history.eval_initial_values.append(result.initial_value)
+        _log(logger, {"eval/return_mean": result.mean, "eval/return_std": result.std,
+                      "eval/initial_value": result.initial_value}, progress.frames)
+        if result.mean > progress.best_eval:
+            progress.best_eval = result.mean
+            progress.best_state = copy.deepcopy(actor.state_dict())
+            if cfg.checkpoint.save_best:
+                save_policy(run_dir / "checkpoints" / "best", actor, cfg,
+                            frames=progress.frames, eval_return_mean=result.mean)
+        solved = threshold is not None and result.mean >= threshold
+        if solved and progress.frames_to_solve is None:
+            progress.frames_to_solve = progress.frames
+            progress.seconds_to_solve = train_clock.seconds
+        bar.set_postfix(eval=f"{result.mean:.1f}", best=f"{progress.best_eval:.1f}",
+                        refresh=False)
+        return solved
+
+    # --- the loop ----------------------------------------------------------------------------
+    train_clock.start()
+    for batch in collector:  # batch: [frames_per_batch]
+        progress.frames += batch.numel()
+        buffer.extend(batch.reshape(-1).select(*TRANSITION_KEYS))
+        _record_episodes(batch, progress, logger)
+
+        if len(buffer) >= learning_starts:
+            for _ in range(cfg.collector.updates_per_batch):
+                metrics = update(buffer.sample())
+                target_updater.step()
+                progress.updates += 1
+                history.update_frames.append(progress.frames)
+                history.td_losses.append(metrics["loss"].item())
+                history.grad_norms.append(metrics["grad_norm"].item())
+        exploration.step(batch.numel())
+        collector.update_policy_weights_()
+
+        bar.update(batch.numel())
+        if history.episode_returns:
+            bar.set_postfix(ep_return=f"{history.episode_returns[-1]:.0f}",
+                            eps=f"{exploration.eps.item():.3f}", refresh=False)
+        if progress.updates and progress.updates % 100 == 0:
+            _log(logger, {"train/td_loss": history.td_losses[-1],
+                          "train/grad_norm": history.grad_norms[-1],
+                          "train/epsilon": exploration.eps.item()}, progress.frames)
+
+        if progress.frames - max(progress.last_eval_frame, 0) >= cfg.eval.interval_frames:
+            train_clock.pause()
+            solved = run_evaluation()
+            train_clock.start()
+            if solved and cfg.eval.stop_when_solved:
+                break
+    train_clock.pause()
+    bar.close()
+    if cfg.checkpoint.save_last:
+        save_training_state(
+            run_dir / "checkpoints" / "last", cfg,
+            counters={"frames": progress.frames, "updates": progress.updates},
+            policy=actor, loss=loss, optimizer=optimizer, exploration=exploration,
+            collector=collector, **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer
+                                    else {}),
+        )
+    collector.shutdown()
+
+    if progress.last_eval_frame != progress.frames:
+        run_evaluation()
+
+    # --- final evaluation of the best policy, artefacts ------------------------------------
+    actor.load_state_dict(progress.best_state)
+    final_env = make_env(
+        cfg.env.id, cfg.seed + 2 * cfg.eval.seed_offset, cfg.device, cfg.env.max_episode_steps
+    )
+    final = evaluate(actor, final_env, cfg.eval.final_episodes, cfg.eval.max_steps)
+    _log(logger, {"eval/final_return_mean": final.mean}, progress.frames)
+
+    if cfg.logger.plots:
+        title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
+        plot_durations(history.episode_lengths, run_dir / "durations.png", title)
+        plot_dashboard(history.eval_frames, history.eval_returns, history.eval_initial_values,
+                       history.update_frames, history.td_losses, history.grad_norms,
+                       run_dir / "dashboard.png")
+    for closable in (env, eval_env, final_env):
+        closable.close()
+
+    summary = _summary(cfg, progress, final, threshold, train_clock.seconds, wall_start, run_dir)
+    _write_json_atomic(run_dir / "summary.json", summary)
+    return summary
+
+
+def _summary(
+    cfg: Config, progress: _Progress, final: EvalResult, threshold: float | None,
+    train_seconds: float, wall_start: float, run_dir: Path,
+) -> dict[str, Any]:
+    best = run_dir / "checkpoints" / "best"
+    return {
+        "env_id": cfg.env.id,
+        "seed": cfg.seed,
+        "algo": cfg.algo.name,
+        "frames": progress.frames,
+        "updates": progress.updates,
+        "train_seconds": round(train_seconds, 3),
+        "wall_seconds": round(time.perf_counter() - wall_start, 3),
+        "solved": progress.frames_to_solve is not None,
+        "solve_threshold": threshold,
+        "frames_to_solve": progress.frames_to_solve,
+        "seconds_to_solve": None if progress.seconds_to_solve is None
+        else round(progress.seconds_to_solve, 3),
+        "final_eval_return_mean": final.mean,
+        "final_eval_return_std": final.std,
+        "final_eval_episodes": len(final.returns),
+        "final_eval_returns": final.returns,
+        "best_eval_return_mean": progress.best_eval,
+        "episodes": len(progress.history.episode_returns),
+        "checkpoint": str(best) if cfg.checkpoint.save_best else None,
+        "run_dir": str(run_dir),
+        "versions": {
+            "torch": torch.__version__,
+            "torchrl": torchrl.__version__,
+            "tensordict": tensordict.__version__,
+            "gymnasium": gym.__version__,
+        },
+    }

@@ -1,0 +1,58 @@
+"""One gradient step of DQN: loss, backward, gradient clipping, optimizer step.
+
+``make_update`` closes over the loss module and the optimizer and returns a function of the
+sampled batch only, with no Python-side state, so ``torch.compile`` can take it whole.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import nn
+
+__all__ = ["make_optimizer", "make_update"]
+
+
+def make_optimizer(
+    params: Iterable[nn.Parameter],
+    lr: float = 1e-4,
+    amsgrad: bool = True,
+    weight_decay: float = 0.01,
+) -> torch.optim.AdamW:
+    """AdamW (Loshchilov & Hutter 2019), with AMSGrad (Reddi et al. 2018) as in the tutorial."""
+    return torch.optim.AdamW(params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay)
+
+
+def make_update(
+    loss_module: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    grad_clip: str = "value",
+    max_grad: float = 100.0,
+) -> Callable[[TensorDictBase], TensorDict]:
+    """Return ``update(batch) -> TensorDict(loss=[], grad_norm=[])``.
+
+    ``grad_clip="value"`` clamps each gradient element to ``[-max_grad, max_grad]`` (the
+    tutorial's ``clip_grad_value_(..., 100)``); ``"norm"`` rescales the whole gradient to an
+    L2 norm of at most ``max_grad``; ``"none"`` leaves it. ``grad_norm`` is measured before
+    clipping.
+    """
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    if grad_clip not in ("value", "norm", "none"):
+        raise ValueError(f"optim.grad_clip={grad_clip!r}; choose 'value', 'norm' or 'none'")
+
+    def update(batch: TensorDictBase) -> TensorDict:
+        optimizer.zero_grad(set_to_none=True)
+        loss = loss_module(batch)["loss"]  # [] (mean over the batch)
+        loss.backward()
+        if grad_clip == "norm":
+            grad_norm = nn.utils.clip_grad_norm_(params, max_grad)
+        else:
+            grad_norm = nn.utils.get_total_norm([p.grad for p in params if p.grad is not None])
+            if grad_clip == "value":
+                nn.utils.clip_grad_value_(params, max_grad)
+        optimizer.step()
+        return TensorDict(loss=loss.detach(), grad_norm=grad_norm.detach())
+
+    return update
