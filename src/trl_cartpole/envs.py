@@ -9,7 +9,15 @@ from __future__ import annotations
 import gymnasium as gym
 import torch
 from torchrl.data import Categorical, Composite, OneHot
-from torchrl.envs import Compose, DoubleToFloat, GymEnv, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs import (
+    Compose,
+    DoubleToFloat,
+    GymEnv,
+    GymWrapper,
+    RewardSum,
+    StepCounter,
+    TransformedEnv,
+)
 
 from trl_cartpole.config import ConfigError
 
@@ -53,9 +61,10 @@ def check_env_fits(env: TransformedEnv | GymEnv, env_id: str) -> None:
             f"env {env_id!r} has observation entries {keys}; "
             "DQN here needs one vector observation (a Gymnasium Box of rank 1)"
         )
-    if obs.ndim != 1:
+    obs_shape = tuple(obs.shape[len(env.batch_size) :])  # drop the batch dims of a vector env
+    if len(obs_shape) != 1:
         raise ConfigError(
-            f"env {env_id!r} has an observation of shape {tuple(obs.shape)}; "
+            f"env {env_id!r} has an observation of shape {obs_shape}; "
             "DQN here needs a vector (rank 1): flatten images or use a vector-state env"
         )
 
@@ -65,8 +74,13 @@ def make_env(
     seed: int | None = None,
     device: str | torch.device = "cpu",
     max_episode_steps: int | None = None,
+    num_envs: int = 1,
 ) -> TransformedEnv:
     """Build ``GymEnv(env_id)`` wrapped in ``StepCounter``, ``RewardSum`` (+ ``DoubleToFloat``).
+
+    With ``num_envs > 1`` the base env is a Gymnasium ``SyncVectorEnv`` (one process, same-step
+    autoreset) in TorchRL's ``GymWrapper``, batch size ``[num_envs]``: evaluation plays all its
+    episodes in one batched rollout.
 
     The returned env writes ``("next", "step_count")`` and ``("next", "episode_reward")`` so the
     training loop reads episode lengths and returns off the collected batch. Gymnasium's
@@ -76,7 +90,17 @@ def make_env(
     check_env_id(env_id)
     make_kwargs = {} if max_episode_steps is None else {"max_episode_steps": max_episode_steps}
     try:
-        base_env = GymEnv(env_id, device=device, **make_kwargs)
+        if num_envs == 1:
+            base_env = GymEnv(env_id, device=device, **make_kwargs)
+        else:
+            vector_env = gym.make_vec(
+                env_id,
+                num_envs=num_envs,
+                vectorization_mode="sync",
+                vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
+                **make_kwargs,
+            )
+            base_env = GymWrapper(vector_env, device=device)
     except (ImportError, gym.error.DependencyNotInstalled) as error:
         raise ConfigError(
             f"env {env_id!r} needs a package that is not installed ({error})"

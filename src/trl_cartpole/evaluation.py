@@ -8,7 +8,7 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
-__all__ = ["EvalResult", "evaluate"]
+__all__ = ["EvalResult", "evaluate", "first_episode_mask"]
 
 
 @dataclass
@@ -32,21 +32,32 @@ class EvalResult:
         return float(torch.tensor(self.initial_values).mean())
 
 
-@torch.no_grad()
-def evaluate(
-    actor: TensorDictModuleBase, env: EnvBase, episodes: int = 20, max_steps: int = 10_000
-) -> EvalResult:
-    """Play ``episodes`` episodes with the greedy policy (``ExplorationType.DETERMINISTIC``).
+def first_episode_mask(done: torch.Tensor) -> torch.Tensor:
+    """``[E, T]`` bool: True for the steps of each env's first episode, its last step included.
 
-    Episodes run one after the other on ``env``, whose seed was set once at creation, so the
-    sequence of start states is fixed for a given seed. ``actor`` must write ``action`` and
-    ``action_value`` (a ``QValueActor``), so exploration modules are not part of it.
+    ``done`` is ``[E, T]``; a step belongs to the first episode while no earlier step was done.
     """
-    result = EvalResult()
+    done = done.long()
+    return (done.cumsum(-1) - done) == 0
+
+
+@torch.no_grad()
+def evaluate(actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000) -> EvalResult:
+    """Play one greedy episode (``ExplorationType.DETERMINISTIC``) in each env of ``env``.
+
+    ``env`` is a batched env of batch size ``[E]`` (``make_env(..., num_envs=E)``): the rollout
+    runs until every env has finished one episode (or ``max_steps``), and only each env's first
+    episode counts. ``actor`` must write ``action_value`` (a ``QValueActor``).
+    """
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(episodes):
-            rollout = env.rollout(max_steps, actor, break_when_any_done=True)
-            result.returns.append(float(rollout["next", "reward"].sum()))
-            result.lengths.append(int(rollout.shape[-1]))
-            result.initial_values.append(float(rollout[0]["action_value"].max()))
-    return result
+        rollout = env.rollout(max_steps, actor, break_when_all_done=True)  # [E, T]
+    if rollout.ndim == 1:  # a single, unbatched env: [T] -> [1, T]
+        rollout = rollout.unsqueeze(0)
+    first = first_episode_mask(rollout["next", "done"].squeeze(-1))  # [E, T]
+    rewards = rollout["next", "reward"].squeeze(-1)  # [E, T]
+    initial_q = rollout["action_value"][:, 0]  # [E, num_actions]
+    return EvalResult(
+        returns=(rewards * first).sum(-1).tolist(),
+        lengths=first.sum(-1).tolist(),
+        initial_values=initial_q.max(-1).values.tolist(),
+    )

@@ -148,9 +148,8 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
     # --- components: each a stock TorchRL object -------------------------------------------
     env = make_env(cfg.env.id, cfg.seed, cfg.device, cfg.env.max_episode_steps)
-    eval_env = make_env(
-        cfg.env.id, cfg.seed + cfg.eval.seed_offset, cfg.device, cfg.env.max_episode_steps
-    )
+    eval_env = make_env(cfg.env.id, cfg.seed + cfg.eval.seed_offset, cfg.device,
+                        cfg.env.max_episode_steps, num_envs=cfg.eval.episodes)
     actor = make_q_actor(
         env.observation_spec, env.action_spec, cfg.network.hidden_sizes,
         cfg.network.activation, cfg.network.head, cfg.device,
@@ -188,7 +187,7 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
     def run_evaluation() -> bool:
         """Greedy evaluation; keeps the best weights; returns whether the env is solved."""
-        result = evaluate(actor, eval_env, cfg.eval.episodes, cfg.eval.max_steps)
+        result = evaluate(actor, eval_env, cfg.eval.max_steps)
         progress.last_eval_frame = progress.frames
         history.eval_frames.append(progress.frames)
         history.eval_returns.append(result.mean)
@@ -259,10 +258,9 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
     # --- final evaluation of the best policy, artefacts ------------------------------------
     actor.load_state_dict(progress.best_state)
-    final_env = make_env(
-        cfg.env.id, cfg.seed + 2 * cfg.eval.seed_offset, cfg.device, cfg.env.max_episode_steps
-    )
-    final = evaluate(actor, final_env, cfg.eval.final_episodes, cfg.eval.max_steps)
+    final_env = make_env(cfg.env.id, cfg.seed + 2 * cfg.eval.seed_offset, cfg.device,
+                         cfg.env.max_episode_steps, num_envs=cfg.eval.final_episodes)
+    final = evaluate(actor, final_env, cfg.eval.max_steps)
     _log(logger, {"eval/final_return_mean": final.mean}, progress.frames)
 
     if cfg.logger.plots:
