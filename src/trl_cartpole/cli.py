@@ -32,12 +32,27 @@ def compose_config(config_dir: str | Path, overrides: Sequence[str]) -> DictConf
         return compose(config_name="config", overrides=list(overrides))
 
 
+_NOISE = (
+    "To append to your config",
+    "full_key:",
+    "object_type=",
+    "reference_type=",
+    "Config search path",
+    "provider=",
+)
+
+
 def _one_line(error: BaseException) -> str:
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    # Hydra/OmegaConf put the useful part first and details (full_key, object_type) after.
-    text = lines[0] if lines else type(error).__name__
-    detail = next((line for line in lines[1:] if line.startswith("full_key:")), None)
-    return f"{text} ({detail})" if detail and detail.split(":", 1)[1].strip() not in text else text
+    """Join the informative lines of ``error`` and its cause into one line."""
+    parts: list[str] = []
+    current: BaseException | None = error
+    while current is not None:
+        for line in str(current).splitlines():
+            line = line.strip().rstrip(".:")
+            if line and not line.startswith(_NOISE) and line not in parts:
+                parts.append(line)
+        current = current.__cause__
+    return ": ".join(parts) if parts else type(error).__name__
 
 
 def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None) -> int:

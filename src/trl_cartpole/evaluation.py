@@ -61,3 +61,32 @@ def evaluate(actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000)
         lengths=first.sum(-1).tolist(),
         initial_values=initial_q.max(-1).values.tolist(),
     )
+
+
+def evaluate_checkpoint(
+    checkpoint: str, episodes: int = 100, seed: int | None = None
+) -> tuple[EvalResult, dict]:
+    """Rebuild the policy a checkpoint was trained with, load it, and evaluate it greedily.
+
+    The env and network come from the config stored in the checkpoint's manifest; ``seed``
+    defaults to the training seed plus twice the eval seed offset (the final evaluation's).
+    Returns the result and the stored config as a dict.
+    """
+    from omegaconf import OmegaConf
+
+    from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
+    from trl_cartpole.envs import make_env
+    from trl_cartpole.models import make_q_actor
+
+    cfg = read_checkpoint_config(checkpoint)
+    if seed is None:
+        seed = cfg.seed + 2 * cfg.eval.seed_offset
+    env = make_env(cfg.env.id, seed, "cpu", cfg.env.max_episode_steps, num_envs=episodes)
+    actor = make_q_actor(
+        env.observation_spec, env.action_spec, cfg.network.hidden_sizes,
+        cfg.network.activation, cfg.network.head,
+    )
+    load_policy(checkpoint, actor)
+    result = evaluate(actor, env, cfg.eval.max_steps)
+    env.close()
+    return result, OmegaConf.to_container(OmegaConf.structured(cfg))

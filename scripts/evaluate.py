@@ -1,0 +1,60 @@
+"""Greedy evaluation of a checkpoint.
+
+    python scripts/evaluate.py checkpoint=runs/.../checkpoints/best episodes=100 [seed=N] [output=FILE]
+
+Prints mean, std, min and max of the per-episode returns and writes them all as JSON
+(default: ``evaluation.json`` beside the checkpoint directory).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from trl_cartpole.cli import run_cli
+from trl_cartpole.config import ConfigError
+from trl_cartpole.evaluation import evaluate_checkpoint
+
+
+@dataclass
+class EvaluateArgs:
+    checkpoint: str = "???"
+    episodes: int = 100
+    seed: int | None = None
+    output: str | None = None
+
+
+def main(argv: list[str]) -> None:
+    args = OmegaConf.to_object(
+        OmegaConf.merge(OmegaConf.structured(EvaluateArgs), OmegaConf.from_dotlist(argv))
+    )
+    if args.episodes < 1:
+        raise ConfigError(f"episodes={args.episodes} must be >= 1")
+    result, cfg = evaluate_checkpoint(args.checkpoint, args.episodes, args.seed)
+    returns = result.returns
+    report = {
+        "checkpoint": args.checkpoint,
+        "env_id": cfg["env"]["id"],
+        "episodes": len(returns),
+        "mean": result.mean,
+        "std": result.std,
+        "min": min(returns),
+        "max": max(returns),
+        "returns": returns,
+        "lengths": result.lengths,
+    }
+    output = Path(args.output) if args.output else Path(args.checkpoint).parent / "evaluation.json"
+    output.write_text(json.dumps(report, indent=2) + "\n")
+    print(
+        f"{report['env_id']}: greedy return over {len(returns)} episodes: "
+        f"{report['mean']:.1f} +/- {report['std']:.1f} (min {report['min']:.0f}, "
+        f"max {report['max']:.0f}); written to {output}"
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(run_cli(main))
