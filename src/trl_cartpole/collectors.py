@@ -31,4 +31,5 @@ def make_collector(
         total_frames=total_frames,
         init_random_frames=init_random_frames or None,
         device=device,
+        auto_register_policy_transforms=False,  # the Q-policy needs no env transform
     )

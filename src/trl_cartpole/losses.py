@@ -37,11 +37,12 @@ def make_target_updater(
 ) -> TargetNetUpdater:
     """Return ``SoftUpdate`` (theta' <- tau theta + (1 - tau) theta') or ``HardUpdate``.
 
-    Call ``.step()`` once per gradient update. ``HardUpdate`` copies the online weights every
-    ``hard_update_interval`` calls.
+    Call ``.step()`` once per gradient update. The hard update copies the online weights on
+    every ``hard_update_interval``-th call: TorchRL's ``HardUpdate`` copies on call
+    ``value_network_update_interval + 1``, so it is given ``hard_update_interval - 1``.
     """
     if kind == "soft":
         return SoftUpdate(loss, tau=tau)
     if kind == "hard":
-        return HardUpdate(loss, value_network_update_interval=hard_update_interval)
+        return HardUpdate(loss, value_network_update_interval=hard_update_interval - 1)
     raise ValueError(f"loss.target_update={kind!r}; choose 'soft' or 'hard'")

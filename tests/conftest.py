@@ -1,0 +1,44 @@
+"""Shared fixtures: the repository paths and a tiny, fast training config."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from trl_cartpole.cli import compose_config
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIG_DIR = ROOT / "configs"
+SCRIPTS = ROOT / "scripts"
+
+# A few hundred frames: enough to fill the buffer, update, evaluate and checkpoint.
+SMOKE_OVERRIDES = [
+    "collector.total_frames=300",
+    "collector.init_random_frames=64",
+    "buffer.batch_size=32",
+    "eval.interval_frames=150",
+    "eval.episodes=3",
+    "eval.final_episodes=4",
+    "logger.progress_bar=false",
+]
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    torch.set_num_threads(1)
+
+
+@pytest.fixture
+def compose():
+    def _compose(*overrides: str):
+        return compose_config(CONFIG_DIR, list(overrides))
+
+    return _compose
+
+
+@pytest.fixture
+def python() -> str:
+    return sys.executable

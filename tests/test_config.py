@@ -1,0 +1,95 @@
+"""Config composition, the presets, and bad input stopping the run with one clear line."""
+
+from __future__ import annotations
+
+import subprocess
+
+import pytest
+from hydra.errors import HydraException
+from omegaconf.errors import OmegaConfBaseException
+
+from trl_cartpole.config import Config, ConfigError, to_config, validate
+
+from .conftest import SCRIPTS
+
+
+def test_default_config_composes_and_validates(compose):
+    cfg = validate(to_config(compose()))
+    assert isinstance(cfg, Config)
+    assert cfg.env.id == "CartPole-v1"
+    assert cfg.algo.name == "dqn"
+
+
+def test_tutorial_preset_is_the_pytorch_tutorial(compose):
+    cfg = validate(to_config(compose("algo=tutorial")))
+    assert cfg.algo.name == "tutorial"
+    assert cfg.buffer.batch_size == 128 and cfg.buffer.size == 10_000
+    assert cfg.loss.gamma == 0.99 and cfg.loss.loss_function == "smooth_l1"
+    assert cfg.loss.target_update == "soft" and cfg.loss.tau == 0.005
+    assert cfg.exploration.schedule == "exponential"
+    assert (cfg.exploration.eps_start, cfg.exploration.eps_end) == (0.9, 0.05)
+    assert cfg.exploration.decay_frames == 1000
+    assert cfg.optim.lr == 1e-4 and cfg.optim.amsgrad and cfg.optim.weight_decay == 0.01
+    assert cfg.optim.grad_clip == "value" and cfg.optim.max_grad == 100.0
+    assert list(cfg.network.hidden_sizes) == [128, 128]
+    assert cfg.collector.frames_per_batch == 1 and cfg.collector.updates_per_batch == 1
+
+
+def test_contract_overrides_apply(compose):
+    cfg = to_config(compose("seed=3", "run_dir=/tmp/x", "env.id=Acrobot-v1",
+                            "collector.total_frames=1234"))
+    assert (cfg.seed, cfg.run_dir, cfg.env.id) == (3, "/tmp/x", "Acrobot-v1")
+    assert cfg.collector.total_frames == 1234
+
+
+def test_default_run_dir_names_env_algo_and_seed(compose):
+    cfg = to_config(compose("seed=5"))
+    assert cfg.run_dir.startswith("runs/CartPole-v1-dqn-seed5-")
+
+
+@pytest.mark.parametrize(
+    "override", ["buffer.batchsize=64", "loss.gamma=abc", "env=nosuchpreset", "algo=nosuch"]
+)
+def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
+    with pytest.raises((HydraException, OmegaConfBaseException)):
+        compose(override)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["loss.gamma=1.5"], r"loss.gamma=1.5 must lie in \(0, 1\]"),
+        (["loss.gamma=0"], r"loss.gamma=0.0 must lie in \(0, 1\]"),
+        (["buffer.size=100", "buffer.batch_size=128"], "larger than buffer.size=100"),
+        (["env.id=CartPoles-v1"], "is not a registered Gymnasium env"),
+        (["exploration.eps_start=0.01"], "eps_end <= eps_start"),
+        (["loss.loss_function=l3"], "choose one of"),
+        (["network.head=fancy"], "is not a known head"),
+        (["collector.total_frames=0"], "must be >= collector.frames_per_batch"),
+    ],
+)
+def test_impossible_values_raise_config_error(compose, overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        validate(to_config(compose(*overrides)))
+
+
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("loss.gama=0.5", "Key 'gama' not in 'LossConfig'"),
+        ("loss.gamma=1.5", "loss.gamma=1.5 must lie in (0, 1]"),
+        ("env.id=Nope-v0", "env.id='Nope-v0' is not a registered Gymnasium env"),
+        ("buffer.batch_size=big", "could not be converted to Integer"),
+    ],
+)
+def test_cli_bad_input_is_one_line_and_exit_2(python, tmp_path, override, expected):
+    run_dir = tmp_path / "run"
+    proc = subprocess.run(
+        [python, str(SCRIPTS / "train.py"), override, f"run_dir={run_dir}"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 2
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1 and expected in lines[0]
+    assert "Traceback" not in proc.stderr
+    assert not run_dir.exists()  # nothing written before training

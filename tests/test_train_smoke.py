@@ -1,0 +1,99 @@
+"""A few hundred frames through scripts/train.py: every file and summary key; determinism."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pytest
+import torch
+
+from trl_cartpole.checkpoint import load_policy
+from trl_cartpole.envs import make_env
+from trl_cartpole.models import make_q_actor
+from trl_cartpole.train import train
+
+from .conftest import SCRIPTS, SMOKE_OVERRIDES
+
+SUMMARY_KEYS = {
+    "env_id", "seed", "algo", "frames", "updates", "train_seconds", "wall_seconds", "solved",
+    "solve_threshold", "frames_to_solve", "seconds_to_solve", "final_eval_return_mean",
+    "final_eval_return_std", "final_eval_episodes", "best_eval_return_mean", "checkpoint",
+    "versions",
+}
+TIMING_KEYS = {"train_seconds", "wall_seconds", "seconds_to_solve", "run_dir", "checkpoint"}
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("smoke") / "run"
+    proc = subprocess.run(
+        [__import__("sys").executable, str(SCRIPTS / "train.py"), *SMOKE_OVERRIDES,
+         f"run_dir={run_dir}", "seed=1"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return run_dir, proc
+
+
+def test_run_directory_holds_every_artefact(smoke_run):
+    run_dir, proc = smoke_run
+    for name in ["summary.json", "config.yaml", "durations.png", "dashboard.png",
+                 "checkpoints/best/manifest.json", "checkpoints/last/manifest.json"]:
+        assert (run_dir / name).is_file(), name
+    scalars = run_dir / "metrics" / "scalars"
+    for name in ["train/episode_return", "train/episode_length", "train/td_loss",
+                 "eval/return_mean", "eval/final_return_mean"]:
+        assert (scalars / f"{name}.csv").is_file(), name
+    assert (run_dir / "durations.png").read_bytes()[:4] == b"\x89PNG"
+    assert f"run directory: {run_dir}" in proc.stdout
+
+
+def test_summary_has_every_key_with_consistent_values(smoke_run):
+    run_dir, _ = smoke_run
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert SUMMARY_KEYS <= summary.keys()
+    assert summary["env_id"] == "CartPole-v1" and summary["seed"] == 1
+    assert summary["algo"] == "dqn"
+    assert summary["frames"] == 300
+    # Updates start at init_random_frames=64 (> batch 32); fpb 4, 4 updates per batch.
+    assert summary["updates"] == (300 - 64) // 4 * 4 + 4
+    assert summary["solve_threshold"] == 475.0
+    assert summary["final_eval_episodes"] == 4 == len(summary["final_eval_returns"])
+    assert summary["final_eval_return_mean"] == pytest.approx(
+        sum(summary["final_eval_returns"]) / 4, rel=1e-5)
+    assert summary["solved"] is (summary["frames_to_solve"] is not None)
+    assert 0 < summary["train_seconds"] <= summary["wall_seconds"]
+    assert set(summary["versions"]) == {"torch", "torchrl", "tensordict", "gymnasium"}
+
+
+def test_best_checkpoint_loads_and_evaluates(smoke_run, python):
+    run_dir, _ = smoke_run
+    env = make_env("CartPole-v1")
+    actor = make_q_actor(env.observation_spec, env.action_spec)
+    before = [p.clone() for p in actor.parameters()]
+    load_policy(run_dir / "checkpoints" / "best", actor)
+    assert any(not torch.equal(a, b) for a, b in zip(before, actor.parameters(), strict=True))
+
+    out = run_dir / "eval.json"
+    proc = subprocess.run(
+        [python, str(SCRIPTS / "evaluate.py"), f"checkpoint={run_dir / 'checkpoints' / 'best'}",
+         "episodes=7", f"output={out}"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    report = json.loads(out.read_text())
+    assert report["episodes"] == 7 == len(report["returns"])
+    assert min(report["returns"]) == report["min"] and max(report["returns"]) == report["max"]
+    assert "greedy return over 7 episodes" in proc.stdout
+
+
+def test_same_seed_same_figures(compose, tmp_path):
+    summaries = []
+    for name in ("a", "b"):
+        cfg = compose(*SMOKE_OVERRIDES, "seed=4", f"run_dir={tmp_path / name}")
+        summaries.append(train(cfg))
+    first, second = ({k: v for k, v in s.items() if k not in TIMING_KEYS} for s in summaries)
+    assert first == second
+    losses = [(tmp_path / n / "metrics/scalars/train/td_loss.csv").read_text() for n in "ab"]
+    assert losses[0] == losses[1] and losses[0].count("\n") >= 2
