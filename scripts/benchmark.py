@@ -1,6 +1,7 @@
 """Median frames and seconds to solve over seeds, per preset.
 
-    python scripts/benchmark.py --algos dqn tutorial --seeds 0 1 2 3 4 [--out runs/bench] [-- key=value ...]
+    python scripts/benchmark.py --algos dqn tutorial --seeds 0 1 2 3 4 \
+        [--out runs/bench] [key=value ...]
 
 Each (preset, seed) is one ``scripts/train.py`` run in its own process (the machine's noise is
 the same for all); the table of medians is printed and written to ``OUT/results.md`` and
@@ -23,8 +24,15 @@ def run_one(algo: str, seed: int, out: Path, overrides: list[str]) -> dict:
     run_dir = out / f"{algo}-seed{seed}"
     summary_path = run_dir / "summary.json"
     if not summary_path.exists():
-        command = [sys.executable, str(TRAIN), f"algo={algo}", f"seed={seed}",
-                   f"run_dir={run_dir}", "logger.progress_bar=false", *overrides]
+        command = [
+            sys.executable,
+            str(TRAIN),
+            f"algo={algo}",
+            f"seed={seed}",
+            f"run_dir={run_dir}",
+            "logger.progress_bar=false",
+            *overrides,
+        ]
         subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return json.loads(summary_path.read_text())
 

@@ -1,6 +1,7 @@
 """Greedy evaluation of a checkpoint.
 
-    python scripts/evaluate.py checkpoint=runs/.../checkpoints/best episodes=100 [seed=N] [output=FILE]
+    python scripts/evaluate.py checkpoint=runs/.../checkpoints/best episodes=100 \
+        [seed=N] [output=FILE]
 
 Prints mean, std, min and max of the per-episode returns and writes them all as JSON
 (default: ``evaluation.json`` beside the checkpoint directory).

@@ -36,8 +36,9 @@ def test_tutorial_preset_is_the_pytorch_tutorial(compose):
 
 
 def test_contract_overrides_apply(compose):
-    cfg = to_config(compose("seed=3", "run_dir=/tmp/x", "env.id=Acrobot-v1",
-                            "collector.total_frames=1234"))
+    cfg = to_config(
+        compose("seed=3", "run_dir=/tmp/x", "env.id=Acrobot-v1", "collector.total_frames=1234")
+    )
     assert (cfg.seed, cfg.run_dir, cfg.env.id) == (3, "/tmp/x", "Acrobot-v1")
     assert cfg.collector.total_frames == 1234
 
@@ -86,7 +87,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(python, tmp_path, override, expect
     run_dir = tmp_path / "run"
     proc = subprocess.run(
         [python, str(SCRIPTS / "train.py"), override, f"run_dir={run_dir}"],
-        capture_output=True, text=True, timeout=120,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert proc.returncode == 2
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]

@@ -8,8 +8,13 @@ FRAME_BUDGET = 40_000
 
 
 def test_default_config_solves_cartpole(compose, tmp_path):
-    cfg = compose(f"collector.total_frames={FRAME_BUDGET}", f"run_dir={tmp_path}",
-                  "logger.progress_bar=false", "logger.plots=false", "seed=0")
+    cfg = compose(
+        f"collector.total_frames={FRAME_BUDGET}",
+        f"run_dir={tmp_path}",
+        "logger.progress_bar=false",
+        "logger.plots=false",
+        "seed=0",
+    )
     summary = train(cfg)
     assert summary["solved"], summary
     assert summary["frames_to_solve"] <= FRAME_BUDGET

@@ -83,8 +83,11 @@ def evaluate_checkpoint(
         seed = cfg.seed + 2 * cfg.eval.seed_offset
     env = make_env(cfg.env.id, seed, "cpu", cfg.env.max_episode_steps, num_envs=episodes)
     actor = make_q_actor(
-        env.observation_spec, env.action_spec, cfg.network.hidden_sizes,
-        cfg.network.activation, cfg.network.head,
+        env.observation_spec,
+        env.action_spec,
+        cfg.network.hidden_sizes,
+        cfg.network.activation,
+        cfg.network.head,
     )
     load_policy(checkpoint, actor)
     result = evaluate(actor, env, cfg.eval.max_steps)

@@ -48,7 +48,9 @@ def make_q_network(
 ) -> nn.Module:
     """Return the Q-network module ``[*B, obs_dim] -> [*B, num_actions]`` for ``head``."""
     if head not in HEADS:
-        raise ConfigError(f"network.head={head!r} is not a known head; choose one of {sorted(HEADS)}")
+        raise ConfigError(
+            f"network.head={head!r} is not a known head; choose one of {sorted(HEADS)}"
+        )
     if activation not in ACTIVATIONS:
         raise ConfigError(
             f"network.activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)}"

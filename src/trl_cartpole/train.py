@@ -58,7 +58,7 @@ TRANSITION_KEYS = (
 def seed_everything(seed: int) -> None:
     """Seed Python's ``random``, NumPy and torch (the env seeds are set by ``make_env``)."""
     random.seed(seed)
-    np.random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002 (global state that third-party code reads)
     torch.manual_seed(seed)
 
 
@@ -132,8 +132,11 @@ def _record_episodes(batch: TensorDictBase, progress: _Progress, logger) -> None
     for episode_return, length in zip(returns, lengths, strict=True):
         progress.history.episode_returns.append(episode_return)
         progress.history.episode_lengths.append(length)
-        _log(logger, {"train/episode_return": episode_return, "train/episode_length": length},
-             progress.frames)
+        _log(
+            logger,
+            {"train/episode_return": episode_return, "train/episode_length": length},
+            progress.frames,
+        )
 
 
 def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
@@ -148,15 +151,28 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
     # --- components: each a stock TorchRL object -------------------------------------------
     env = make_env(cfg.env.id, cfg.seed, cfg.device, cfg.env.max_episode_steps)
-    eval_env = make_env(cfg.env.id, cfg.seed + cfg.eval.seed_offset, cfg.device,
-                        cfg.env.max_episode_steps, num_envs=cfg.eval.episodes)
+    eval_env = make_env(
+        cfg.env.id,
+        cfg.seed + cfg.eval.seed_offset,
+        cfg.device,
+        cfg.env.max_episode_steps,
+        num_envs=cfg.eval.episodes,
+    )
     actor = make_q_actor(
-        env.observation_spec, env.action_spec, cfg.network.hidden_sizes,
-        cfg.network.activation, cfg.network.head, cfg.device,
+        env.observation_spec,
+        env.action_spec,
+        cfg.network.hidden_sizes,
+        cfg.network.activation,
+        cfg.network.head,
+        cfg.device,
     )
     exploration = make_exploration(
-        env.action_spec, cfg.exploration.schedule, cfg.exploration.eps_start,
-        cfg.exploration.eps_end, cfg.exploration.decay_frames, cfg.device,
+        env.action_spec,
+        cfg.exploration.schedule,
+        cfg.exploration.eps_start,
+        cfg.exploration.eps_end,
+        cfg.exploration.decay_frames,
+        cfg.device,
     )
     policy = TensorDictSequential(actor, exploration)
     buffer = make_replay_buffer(cfg.buffer.size, cfg.buffer.batch_size, cfg.device)
@@ -169,8 +185,12 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
     )
     update = make_update(loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad)
     collector = make_collector(
-        env, policy, cfg.collector.frames_per_batch, cfg.collector.total_frames,
-        cfg.collector.init_random_frames, cfg.device,
+        env,
+        policy,
+        cfg.collector.frames_per_batch,
+        cfg.collector.total_frames,
+        cfg.collector.init_random_frames,
+        cfg.device,
     )
     logger = make_logger(cfg.logger.backend, run_dir)
     learning_starts = max(
@@ -181,8 +201,11 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
     history = progress.history
     train_clock = _Stopwatch()
     bar = tqdm(
-        total=cfg.collector.total_frames, disable=not cfg.logger.progress_bar,
-        unit="frame", dynamic_ncols=True, desc=f"{cfg.env.id} {cfg.algo.name} seed={cfg.seed}",
+        total=cfg.collector.total_frames,
+        disable=not cfg.logger.progress_bar,
+        unit="frame",
+        dynamic_ncols=True,
+        desc=f"{cfg.env.id} {cfg.algo.name} seed={cfg.seed}",
     )
 
     def run_evaluation() -> bool:
@@ -192,20 +215,31 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         history.eval_frames.append(progress.frames)
         history.eval_returns.append(result.mean)
         history.eval_initial_values.append(result.initial_value)
-        _log(logger, {"eval/return_mean": result.mean, "eval/return_std": result.std,
-                      "eval/initial_value": result.initial_value}, progress.frames)
+        _log(
+            logger,
+            {
+                "eval/return_mean": result.mean,
+                "eval/return_std": result.std,
+                "eval/initial_value": result.initial_value,
+            },
+            progress.frames,
+        )
         if result.mean > progress.best_eval:
             progress.best_eval = result.mean
             progress.best_state = copy.deepcopy(actor.state_dict())
             if cfg.checkpoint.save_best:
-                save_policy(run_dir / "checkpoints" / "best", actor, cfg,
-                            frames=progress.frames, eval_return_mean=result.mean)
+                save_policy(
+                    run_dir / "checkpoints" / "best",
+                    actor,
+                    cfg,
+                    frames=progress.frames,
+                    eval_return_mean=result.mean,
+                )
         solved = threshold is not None and result.mean >= threshold
         if solved and progress.frames_to_solve is None:
             progress.frames_to_solve = progress.frames
             progress.seconds_to_solve = train_clock.seconds
-        bar.set_postfix(eval=f"{result.mean:.1f}", best=f"{progress.best_eval:.1f}",
-                        refresh=False)
+        bar.set_postfix(eval=f"{result.mean:.1f}", best=f"{progress.best_eval:.1f}", refresh=False)
         return solved
 
     # --- the loop ----------------------------------------------------------------------------
@@ -228,12 +262,21 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
         bar.update(batch.numel())
         if history.episode_returns:
-            bar.set_postfix(ep_return=f"{history.episode_returns[-1]:.0f}",
-                            eps=f"{exploration.eps.item():.3f}", refresh=False)
+            bar.set_postfix(
+                ep_return=f"{history.episode_returns[-1]:.0f}",
+                eps=f"{exploration.eps.item():.3f}",
+                refresh=False,
+            )
         if progress.updates and progress.updates % 100 == 0:
-            _log(logger, {"train/td_loss": history.td_losses[-1],
-                          "train/grad_norm": history.grad_norms[-1],
-                          "train/epsilon": exploration.eps.item()}, progress.frames)
+            _log(
+                logger,
+                {
+                    "train/td_loss": history.td_losses[-1],
+                    "train/grad_norm": history.grad_norms[-1],
+                    "train/epsilon": exploration.eps.item(),
+                },
+                progress.frames,
+            )
 
         if progress.frames - max(progress.last_eval_frame, 0) >= cfg.eval.interval_frames:
             train_clock.pause()
@@ -245,11 +288,15 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
     bar.close()
     if cfg.checkpoint.save_last:
         save_training_state(
-            run_dir / "checkpoints" / "last", cfg,
+            run_dir / "checkpoints" / "last",
+            cfg,
             counters={"frames": progress.frames, "updates": progress.updates},
-            policy=actor, loss=loss, optimizer=optimizer, exploration=exploration,
-            collector=collector, **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer
-                                    else {}),
+            policy=actor,
+            loss=loss,
+            optimizer=optimizer,
+            exploration=exploration,
+            collector=collector,
+            **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
         )
     collector.shutdown()
 
@@ -258,17 +305,28 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
     # --- final evaluation of the best policy, artefacts ------------------------------------
     actor.load_state_dict(progress.best_state)
-    final_env = make_env(cfg.env.id, cfg.seed + 2 * cfg.eval.seed_offset, cfg.device,
-                         cfg.env.max_episode_steps, num_envs=cfg.eval.final_episodes)
+    final_env = make_env(
+        cfg.env.id,
+        cfg.seed + 2 * cfg.eval.seed_offset,
+        cfg.device,
+        cfg.env.max_episode_steps,
+        num_envs=cfg.eval.final_episodes,
+    )
     final = evaluate(actor, final_env, cfg.eval.max_steps)
     _log(logger, {"eval/final_return_mean": final.mean}, progress.frames)
 
     if cfg.logger.plots:
         title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
         plot_durations(history.episode_lengths, run_dir / "durations.png", title)
-        plot_dashboard(history.eval_frames, history.eval_returns, history.eval_initial_values,
-                       history.update_frames, history.td_losses, history.grad_norms,
-                       run_dir / "dashboard.png")
+        plot_dashboard(
+            history.eval_frames,
+            history.eval_returns,
+            history.eval_initial_values,
+            history.update_frames,
+            history.td_losses,
+            history.grad_norms,
+            run_dir / "dashboard.png",
+        )
     for closable in (env, eval_env, final_env):
         closable.close()
 
@@ -278,8 +336,13 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
 
 def _summary(
-    cfg: Config, progress: _Progress, final: EvalResult, threshold: float | None,
-    train_seconds: float, wall_start: float, run_dir: Path,
+    cfg: Config,
+    progress: _Progress,
+    final: EvalResult,
+    threshold: float | None,
+    train_seconds: float,
+    wall_start: float,
+    run_dir: Path,
 ) -> dict[str, Any]:
     best = run_dir / "checkpoints" / "best"
     return {
@@ -293,7 +356,8 @@ def _summary(
         "solved": progress.frames_to_solve is not None,
         "solve_threshold": threshold,
         "frames_to_solve": progress.frames_to_solve,
-        "seconds_to_solve": None if progress.seconds_to_solve is None
+        "seconds_to_solve": None
+        if progress.seconds_to_solve is None
         else round(progress.seconds_to_solve, 3),
         "final_eval_return_mean": final.mean,
         "final_eval_return_std": final.std,
