@@ -76,19 +76,13 @@ def evaluate_checkpoint(
 
     from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
     from trl_cartpole.envs import make_env
-    from trl_cartpole.models import make_q_actor
+    from trl_cartpole.models import make_q_actor_for_env
 
     cfg = read_checkpoint_config(checkpoint)
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
     env = make_env(cfg.env.id, seed, "cpu", cfg.env.max_episode_steps, num_envs=episodes)
-    actor = make_q_actor(
-        env.observation_spec,
-        env.action_spec,
-        cfg.network.hidden_sizes,
-        cfg.network.activation,
-        cfg.network.head,
-    )
+    actor = make_q_actor_for_env(env, cfg.network)
     load_policy(checkpoint, actor)
     result = evaluate(actor, env, cfg.eval.max_steps)
     env.close()

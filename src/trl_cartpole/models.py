@@ -10,11 +10,12 @@ from collections.abc import Callable, Sequence
 
 from torch import nn
 from torchrl.data import TensorSpec
+from torchrl.envs import EnvBase
 from torchrl.modules import MLP, QValueActor
 
-from trl_cartpole.config import ConfigError
+from trl_cartpole.config import ConfigError, NetworkConfig
 
-__all__ = ["ACTIVATIONS", "HEADS", "make_q_actor", "make_q_network"]
+__all__ = ["ACTIVATIONS", "HEADS", "make_q_actor", "make_q_actor_for_env", "make_q_network"]
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "relu": nn.ReLU,
@@ -76,3 +77,15 @@ def make_q_actor(
     num_actions = action_spec.space.n
     module = make_q_network(obs_dim, num_actions, hidden_sizes, activation, head).to(device)
     return QValueActor(module, in_keys=["observation"], spec=action_spec.to(device))
+
+
+def make_q_actor_for_env(env: EnvBase, network: NetworkConfig, device: str = "cpu") -> QValueActor:
+    """``make_q_actor`` sized from ``env``'s specs, with the ``network`` section of the config."""
+    return make_q_actor(
+        env.observation_spec,
+        env.action_spec,
+        network.hidden_sizes,
+        network.activation,
+        network.head,
+        device,
+    )

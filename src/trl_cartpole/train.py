@@ -37,7 +37,7 @@ from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.metrics import History, make_logger
-from trl_cartpole.models import make_q_actor
+from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.plotting import plot_dashboard, plot_durations
 from trl_cartpole.update import make_optimizer, make_update
 
@@ -158,14 +158,7 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         cfg.env.max_episode_steps,
         num_envs=cfg.eval.episodes,
     )
-    actor = make_q_actor(
-        env.observation_spec,
-        env.action_spec,
-        cfg.network.hidden_sizes,
-        cfg.network.activation,
-        cfg.network.head,
-        cfg.device,
-    )
+    actor = make_q_actor_for_env(env, cfg.network, cfg.device)
     exploration = make_exploration(
         env.action_spec,
         cfg.exploration.schedule,
