@@ -130,6 +130,7 @@ class Config:
     run_dir: str = "runs/${env.id}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
     device: str = "cpu"
     num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
+    compile: bool = False  # torch.compile the gradient step (about 10 s once, then ~2x faster)
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)

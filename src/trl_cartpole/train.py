@@ -177,6 +177,8 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad, cfg.optim.weight_decay
     )
     update = make_update(loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad)
+    if cfg.compile:
+        update = torch.compile(update)
     collector = make_collector(
         env,
         policy,
