@@ -20,6 +20,13 @@ def test_default_config_composes_and_validates(compose):
     assert cfg.algo.name == "dqn"
 
 
+def test_schema_defaults_are_the_default_preset(compose):
+    """``train({...})`` without Hydra gets the same hyperparameters as ``scripts/train.py``."""
+    from_hydra = to_config(compose("run_dir=x"))
+    from_schema = to_config({"run_dir": "x"})
+    assert from_hydra == from_schema
+
+
 def test_tutorial_preset_is_the_pytorch_tutorial(compose):
     cfg = validate(to_config(compose("algo=tutorial")))
     assert cfg.algo.name == "tutorial"

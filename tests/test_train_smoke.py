@@ -87,8 +87,9 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
     assert summary["env_id"] == "CartPole-v1" and summary["seed"] == 1
     assert summary["algo"] == "dqn"
     assert summary["frames"] == 300
-    # Updates start at init_random_frames=64 (> batch 32); fpb 4, 4 updates per batch.
-    assert summary["updates"] == (300 - 64) // 4 * 4 + 4
+    # Updates start once the buffer holds init_random_frames=64 (> batch 32): batches 16..75
+    # of 4 frames, 2 updates each.
+    assert summary["updates"] == 60 * 2
     assert summary["solve_threshold"] == 475.0
     assert summary["final_eval_episodes"] == 4 == len(summary["final_eval_returns"])
     assert summary["final_eval_return_mean"] == pytest.approx(
@@ -135,4 +136,10 @@ def test_same_seed_same_figures(compose, tmp_path):
     first, second = ({k: v for k, v in s.items() if k not in TIMING_KEYS} for s in summaries)
     assert first == second
     losses = [(tmp_path / n / "metrics/scalars/train/td_loss.csv").read_text() for n in "ab"]
-    assert losses[0] == losses[1] and losses[0].count("\n") >= 2
+    assert losses[0] == losses[1] and losses[0].count("\n") >= 1
+    env = make_env("CartPole-v1")
+    actors = [make_q_actor(env.observation_spec, env.action_spec) for _ in "ab"]
+    for actor, name in zip(actors, "ab", strict=True):
+        load_policy(tmp_path / name / "checkpoints" / "best", actor)
+    for p_a, p_b in zip(actors[0].parameters(), actors[1].parameters(), strict=True):
+        assert torch.equal(p_a, p_b)

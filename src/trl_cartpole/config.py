@@ -1,5 +1,8 @@
 """Typed configuration schema and the rules between its fields.
 
+The schema's defaults are the tuned default preset (``configs/algo/dqn.yaml`` restates them), so
+``train({...})`` without Hydra trains what ``python scripts/train.py`` trains.
+
 The dataclasses below are the schema Hydra composes ``configs/`` onto (registered in
 Hydra's ConfigStore as ``base_config``): a misspelt key or a wrong type fails at
 composition time. :func:`validate` then checks what a type cannot express (ranges and
@@ -59,16 +62,16 @@ class NetworkConfig:
 
 @dataclass
 class ExplorationConfig:
-    schedule: str = "exponential"  # exponential (PyTorch tutorial) | linear (TorchRL)
-    eps_start: float = 0.9
+    schedule: str = "linear"  # linear (TorchRL's annealing) | exponential (PyTorch tutorial)
+    eps_start: float = 1.0
     eps_end: float = 0.05
-    decay_frames: int = 1000  # exponential: time constant; linear: frames to reach eps_end
+    decay_frames: int = 3000  # linear: frames to reach eps_end; exponential: time constant
 
 
 @dataclass
 class BufferConfig:
-    size: int = 10_000
-    batch_size: int = 128
+    size: int = 50_000
+    batch_size: int = 256
 
 
 @dataclass
@@ -77,25 +80,25 @@ class LossConfig:
     loss_function: str = "smooth_l1"  # smooth_l1 (Huber, as the tutorial) | l2
     double_dqn: bool = False
     target_update: str = "soft"  # soft (Polyak, tau) | hard (copy every N updates)
-    tau: float = 0.005
+    tau: float = 0.01
     hard_update_interval: int = 100  # gradient updates between hard copies
 
 
 @dataclass
 class OptimConfig:
-    lr: float = 1e-4
+    lr: float = 1e-3
     amsgrad: bool = True
-    weight_decay: float = 0.01  # torch.optim.AdamW's default, which the tutorial uses
-    grad_clip: str = "value"  # value | norm | none
-    max_grad: float = 100.0  # the clip value (per element) or the max norm
+    weight_decay: float = 0.0  # the tutorial keeps AdamW's default 0.01
+    grad_clip: str = "norm"  # norm | value | none
+    max_grad: float = 10.0  # the max norm, or the clip value per element
 
 
 @dataclass
 class CollectorConfig:
-    total_frames: int = 100_000
-    frames_per_batch: int = 1
-    init_random_frames: int = 0  # frames drawn with a uniform random policy first
-    updates_per_batch: int = 1  # gradient steps after each collected batch
+    total_frames: int = 50_000
+    frames_per_batch: int = 4
+    init_random_frames: int = 1000  # frames drawn with a uniform random policy first
+    updates_per_batch: int = 2  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
 
 
