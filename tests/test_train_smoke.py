@@ -143,3 +143,19 @@ def test_same_seed_same_figures(compose, tmp_path):
         load_policy(tmp_path / name / "checkpoints" / "best", actor)
     for p_a, p_b in zip(actors[0].parameters(), actors[1].parameters(), strict=True):
         assert torch.equal(p_a, p_b)
+
+
+def test_update_metrics_logged_whenever_100_updates_pass(compose, tmp_path):
+    """With 3 updates per batch the counter never lands on a multiple of 100 after a batch."""
+    overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("collector.updates_per_batch")]
+    cfg = compose(
+        *overrides,
+        "collector.updates_per_batch=3",
+        "logger.plots=false",
+        "checkpoint.save_last=false",
+        f"run_dir={tmp_path}",
+    )
+    summary = train(cfg)
+    assert summary["updates"] == 60 * 3  # 180 updates: the 100th falls inside a batch
+    rows = (tmp_path / "metrics/scalars/train/td_loss.csv").read_text().splitlines()
+    assert len(rows) == 1

@@ -55,6 +55,9 @@ TRANSITION_KEYS = (
 )
 
 
+UPDATE_LOG_INTERVAL = 100  # log TD loss, grad norm and epsilon once per this many updates
+
+
 def seed_everything(seed: int) -> None:
     """Seed Python's ``random``, NumPy and torch (the env seeds are set by ``make_env``)."""
     random.seed(seed)
@@ -202,6 +205,7 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         dynamic_ncols=True,
         desc=f"{cfg.env.id} {cfg.algo.name} seed={cfg.seed}",
     )
+    postfix: dict[str, str] = {}  # ep_return, eps, eval, best: shown together on the bar
 
     def run_evaluation() -> bool:
         """Greedy evaluation; keeps the best weights; returns whether the env is solved."""
@@ -234,7 +238,8 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         if solved and progress.frames_to_solve is None:
             progress.frames_to_solve = progress.frames
             progress.seconds_to_solve = train_clock.seconds
-        bar.set_postfix(eval=f"{result.mean:.1f}", best=f"{progress.best_eval:.1f}", refresh=False)
+        postfix.update(eval=f"{result.mean:.1f}", best=f"{progress.best_eval:.1f}")
+        bar.set_postfix(postfix, refresh=False)
         return solved
 
     # --- the loop ----------------------------------------------------------------------------
@@ -244,6 +249,7 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         buffer.extend(batch.reshape(-1).select(*TRANSITION_KEYS))
         _record_episodes(batch, progress, logger)
 
+        updates_before = progress.updates
         if len(buffer) >= learning_starts:
             for _ in range(cfg.collector.updates_per_batch):
                 metrics = update(buffer.sample())
@@ -257,12 +263,10 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
 
         bar.update(batch.numel())
         if history.episode_returns:
-            bar.set_postfix(
-                ep_return=f"{history.episode_returns[-1]:.0f}",
-                eps=f"{exploration.eps.item():.3f}",
-                refresh=False,
-            )
-        if progress.updates and progress.updates % 100 == 0:
+            postfix.update(ep_return=f"{history.episode_returns[-1]:.0f}")
+        postfix.update(eps=f"{exploration.eps.item():.3f}")
+        bar.set_postfix(postfix, refresh=False)
+        if progress.updates // UPDATE_LOG_INTERVAL > updates_before // UPDATE_LOG_INTERVAL:
             _log(
                 logger,
                 {
