@@ -113,7 +113,12 @@ def make_env(
     transforms = [StepCounter(), RewardSum()]
     if base_env.observation_spec[OBSERVATION_KEY].dtype == torch.float64:
         transforms.append(DoubleToFloat())
-    env = TransformedEnv(base_env, Compose(*transforms))
+    if isinstance(base_env, TransformedEnv):  # GymWrapper wraps vector envs for their resets
+        for transform in transforms:
+            base_env.append_transform(transform)
+        env = base_env
+    else:
+        env = TransformedEnv(base_env, Compose(*transforms))
     if seed is not None:
         env.set_seed(seed)
     return env
