@@ -86,7 +86,7 @@ def test_q_actor_shapes_and_hidden_sizes(env):
 
 
 def test_unknown_head_lists_known_names(env):
-    with pytest.raises(ConfigError, match=r"choose one of \['plain'\]"):
+    with pytest.raises(ConfigError, match=r"choose one of \['dueling', 'plain'\]"):
         make_q_actor(env.observation_spec, env.action_spec, head="nope")
 
 

@@ -12,6 +12,7 @@ from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.envs import EnvBase
 from torchrl.modules import MLP, QValueActor
+from torchrl.modules.models.models import DuelingMlpDQNet
 
 from trl_cartpole.config import ConfigError, NetworkConfig
 
@@ -37,7 +38,28 @@ def _plain_head(
     )
 
 
-HEADS: dict[str, Callable[..., nn.Module]] = {"plain": _plain_head}
+def _dueling_head(
+    obs_dim: int, num_actions: int, hidden_sizes: Sequence[int], activation: type[nn.Module]
+) -> nn.Module:
+    """Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a') (Wang et al. 2016), TorchRL's DuelingMlpDQNet.
+
+    The torso is the plain head's hidden layers; V and A are one linear layer each on top of
+    it, so the dueling network has one ``Linear(hidden_sizes[-1], 1)`` more than the plain one.
+    """
+    return DuelingMlpDQNet(
+        num_actions,
+        mlp_kwargs_feature={
+            "in_features": obs_dim,
+            "num_cells": list(hidden_sizes[:-1]),
+            "out_features": hidden_sizes[-1],
+            "activation_class": activation,
+            "activate_last_layer": True,
+        },
+        mlp_kwargs_output={"depth": 0, "in_features": hidden_sizes[-1]},
+    )
+
+
+HEADS: dict[str, Callable[..., nn.Module]] = {"plain": _plain_head, "dueling": _dueling_head}
 
 
 def make_q_network(

@@ -1,0 +1,100 @@
+"""Double DQN and the dueling head change the math they claim to change."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import OneHot
+from torchrl.modules import QValueActor
+
+from trl_cartpole.config import to_config
+from trl_cartpole.envs import make_env
+from trl_cartpole.losses import make_dqn_loss
+from trl_cartpole.models import make_q_actor, make_q_network
+from trl_cartpole.train import train
+
+from .conftest import SMOKE_OVERRIDES
+
+W_ONLINE = [[1.0, 0.0], [0.0, 2.0]]  # Q_online(s') = [1, 2] at s' = [1, 1]: argmax is action 1
+W_TARGET = [[3.0, 0.0], [0.0, 1.0]]  # Q_target(s') = [3, 1]: max is 3, but Q_target(s', 1) = 1
+
+
+def _loss_with_disagreeing_networks(double_dqn: bool):
+    net = nn.Linear(2, 2, bias=False)
+    with torch.no_grad():
+        net.weight.copy_(torch.tensor(W_TARGET))
+    actor = QValueActor(net, in_keys=["observation"], spec=OneHot(2))
+    loss = make_dqn_loss(actor, gamma=0.5, loss_function="l2", double_dqn=double_dqn)
+    with torch.no_grad():  # the target network keeps W_TARGET; the online one moves on
+        net.weight.copy_(torch.tensor(W_ONLINE))
+    return loss
+
+
+def _batch() -> TensorDict:
+    # s = [3, 0], a = 0: Q_online(s, a) = 3; r = 1; s' = [1, 1]; not done.
+    not_done = torch.zeros(1, 1, dtype=torch.bool)
+    return TensorDict(
+        {
+            "observation": torch.tensor([[3.0, 0.0]]),
+            "action": torch.tensor([[1, 0]]),
+            "next": {
+                "observation": torch.tensor([[1.0, 1.0]]),
+                "reward": torch.ones(1, 1),
+                "done": not_done,
+                "terminated": not_done,
+                "truncated": not_done,
+            },
+        },
+        batch_size=[1],
+    )
+
+
+def test_double_dqn_target_uses_online_argmax_and_target_value():
+    # Double: y = 1 + 0.5 * Q_target(s', argmax Q_online(s', .)) = 1 + 0.5 * 1 = 1.5 -> d = 1.5
+    double = _loss_with_disagreeing_networks(double_dqn=True)(_batch())["loss"].item()
+    assert double == pytest.approx(1.5**2)
+    # Vanilla: y = 1 + 0.5 * max Q_target(s', .) = 2.5 -> d = 0.5
+    vanilla = _loss_with_disagreeing_networks(double_dqn=False)(_batch())["loss"].item()
+    assert vanilla == pytest.approx(0.5**2)
+
+
+def test_dueling_head_is_value_plus_centred_advantage():
+    torch.manual_seed(0)
+    net = make_q_network(obs_dim=4, num_actions=3, hidden_sizes=[16, 8], head="dueling")
+    obs = torch.randn(6, 4)
+    q = net(obs)  # [6, 3]
+    features = net.features(obs)  # [6, 8]
+    value, advantage = net.value(features), net.advantage(features)  # [6, 1], [6, 3]
+    assert torch.allclose(q, value + advantage - advantage.mean(-1, keepdim=True), atol=1e-6)
+    # The centred advantage Q - V has zero mean per state.
+    assert torch.allclose((q - value).mean(-1), torch.zeros(6), atol=1e-6)
+    linears = [(m.in_features, m.out_features) for m in net.modules() if isinstance(m, nn.Linear)]
+    assert linears == [(4, 16), (16, 8), (8, 3), (8, 1)]
+
+
+def test_dueling_head_plugs_into_a_q_value_actor():
+    env = make_env("CartPole-v1", seed=0)
+    actor = make_q_actor(env.observation_spec, env.action_spec, head="dueling")
+    td = actor(env.reset())
+    assert td["action_value"].shape == torch.Size([2])
+    assert td["action"].sum().item() == 1
+
+
+@pytest.mark.parametrize(
+    ("preset", "double_dqn", "head"), [("double", True, "plain"), ("dueling", False, "dueling")]
+)
+def test_variant_presets_switch_only_their_feature_and_train(
+    compose, tmp_path, preset, double_dqn, head
+):
+    cfg = to_config(compose(f"algo={preset}", f"run_dir={tmp_path}"))
+    default = to_config(compose(f"run_dir={tmp_path}"))
+    assert (cfg.loss.double_dqn, cfg.network.head) == (double_dqn, head)
+    assert cfg.optim == default.optim and cfg.buffer == default.buffer  # the rest is the default
+    summary = train(compose(f"algo={preset}", *SMOKE_OVERRIDES, f"run_dir={tmp_path}"))
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written["algo"] == preset == summary["algo"]
+    assert written["frames"] == 300 and written["final_eval_episodes"] == 4
