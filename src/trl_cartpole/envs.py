@@ -10,7 +10,6 @@ import gymnasium as gym
 import torch
 from torchrl.data import Categorical, Composite, OneHot
 from torchrl.envs import (
-    Compose,
     DoubleToFloat,
     GymEnv,
     GymWrapper,
@@ -113,12 +112,11 @@ def make_env(
     transforms = [StepCounter(), RewardSum()]
     if base_env.observation_spec[OBSERVATION_KEY].dtype == torch.float64:
         transforms.append(DoubleToFloat())
-    if isinstance(base_env, TransformedEnv):  # GymWrapper wraps vector envs for their resets
-        for transform in transforms:
-            base_env.append_transform(transform)
-        env = base_env
-    else:
-        env = TransformedEnv(base_env, Compose(*transforms))
+    # append_transform wraps a plain env in a TransformedEnv and extends an existing one (the
+    # GymWrapper of a vector env already is one, for its resets) instead of nesting them.
+    env = base_env
+    for transform in transforms:
+        env = env.append_transform(transform)
     if seed is not None:
         env.set_seed(seed)
     return env
