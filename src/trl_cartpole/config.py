@@ -175,7 +175,6 @@ _CHOICES = {
     "loss.target_update": ("soft", "hard"),
     "optim.grad_clip": ("value", "norm", "none"),
     "logger.backend": ("csv", "tensorboard", "none"),
-    "network.activation": ("relu", "tanh", "elu", "gelu"),
 }
 
 
@@ -239,12 +238,10 @@ def validate(cfg: Config) -> Config:
             raise ConfigError(message)
     if cfg.device != "cpu" and not cfg.device.startswith(("cuda", "mps")):
         raise ConfigError(f"device={cfg.device!r} is not a torch device; use cpu or cuda[:N]")
-    from trl_cartpole.envs import check_env_id  # local import: envs imports gymnasium
-    from trl_cartpole.models import HEADS
+    # Local imports: envs and models import this module.
+    from trl_cartpole.envs import check_env_id
+    from trl_cartpole.models import check_network_choices
 
-    if cfg.network.head not in HEADS:
-        raise ConfigError(
-            f"network.head={cfg.network.head!r} is not a known head; choose one of {sorted(HEADS)}"
-        )
+    check_network_choices(cfg.network.head, cfg.network.activation)
     check_env_id(cfg.env.id)
     return cfg

@@ -16,7 +16,14 @@ from torchrl.modules.models.models import DuelingMlpDQNet
 
 from trl_cartpole.config import ConfigError, NetworkConfig
 
-__all__ = ["ACTIVATIONS", "HEADS", "make_q_actor", "make_q_actor_for_env", "make_q_network"]
+__all__ = [
+    "ACTIVATIONS",
+    "HEADS",
+    "check_network_choices",
+    "make_q_actor",
+    "make_q_actor_for_env",
+    "make_q_network",
+]
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "relu": nn.ReLU,
@@ -62,6 +69,17 @@ def _dueling_head(
 HEADS: dict[str, Callable[..., nn.Module]] = {"plain": _plain_head, "dueling": _dueling_head}
 
 
+def check_network_choices(head: str, activation: str) -> None:
+    """Raise :class:`ConfigError` unless ``head`` and ``activation`` are known names."""
+    if head not in HEADS:
+        known = sorted(HEADS)
+        raise ConfigError(f"network.head={head!r} is not a known head; choose one of {known}")
+    if activation not in ACTIVATIONS:
+        raise ConfigError(
+            f"network.activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)}"
+        )
+
+
 def make_q_network(
     obs_dim: int,
     num_actions: int,
@@ -70,14 +88,7 @@ def make_q_network(
     head: str = "plain",
 ) -> nn.Module:
     """Return the Q-network module ``[*B, obs_dim] -> [*B, num_actions]`` for ``head``."""
-    if head not in HEADS:
-        raise ConfigError(
-            f"network.head={head!r} is not a known head; choose one of {sorted(HEADS)}"
-        )
-    if activation not in ACTIVATIONS:
-        raise ConfigError(
-            f"network.activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)}"
-        )
+    check_network_choices(head, activation)
     return HEADS[head](obs_dim, num_actions, hidden_sizes, ACTIVATIONS[activation])
 
 
