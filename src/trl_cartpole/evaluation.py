@@ -5,10 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import torch
+from omegaconf import OmegaConf
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
-__all__ = ["EvalResult", "evaluate", "first_episode_mask"]
+from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
+from trl_cartpole.envs import make_env
+from trl_cartpole.models import make_q_actor_for_env
+
+__all__ = ["EvalResult", "evaluate", "evaluate_checkpoint", "first_episode_mask"]
 
 
 @dataclass
@@ -72,12 +77,6 @@ def evaluate_checkpoint(
     defaults to the training seed plus twice the eval seed offset (the final evaluation's).
     Returns the result and the stored config as a dict.
     """
-    from omegaconf import OmegaConf
-
-    from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
-    from trl_cartpole.envs import make_env
-    from trl_cartpole.models import make_q_actor_for_env
-
     cfg = read_checkpoint_config(checkpoint)
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
