@@ -1,24 +1,87 @@
-"""Replay buffer factory: uniform sampling over a ``LazyTensorStorage``."""
+"""Replay buffer factory: uniform or prioritized sampling, optionally over n-step transitions.
+
+- Uniform: ``TensorDictReplayBuffer`` over a ``LazyTensorStorage`` with a ``RandomSampler``.
+- Prioritized (Schaul et al. 2016, proportional variant): ``TensorDictPrioritizedReplayBuffer``
+  samples i with P(i) = p_i / sum_k p_k, p_i = (|delta_i| + eps) ** alpha, and writes the
+  importance weights w_i = (N P(i)) ** -beta / max_k w_k to ``"priority_weight"``, which
+  ``DQNLoss`` and ``DistributionalDQNLoss`` apply. New transitions get the largest priority seen.
+- n-step (Sutton 1988; Hessel et al. 2018): TorchRL's ``MultiStepTransform`` (through
+  :class:`NStepTransform`) turns each stored transition into (s_t, a_t, R_t^(n), s_{t+k}),
+  R_t^(n) = sum_{j<k} gamma^j r_{t+j}, k = min(n, steps to the episode's end);
+  ``steps_to_next_obs`` = k makes the TD target bootstrap with gamma ** k.
+  ``("next", "terminated")`` is taken from step t+k-1, so a window that ends in a termination
+  does not bootstrap and one that ends in a truncation does.
+"""
 
 from __future__ import annotations
 
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from tensordict import TensorDictBase
+from torchrl.data import (
+    LazyTensorStorage,
+    TensorDictPrioritizedReplayBuffer,
+    TensorDictReplayBuffer,
+)
 from torchrl.data.replay_buffers import RandomSampler
+from torchrl.envs import MultiStepTransform
 
-__all__ = ["make_replay_buffer"]
+from trl_cartpole.segment_trees import install_if_missing
+
+__all__ = ["NStepTransform", "make_replay_buffer"]
+
+
+class NStepTransform(MultiStepTransform):
+    """``MultiStepTransform`` whose output fits both DQN losses.
+
+    ``("next", "terminated")`` follows the window's last step (it is left out of the done
+    keys the transform keeps at step t), and ``steps_to_next_obs`` is shaped ``[*B, 1]`` like
+    the reward, so ``DistributionalDQNLoss`` broadcasts gamma ** k over the atoms (TorchRL
+    writes it ``[*B]``; ``DQNLoss`` reshapes it either way).
+    """
+
+    def __init__(self, n_steps: int, gamma: float) -> None:
+        super().__init__(n_steps, gamma, done_keys=["done", "truncated"])
+
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase | None:
+        out = super()._inv_call(tensordict)
+        if out is not None:
+            steps = out.get("steps_to_next_obs")  # [*B]
+            out.set("steps_to_next_obs", steps.reshape(out["next", "reward"].shape))
+        return out
 
 
 def make_replay_buffer(
-    size: int = 10_000, batch_size: int = 128, device: str = "cpu"
+    size: int = 10_000,
+    batch_size: int = 128,
+    device: str = "cpu",
+    *,
+    prioritized: bool = False,
+    alpha: float = 0.6,
+    beta: float = 0.4,
+    priority_eps: float = 1e-6,
+    n_steps: int = 1,
+    gamma: float = 0.99,
 ) -> TensorDictReplayBuffer:
-    """Return a ``TensorDictReplayBuffer`` of capacity ``size`` sampling ``batch_size`` uniformly.
+    """Return a replay buffer of capacity ``size`` sampling ``batch_size`` transitions.
 
     The storage allocates lazily on the first ``extend`` from the collected batch's layout, so
-    the same factory serves any env. Sampling is with replacement (``RandomSampler``), as
-    TorchRL's DQN example does.
+    the same factory serves any env. Uniform sampling is with replacement (``RandomSampler``),
+    as TorchRL's DQN example does. With ``prioritized``, update the priorities after each
+    gradient step with ``buffer.update_priority(batch["index"], priority)``. With
+    ``n_steps > 1`` each ``extend`` stores the transitions whose n-step window is complete; the
+    last ``n_steps`` frames wait for the next ``extend``.
     """
+    storage = LazyTensorStorage(size, device=device)
+    transform = NStepTransform(n_steps, gamma) if n_steps > 1 else None
+    if prioritized:
+        install_if_missing()
+        return TensorDictPrioritizedReplayBuffer(
+            alpha=alpha,
+            beta=beta,
+            eps=priority_eps,
+            storage=storage,
+            batch_size=batch_size,
+            transform=transform,
+        )
     return TensorDictReplayBuffer(
-        storage=LazyTensorStorage(size, device=device),
-        sampler=RandomSampler(),
-        batch_size=batch_size,
+        storage=storage, sampler=RandomSampler(), batch_size=batch_size, transform=transform
     )

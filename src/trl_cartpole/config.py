@@ -58,11 +58,17 @@ class NetworkConfig:
     head: str = "plain"  # see trl_cartpole.models.HEADS
     hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])
     activation: str = "relu"  # relu | tanh | elu | gelu
+    noisy: bool = False  # NoisyLinear layers (Fortunato et al. 2018); needs exploration=none
+    noisy_std: float = 0.5  # sigma_0 of the factorised noise (the paper's 0.5)
+    distributional: bool = False  # C51 (Bellemare et al. 2017): a return distribution per action
+    atoms: int = 51  # support points of the distribution
+    v_min: float = 0.0  # support [v_min, v_max]; CartPole's returns lie in [0, 1 / (1 - gamma)]
+    v_max: float = 100.0
 
 
 @dataclass
 class ExplorationConfig:
-    schedule: str = "linear"  # linear (TorchRL's annealing) | exponential (PyTorch tutorial)
+    schedule: str = "linear"  # linear (TorchRL) | exponential (PyTorch tutorial) | none (noisy)
     eps_start: float = 1.0
     eps_end: float = 0.05
     decay_frames: int = 3000  # linear: frames to reach eps_end; exponential: time constant
@@ -72,6 +78,12 @@ class ExplorationConfig:
 class BufferConfig:
     size: int = 50_000
     batch_size: int = 256
+    prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
+    alpha: float = 0.6  # P(i) ~ (|delta_i| + priority_eps) ** alpha
+    beta: float = 0.4  # importance-sampling exponent at the start, annealed linearly to 1
+    beta_anneal_frames: int | None = None  # frames to reach beta = 1; None: collector.total_frames
+    priority_eps: float = 1e-6
+    n_steps: int = 1  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
 
 
 @dataclass
@@ -170,7 +182,7 @@ def to_config(cfg: Config | DictConfig | dict[str, Any]) -> Config:
 
 
 _CHOICES = {
-    "exploration.schedule": ("exponential", "linear"),
+    "exploration.schedule": ("exponential", "linear", "none"),
     "loss.loss_function": ("smooth_l1", "l2"),
     "loss.target_update": ("soft", "hard"),
     "optim.grad_clip": ("value", "norm", "none"),
@@ -229,6 +241,20 @@ def validate(cfg: Config) -> Config:
         (cfg.eval.episodes >= 1, "eval.episodes must be >= 1"),
         (cfg.eval.final_episodes >= 1, "eval.final_episodes must be >= 1"),
         (cfg.eval.max_steps >= 1, "eval.max_steps must be >= 1"),
+        (cfg.network.noisy_std > 0, f"network.noisy_std={cfg.network.noisy_std} must be > 0"),
+        (cfg.network.atoms >= 2, f"network.atoms={cfg.network.atoms} must be >= 2"),
+        (
+            cfg.network.v_min < cfg.network.v_max,
+            f"network.v_min={cfg.network.v_min} must be < network.v_max={cfg.network.v_max}",
+        ),
+        (cfg.buffer.alpha >= 0, f"buffer.alpha={cfg.buffer.alpha} must be >= 0"),
+        (0 <= cfg.buffer.beta <= 1, f"buffer.beta={cfg.buffer.beta} must lie in [0, 1]"),
+        (cfg.buffer.priority_eps > 0, "buffer.priority_eps must be > 0"),
+        (
+            cfg.buffer.beta_anneal_frames is None or cfg.buffer.beta_anneal_frames >= 1,
+            "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
+        ),
+        (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
         (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
         (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
         (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),
@@ -238,6 +264,7 @@ def validate(cfg: Config) -> Config:
             raise ConfigError(message)
     if cfg.device != "cpu" and not cfg.device.startswith(("cuda", "mps")):
         raise ConfigError(f"device={cfg.device!r} is not a torch device; use cpu or cuda[:N]")
+    _check_combination(cfg)
     # Local imports: envs and models import this module.
     from trl_cartpole.envs import check_env_id
     from trl_cartpole.models import check_network_choices
@@ -245,3 +272,29 @@ def validate(cfg: Config) -> Config:
     check_network_choices(cfg.network.head, cfg.network.activation)
     check_env_id(cfg.env.id)
     return cfg
+
+
+def _check_combination(cfg: Config) -> None:
+    """Refuse switches that the chosen components would ignore, rather than drop them silently."""
+    noisy, schedule = cfg.network.noisy, cfg.exploration.schedule
+    if noisy and schedule != "none":
+        raise ConfigError(
+            f"network.noisy=true explores through its parameter noise, so exploration.schedule="
+            f"{schedule!r} would add epsilon-greedy on top; set exploration.schedule=none"
+        )
+    if not noisy and schedule == "none":
+        raise ConfigError(
+            "exploration.schedule=none leaves a plain network with no exploration at all; "
+            "set network.noisy=true or choose exploration.schedule=linear|exponential"
+        )
+    if cfg.network.distributional:
+        if not cfg.loss.double_dqn:
+            raise ConfigError(
+                "network.distributional=true always picks the next action with the online "
+                "network (double DQN) and cannot switch it off; set loss.double_dqn=true"
+            )
+        if cfg.loss.loss_function != "smooth_l1":
+            raise ConfigError(
+                f"network.distributional=true trains with the cross-entropy to the projected "
+                f"target, not loss.loss_function={cfg.loss.loss_function!r}; leave it smooth_l1"
+            )

@@ -11,7 +11,7 @@ from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
 from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
 from trl_cartpole.envs import make_env
-from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.models import expected_action_values, make_q_actor_for_env
 
 __all__ = ["EvalResult", "evaluate", "evaluate_checkpoint", "first_episode_mask"]
 
@@ -52,7 +52,8 @@ def evaluate(actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000)
 
     ``env`` is a batched env of batch size ``[E]`` (``make_env(..., num_envs=E)``): the rollout
     runs until every env has finished one episode (or ``max_steps``), and only each env's first
-    episode counts. ``actor`` must write ``action_value`` (a ``QValueActor``).
+    episode counts. ``actor`` must write ``action_value`` (a ``QValueActor`` or a
+    ``DistributionalQValueActor``).
     """
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         rollout = env.rollout(max_steps, actor, break_when_all_done=True)  # [E, T]
@@ -60,7 +61,7 @@ def evaluate(actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000)
         rollout = rollout.unsqueeze(0)
     first = first_episode_mask(rollout["next", "done"].squeeze(-1))  # [E, T]
     rewards = rollout["next", "reward"].squeeze(-1)  # [E, T]
-    initial_q = rollout["action_value"][:, 0]  # [E, num_actions]
+    initial_q = expected_action_values(actor, rollout["action_value"][:, 0])  # [E, num_actions]
     return EvalResult(
         returns=(rewards * first).sum(-1).tolist(),
         lengths=first.sum(-1).tolist(),

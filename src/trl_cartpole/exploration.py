@@ -1,4 +1,7 @@
-"""Epsilon-greedy exploration: the tutorial's exponential schedule and TorchRL's linear one."""
+"""Epsilon-greedy exploration: the tutorial's exponential schedule and TorchRL's linear one.
+
+``schedule="none"`` builds no module: noisy networks explore through their parameter noise.
+"""
 
 from __future__ import annotations
 
@@ -42,15 +45,19 @@ def make_exploration(
     eps_end: float = 0.05,
     decay_frames: int = 1000,
     device: str = "cpu",
-) -> EGreedyModule:
+) -> EGreedyModule | None:
     """Return the epsilon-greedy module; the loop must call ``.step(frames)`` after each batch.
+
+    ``schedule="none"`` returns None (the policy is the greedy actor itself).
 
     ``schedule="linear"`` is TorchRL's ``EGreedyModule``: eps falls by
     ``(eps_start - eps_end) / decay_frames`` per frame down to ``eps_end``.
     """
+    if schedule == "none":
+        return None
     spec = action_spec.to(device)
     if schedule == "exponential":
         return ExponentialEGreedyModule(spec, eps_start, eps_end, decay_frames, device=device)
     if schedule == "linear":
         return EGreedyModule(spec, float(eps_start), float(eps_end), decay_frames, device=device)
-    raise ValueError(f"exploration.schedule={schedule!r}; choose 'exponential' or 'linear'")
+    raise ValueError(f"exploration.schedule={schedule!r}; choose 'exponential', 'linear' or 'none'")

@@ -1,27 +1,43 @@
-"""DQN loss and target-network updater factories.
+"""DQN loss and target-network updater factories, and the priorities a loss assigns.
 
-The TD target is y = r + gamma * (1 - terminated) * max_a Q_target(s', a) (Mnih et al. 2015);
-with ``double_dqn`` it is r + gamma * (1 - terminated) * Q_target(s', argmax_a Q_online(s', a))
-(van Hasselt et al. 2016). Only ``terminated`` stops bootstrapping: a time-limit truncation
-keeps it.
+The TD target is y = r + gamma^k * (1 - terminated) * max_a Q_target(s', a) (Mnih et al. 2015),
+with k = 1, or the n-step window's length (``steps_to_next_obs``) when the replay buffer stores
+n-step transitions. With ``double_dqn`` it is r + gamma^k * (1 - terminated) *
+Q_target(s', argmax_a Q_online(s', a)) (van Hasselt et al. 2016). Only ``terminated`` stops
+bootstrapping: a time-limit truncation keeps it.
+
+For a ``DistributionalQValueActor`` the loss is ``DistributionalDQNLoss`` (C51, Bellemare et
+al. 2017, algorithm 1): the target distribution r + gamma^k z on the target network's
+distribution at the online network's greedy next action (so double DQN is built in),
+projected onto the support, and the cross-entropy to it.
 """
 
 from __future__ import annotations
 
-from torchrl.modules import QValueActor
-from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
+import torch
+from tensordict import TensorDictBase
+from torchrl.modules import DistributionalQValueActor, QValueActor
+from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
-__all__ = ["make_dqn_loss", "make_target_updater"]
+__all__ = ["make_dqn_loss", "make_target_updater", "priority_from_loss"]
 
 
 def make_dqn_loss(
-    actor: QValueActor,
+    actor: QValueActor | DistributionalQValueActor,
     gamma: float = 0.99,
     loss_function: str = "smooth_l1",
     double_dqn: bool = False,
-) -> DQNLoss:
-    """Return a ``DQNLoss`` with a delayed (target) copy of ``actor`` and a TD(0) estimator."""
+) -> DQNLoss | DistributionalDQNLoss:
+    """Return the loss for ``actor`` with a delayed (target) copy of it and a TD(0) target.
+
+    A ``DistributionalQValueActor`` gets ``DistributionalDQNLoss``, which has neither
+    ``loss_function`` nor ``double_dqn`` (it is always double); ``config.validate`` refuses
+    settings it would ignore. Importance weights in the batch (``"priority_weight"``) are
+    applied by both: loss = sum_i w_i l_i / sum_i w_i.
+    """
+    if isinstance(actor, DistributionalQValueActor):
+        return DistributionalDQNLoss(actor, gamma=gamma, delay_value=True)
     loss = DQNLoss(
         actor,
         loss_function=loss_function,
@@ -32,8 +48,24 @@ def make_dqn_loss(
     return loss
 
 
+def priority_from_loss(
+    loss: DQNLoss | DistributionalDQNLoss, batch: TensorDictBase
+) -> torch.Tensor:
+    """The new replay priority ``[B]`` of each transition of a batch the loss has just seen.
+
+    ``DQNLoss`` writes the squared TD error to ``"td_error"``; the priority is |delta|
+    (Schaul et al. 2016). ``DistributionalDQNLoss`` writes the per-sample cross-entropy, the
+    priority Rainbow uses (Hessel et al. 2018).
+    """
+    written = batch.get(loss.tensor_keys.priority).reshape(-1)  # [B]
+    return written if isinstance(loss, DistributionalDQNLoss) else written.sqrt()
+
+
 def make_target_updater(
-    loss: DQNLoss, kind: str = "soft", tau: float = 0.005, hard_update_interval: int = 100
+    loss: DQNLoss | DistributionalDQNLoss,
+    kind: str = "soft",
+    tau: float = 0.005,
+    hard_update_interval: int = 100,
 ) -> TargetNetUpdater:
     """Return ``SoftUpdate`` (theta' <- tau theta + (1 - tau) theta') or ``HardUpdate``.
 

@@ -1,28 +1,44 @@
-"""Q-network factories: an MLP torso and head inside a TorchRL ``QValueActor``.
+"""Q-network factories: an MLP torso and a head inside a TorchRL Q-value actor.
 
-``HEADS`` maps a config name (``network.head``) to a function building the ``nn.Module``
-that maps an observation ``[*B, obs_dim]`` to action values ``[*B, num_actions]``.
+``HEADS`` maps a config name (``network.head``) to a function building the output layers on
+top of the torso. Two switches apply to every head:
+
+- ``noisy``: every linear layer is TorchRL's ``NoisyLinear`` (Fortunato et al. 2018), whose
+  factorised Gaussian noise is on under ``ExplorationType.RANDOM`` and off otherwise;
+- ``atoms``: the network outputs logits over a fixed support of returns, ``[*B, atoms,
+  num_actions]``, for a ``DistributionalQValueActor`` (C51, Bellemare et al. 2017); without it,
+  action values ``[*B, num_actions]`` for a ``QValueActor``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import partial
 
+import torch
 from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.envs import EnvBase
-from torchrl.modules import MLP, QValueActor
-from torchrl.modules.models.models import DuelingMlpDQNet
+from torchrl.modules import (
+    MLP,
+    DistributionalQValueActor,
+    NoisyLinear,
+    QValueActor,
+    reset_noise,
+)
 
 from trl_cartpole.config import ConfigError, NetworkConfig
 
 __all__ = [
     "ACTIVATIONS",
     "HEADS",
+    "DuelingHead",
     "check_network_choices",
+    "expected_action_values",
     "make_q_actor",
     "make_q_actor_for_env",
     "make_q_network",
+    "reset_network_noise",
 ]
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
@@ -33,36 +49,51 @@ ACTIVATIONS: dict[str, type[nn.Module]] = {
 }
 
 
+class DuelingHead(nn.Module):
+    """Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a') (Wang et al. 2016, eq. 9).
+
+    ``value`` maps features ``[*B, H]`` to ``[*B, atoms]`` and ``advantage`` to
+    ``[*B, atoms * num_actions]``; with ``atoms=1`` the output is squeezed to
+    ``[*B, num_actions]``, otherwise it is ``[*B, atoms, num_actions]`` logits, the
+    distributional dueling form of Rainbow (Hessel et al. 2018, eq. 5, before the softmax).
+    """
+
+    def __init__(self, value: nn.Module, advantage: nn.Module, num_actions: int, atoms: int):
+        super().__init__()
+        self.value = value
+        self.advantage = advantage
+        self.num_actions = num_actions
+        self.atoms = atoms
+
+    def streams(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return V ``[*B, atoms, 1]`` and the centred advantage ``[*B, atoms, num_actions]``."""
+        value = self.value(features).unsqueeze(-1)  # [*B, atoms, 1]
+        advantage = self.advantage(features).unflatten(-1, (self.atoms, self.num_actions))
+        return value, advantage - advantage.mean(-1, keepdim=True)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        value, centred_advantage = self.streams(features)
+        q = value + centred_advantage  # [*B, atoms, num_actions]
+        return q.squeeze(-2) if self.atoms == 1 else q
+
+
 def _plain_head(
-    obs_dim: int, num_actions: int, hidden_sizes: Sequence[int], activation: type[nn.Module]
+    in_features: int, num_actions: int, atoms: int, linear: Callable[..., nn.Module]
 ) -> nn.Module:
-    """Q(s, .) = MLP(s): the tutorial's Linear-ReLU-Linear-ReLU-Linear network."""
-    return MLP(
-        in_features=obs_dim,
-        out_features=num_actions,
-        num_cells=list(hidden_sizes),
-        activation_class=activation,
-    )
+    """One linear layer: Q(s, .) (or the atoms' logits) straight from the features."""
+    out = linear(in_features, atoms * num_actions)
+    return out if atoms == 1 else nn.Sequential(out, nn.Unflatten(-1, (atoms, num_actions)))
 
 
 def _dueling_head(
-    obs_dim: int, num_actions: int, hidden_sizes: Sequence[int], activation: type[nn.Module]
+    in_features: int, num_actions: int, atoms: int, linear: Callable[..., nn.Module]
 ) -> nn.Module:
-    """Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a') (Wang et al. 2016), TorchRL's DuelingMlpDQNet.
-
-    The torso is the plain head's hidden layers; V and A are one linear layer each on top of
-    it, so the dueling network has one ``Linear(hidden_sizes[-1], 1)`` more than the plain one.
-    """
-    return DuelingMlpDQNet(
-        num_actions,
-        mlp_kwargs_feature={
-            "in_features": obs_dim,
-            "num_cells": list(hidden_sizes[:-1]),
-            "out_features": hidden_sizes[-1],
-            "activation_class": activation,
-            "activate_last_layer": True,
-        },
-        mlp_kwargs_output={"depth": 0, "in_features": hidden_sizes[-1]},
+    """Value and advantage streams of one linear layer each (see :class:`DuelingHead`)."""
+    return DuelingHead(
+        value=linear(in_features, atoms),
+        advantage=linear(in_features, atoms * num_actions),
+        num_actions=num_actions,
+        atoms=atoms,
     )
 
 
@@ -86,10 +117,26 @@ def make_q_network(
     hidden_sizes: Sequence[int] = (128, 128),
     activation: str = "relu",
     head: str = "plain",
+    noisy: bool = False,
+    noisy_std: float = 0.5,
+    atoms: int | None = None,
 ) -> nn.Module:
-    """Return the Q-network module ``[*B, obs_dim] -> [*B, num_actions]`` for ``head``."""
+    """Return ``[*B, obs_dim] -> [*B, num_actions]`` (or ``[*B, atoms, num_actions]`` logits).
+
+    The torso is an MLP over ``hidden_sizes`` (activation after every hidden layer); the head
+    from ``HEADS`` maps its last hidden layer to the output.
+    """
     check_network_choices(head, activation)
-    return HEADS[head](obs_dim, num_actions, hidden_sizes, ACTIVATIONS[activation])
+    linear = partial(NoisyLinear, std_init=noisy_std) if noisy else nn.Linear
+    torso = MLP(
+        in_features=obs_dim,
+        out_features=hidden_sizes[-1],
+        num_cells=list(hidden_sizes[:-1]),
+        activation_class=ACTIVATIONS[activation],
+        activate_last_layer=True,
+        layer_class=linear,
+    )
+    return nn.Sequential(torso, HEADS[head](hidden_sizes[-1], num_actions, atoms or 1, linear))
 
 
 def make_q_actor(
@@ -99,21 +146,42 @@ def make_q_actor(
     activation: str = "relu",
     head: str = "plain",
     device: str = "cpu",
-) -> QValueActor:
-    """Return a ``QValueActor`` reading ``"observation"`` and writing ``"action"`` (greedy).
+    noisy: bool = False,
+    noisy_std: float = 0.5,
+    support: torch.Tensor | None = None,
+) -> QValueActor | DistributionalQValueActor:
+    """Return a Q-value actor reading ``"observation"`` and writing the greedy ``"action"``.
 
     ``observation_spec`` is the env's full observation spec (a ``Composite``) and
-    ``action_spec`` its action spec; the actor writes ``action_value`` ``[*B, num_actions]``,
-    ``chosen_action_value`` ``[*B, 1]`` and the arg-max ``action``.
+    ``action_spec`` its action spec. Without ``support`` it is a ``QValueActor`` writing
+    ``action_value`` ``[*B, num_actions]`` and ``chosen_action_value`` ``[*B, 1]``; with a
+    ``support`` ``[atoms]`` of returns it is a ``DistributionalQValueActor`` writing
+    log-probabilities ``action_value`` ``[*B, atoms, num_actions]`` and acting greedily on
+    their expectation.
     """
     obs_dim = observation_spec["observation"].shape[-1]
     num_actions = action_spec.space.n
-    module = make_q_network(obs_dim, num_actions, hidden_sizes, activation, head).to(device)
-    return QValueActor(module, in_keys=["observation"], spec=action_spec.to(device))
+    atoms = None if support is None else support.numel()
+    module = make_q_network(
+        obs_dim, num_actions, hidden_sizes, activation, head, noisy, noisy_std, atoms
+    ).to(device)
+    spec = action_spec.to(device)
+    if support is None:
+        return QValueActor(module, in_keys=["observation"], spec=spec)
+    return DistributionalQValueActor(
+        module, support=support.to(device), in_keys=["observation"], spec=spec
+    )
 
 
-def make_q_actor_for_env(env: EnvBase, network: NetworkConfig, device: str = "cpu") -> QValueActor:
+def make_q_actor_for_env(
+    env: EnvBase, network: NetworkConfig, device: str = "cpu"
+) -> QValueActor | DistributionalQValueActor:
     """``make_q_actor`` sized from ``env``'s specs, with the ``network`` section of the config."""
+    support = (
+        torch.linspace(network.v_min, network.v_max, network.atoms)
+        if network.distributional
+        else None
+    )
     return make_q_actor(
         env.observation_spec,
         env.action_spec,
@@ -121,4 +189,24 @@ def make_q_actor_for_env(env: EnvBase, network: NetworkConfig, device: str = "cp
         network.activation,
         network.head,
         device,
+        noisy=network.noisy,
+        noisy_std=network.noisy_std,
+        support=support,
     )
+
+
+def expected_action_values(actor: nn.Module, action_value: torch.Tensor) -> torch.Tensor:
+    """Q-values ``[*B, num_actions]`` from an actor's ``action_value`` output.
+
+    For a ``DistributionalQValueActor`` that is sum_i z_i p_i(s, a) over its support; for a
+    ``QValueActor`` the output already is Q.
+    """
+    if isinstance(actor, DistributionalQValueActor):
+        support = actor.support  # [atoms]
+        return (action_value.exp() * support.unsqueeze(-1)).sum(-2)
+    return action_value
+
+
+def reset_network_noise(module: nn.Module) -> None:
+    """Resample the noise of every ``NoisyLinear`` in ``module`` (a no-op without any)."""
+    module.apply(reset_noise)

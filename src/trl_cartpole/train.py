@@ -1,8 +1,10 @@
 """``train(cfg)``: compose the TorchRL components and run the DQN loop (Mnih et al. 2015).
 
 One collected batch at a time: extend the replay buffer, take ``updates_per_batch`` gradient
-steps on uniform samples, move the target network, step epsilon, sync the collector's policy,
-and every ``eval.interval_frames`` play greedy episodes on a separate env. At the end the best
+steps on sampled batches (writing back their priorities and resampling the network noise when
+those are on), move the target network, step epsilon (or anneal the importance-sampling beta),
+sync the collector's policy, and every ``eval.interval_frames`` play greedy episodes on a
+separate env. At the end the best
 policy (by periodic evaluation) is evaluated over ``eval.final_episodes`` episodes and
 ``summary.json`` is written.
 """
@@ -26,6 +28,7 @@ import torchrl
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
+from torchrl.envs import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
 from trl_cartpole.buffers import make_replay_buffer
@@ -35,9 +38,9 @@ from trl_cartpole.config import Config, ConfigError, to_config, validate
 from trl_cartpole.envs import make_env, solve_threshold
 from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
-from trl_cartpole.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_from_loss
 from trl_cartpole.metrics import History, make_logger
-from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.models import make_q_actor_for_env, reset_network_noise
 from trl_cartpole.plotting import plot_dashboard, plot_durations
 from trl_cartpole.update import make_optimizer, make_update
 
@@ -170,8 +173,19 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         cfg.exploration.decay_frames,
         cfg.device,
     )
-    policy = TensorDictSequential(actor, exploration)
-    buffer = make_replay_buffer(cfg.buffer.size, cfg.buffer.batch_size, cfg.device)
+    policy = actor if exploration is None else TensorDictSequential(actor, exploration)
+    buffer = make_replay_buffer(
+        cfg.buffer.size,
+        cfg.buffer.batch_size,
+        cfg.device,
+        prioritized=cfg.buffer.prioritized,
+        alpha=cfg.buffer.alpha,
+        beta=cfg.buffer.beta,
+        priority_eps=cfg.buffer.priority_eps,
+        n_steps=cfg.buffer.n_steps,
+        gamma=cfg.loss.gamma,
+    )
+    beta_anneal_frames = cfg.buffer.beta_anneal_frames or cfg.collector.total_frames
     loss = make_dqn_loss(actor, cfg.loss.gamma, cfg.loss.loss_function, cfg.loss.double_dqn)
     target_updater = make_target_updater(
         loss, cfg.loss.target_update, cfg.loss.tau, cfg.loss.hard_update_interval
@@ -252,19 +266,33 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         updates_before = progress.updates
         if len(buffer) >= learning_starts:
             for _ in range(cfg.collector.updates_per_batch):
-                metrics = update(buffer.sample())
+                sample = buffer.sample()  # [batch_size]
+                with set_exploration_type(ExplorationType.RANDOM):  # noisy layers: noise on
+                    metrics = update(sample)
+                if cfg.buffer.prioritized:
+                    buffer.update_priority(sample["index"], priority_from_loss(loss, sample))
+                if cfg.network.noisy:
+                    reset_network_noise(actor)
                 target_updater.step()
                 progress.updates += 1
                 history.update_frames.append(progress.frames)
                 history.td_losses.append(metrics["loss"].item())
                 history.grad_norms.append(metrics["grad_norm"].item())
-        exploration.step(batch.numel())
+        if exploration is not None:
+            exploration.step(batch.numel())
+        if cfg.network.noisy:
+            reset_network_noise(actor)  # fresh noise for the next collected batch too
+        if cfg.buffer.prioritized:  # beta: buffer.beta -> 1 linearly (Schaul et al. 2016)
+            buffer.sampler.beta = cfg.buffer.beta + (1.0 - cfg.buffer.beta) * min(
+                1.0, progress.frames / beta_anneal_frames
+            )
         collector.update_policy_weights_()
 
         bar.update(batch.numel())
         if history.episode_returns:
             postfix.update(ep_return=f"{history.episode_returns[-1]:.0f}")
-        postfix.update(eps=f"{exploration.eps.item():.3f}")
+        if exploration is not None:
+            postfix.update(eps=f"{exploration.eps.item():.3f}")
         bar.set_postfix(postfix, refresh=False)
         if progress.updates // UPDATE_LOG_INTERVAL > updates_before // UPDATE_LOG_INTERVAL:
             _log(
@@ -272,7 +300,12 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
                 {
                     "train/td_loss": history.td_losses[-1],
                     "train/grad_norm": history.grad_norms[-1],
-                    "train/epsilon": exploration.eps.item(),
+                    **({} if exploration is None else {"train/epsilon": exploration.eps.item()}),
+                    **(
+                        {"train/mean_importance_weight": sample["priority_weight"].mean().item()}
+                        if cfg.buffer.prioritized
+                        else {}
+                    ),
                 },
                 progress.frames,
             )
@@ -293,7 +326,7 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
             policy=actor,
             loss=loss,
             optimizer=optimizer,
-            exploration=exploration,
+            **({} if exploration is None else {"exploration": exploration}),
             collector=collector,
             **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
         )
