@@ -6,6 +6,7 @@ import json
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import OneHot
@@ -65,15 +66,30 @@ def test_double_dqn_target_uses_online_argmax_and_target_value():
 def test_dueling_head_is_value_plus_centred_advantage():
     torch.manual_seed(0)
     net = make_q_network(obs_dim=4, num_actions=3, hidden_sizes=[16, 8], head="dueling")
+    torso, head = net
     obs = torch.randn(6, 4)
     q = net(obs)  # [6, 3]
-    features = net.features(obs)  # [6, 8]
-    value, advantage = net.value(features), net.advantage(features)  # [6, 1], [6, 3]
+    features = torso(obs)  # [6, 8]
+    value, advantage = head.value(features), head.advantage(features)  # [6, 1], [6, 3]
     assert torch.allclose(q, value + advantage - advantage.mean(-1, keepdim=True), atol=1e-6)
-    # The centred advantage Q - V has zero mean per state.
-    assert torch.allclose((q - value).mean(-1), torch.zeros(6), atol=1e-6)
+    # The advantage stream the head adds has zero mean per state, and Q - V is exactly it.
+    _, centred = head.streams(features)  # [6, 1, 3]
+    assert torch.allclose(centred.mean(-1), torch.zeros(6, 1), atol=1e-6)
+    assert torch.allclose(q - value, centred.squeeze(-2), atol=1e-6)
+    assert not torch.allclose(advantage.mean(-1), torch.zeros(6), atol=1e-3)  # raw one is not
     linears = [(m.in_features, m.out_features) for m in net.modules() if isinstance(m, nn.Linear)]
-    assert linears == [(4, 16), (16, 8), (8, 3), (8, 1)]
+    assert linears == [(4, 16), (16, 8), (8, 1), (8, 3)]
+
+
+def test_distributional_dueling_head_centres_the_advantage_per_atom():
+    torch.manual_seed(0)
+    net = make_q_network(4, num_actions=3, hidden_sizes=[16], head="dueling", atoms=5)
+    torso, head = net
+    obs = torch.randn(6, 4)
+    logits = net(obs)  # [6, 5, 3]
+    assert logits.shape == (6, 5, 3)
+    value = head.value(torso(obs)).unsqueeze(-1)  # [6, 5, 1]
+    assert torch.allclose((logits - value).mean(-1), torch.zeros(6, 5), atol=1e-6)
 
 
 def test_dueling_head_plugs_into_a_q_value_actor():
@@ -84,17 +100,45 @@ def test_dueling_head_plugs_into_a_q_value_actor():
     assert td["action"].sum().item() == 1
 
 
-@pytest.mark.parametrize(
-    ("preset", "double_dqn", "head"), [("double", True, "plain"), ("dueling", False, "dueling")]
-)
-def test_variant_presets_switch_only_their_feature_and_train(
-    compose, tmp_path, preset, double_dqn, head
-):
-    cfg = to_config(compose(f"algo={preset}", f"run_dir={tmp_path}"))
-    default = to_config(compose(f"run_dir={tmp_path}"))
-    assert (cfg.loss.double_dqn, cfg.network.head) == (double_dqn, head)
-    assert cfg.optim == default.optim and cfg.buffer == default.buffer  # the rest is the default
+RAINBOW = {
+    "network.head": "dueling",
+    "network.noisy": True,
+    "exploration.schedule": "none",
+    "network.distributional": True,
+    "loss.double_dqn": True,
+    "buffer.prioritized": True,
+    "buffer.n_steps": 3,
+}
+# What each preset changes relative to the default preset (configs/algo/dqn.yaml).
+PRESET_CHANGES = {
+    "double": {"loss.double_dqn": True},
+    "dueling": {"network.head": "dueling"},
+    "noisy": {"network.noisy": True, "exploration.schedule": "none"},
+    "prioritized": {"buffer.prioritized": True},
+    "nstep": {"buffer.n_steps": 3},
+    "c51": {"network.distributional": True, "loss.double_dqn": True},
+    "rainbow": RAINBOW,
+}
+
+
+def _flat(cfg) -> dict:
+    return {
+        f"{section}.{key}": value
+        for section, fields in OmegaConf.to_container(OmegaConf.structured(cfg)).items()
+        if isinstance(fields, dict)
+        for key, value in fields.items()
+    }
+
+
+@pytest.mark.parametrize("preset", sorted(PRESET_CHANGES))
+def test_variant_presets_switch_only_their_features_and_train(compose, tmp_path, preset):
+    cfg = _flat(to_config(compose(f"algo={preset}", f"run_dir={tmp_path}")))
+    default = _flat(to_config(compose(f"run_dir={tmp_path}")))
+    changed = {key: cfg[key] for key in cfg if cfg[key] != default[key] and key != "algo.name"}
+    assert changed == PRESET_CHANGES[preset]
     summary = train(compose(f"algo={preset}", *SMOKE_OVERRIDES, f"run_dir={tmp_path}"))
     written = json.loads((tmp_path / "summary.json").read_text())
     assert written["algo"] == preset == summary["algo"]
     assert written["frames"] == 300 and written["final_eval_episodes"] == 4
+    assert written["updates"] > 0 and len(written["final_eval_returns"]) == 4
+    assert (tmp_path / "checkpoints" / "best").is_dir()

@@ -26,7 +26,7 @@ from torchrl.envs import MultiStepTransform
 
 from trl_cartpole.segment_trees import install_if_missing
 
-__all__ = ["NStepTransform", "make_replay_buffer"]
+__all__ = ["NStepTransform", "annealed_beta", "make_replay_buffer"]
 
 
 class NStepTransform(MultiStepTransform):
@@ -85,3 +85,12 @@ def make_replay_buffer(
     return TensorDictReplayBuffer(
         storage=storage, sampler=RandomSampler(), batch_size=batch_size, transform=transform
     )
+
+
+def annealed_beta(beta_start: float, frames: int, anneal_frames: int) -> float:
+    """The importance-sampling exponent: linear from ``beta_start`` to 1 at ``anneal_frames``.
+
+    Schaul et al. (2016, section 3.4) anneal beta to 1 by the end of learning, when unbiased
+    updates matter most.
+    """
+    return beta_start + (1.0 - beta_start) * min(1.0, frames / anneal_frames)

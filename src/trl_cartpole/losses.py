@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.modules import DistributionalQValueActor, QValueActor
+from torchrl.envs import ExplorationType
+from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
@@ -35,16 +36,24 @@ def make_dqn_loss(
     ``loss_function`` nor ``double_dqn`` (it is always double); ``config.validate`` refuses
     settings it would ignore. Importance weights in the batch (``"priority_weight"``) are
     applied by both: loss = sum_i w_i l_i / sum_i w_i.
+
+    TorchRL runs a loss's forward under its ``deterministic_sampling_mode``
+    (``DETERMINISTIC``), which would switch ``NoisyLinear`` noise off; for an actor with noisy
+    layers it is set to ``RANDOM``, so the networks train through their noise (Fortunato et al.
+    2018, algorithm 1).
     """
     if isinstance(actor, DistributionalQValueActor):
-        return DistributionalDQNLoss(actor, gamma=gamma, delay_value=True)
-    loss = DQNLoss(
-        actor,
-        loss_function=loss_function,
-        delay_value=True,
-        double_dqn=double_dqn,
-    )
-    loss.make_value_estimator(gamma=gamma)
+        loss = DistributionalDQNLoss(actor, gamma=gamma, delay_value=True)
+    else:
+        loss = DQNLoss(
+            actor,
+            loss_function=loss_function,
+            delay_value=True,
+            double_dqn=double_dqn,
+        )
+        loss.make_value_estimator(gamma=gamma)
+    if any(isinstance(module, NoisyLinear) for module in actor.modules()):
+        loss.deterministic_sampling_mode = ExplorationType.RANDOM
     return loss
 
 

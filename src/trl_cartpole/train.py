@@ -28,10 +28,9 @@ import torchrl
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
-from torchrl.envs import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
-from trl_cartpole.buffers import make_replay_buffer
+from trl_cartpole.buffers import annealed_beta, make_replay_buffer
 from trl_cartpole.checkpoint import save_policy, save_training_state
 from trl_cartpole.collectors import make_collector
 from trl_cartpole.config import Config, ConfigError, to_config, validate
@@ -193,7 +192,13 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
     optimizer = make_optimizer(
         actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad, cfg.optim.weight_decay
     )
-    update = make_update(loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad)
+    update = make_update(
+        loss,
+        optimizer,
+        cfg.optim.grad_clip,
+        cfg.optim.max_grad,
+        noisy_network=actor if cfg.network.noisy else None,
+    )
     if cfg.compile:
         update = torch.compile(update)
     collector = make_collector(
@@ -267,12 +272,9 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         if len(buffer) >= learning_starts:
             for _ in range(cfg.collector.updates_per_batch):
                 sample = buffer.sample()  # [batch_size]
-                with set_exploration_type(ExplorationType.RANDOM):  # noisy layers: noise on
-                    metrics = update(sample)
+                metrics = update(sample)
                 if cfg.buffer.prioritized:
                     buffer.update_priority(sample["index"], priority_from_loss(loss, sample))
-                if cfg.network.noisy:
-                    reset_network_noise(actor)
                 target_updater.step()
                 progress.updates += 1
                 history.update_frames.append(progress.frames)
@@ -282,9 +284,9 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
             exploration.step(batch.numel())
         if cfg.network.noisy:
             reset_network_noise(actor)  # fresh noise for the next collected batch too
-        if cfg.buffer.prioritized:  # beta: buffer.beta -> 1 linearly (Schaul et al. 2016)
-            buffer.sampler.beta = cfg.buffer.beta + (1.0 - cfg.buffer.beta) * min(
-                1.0, progress.frames / beta_anneal_frames
+        if cfg.buffer.prioritized:
+            buffer.sampler.beta = annealed_beta(
+                cfg.buffer.beta, progress.frames, beta_anneal_frames
             )
         collector.update_policy_weights_()
 

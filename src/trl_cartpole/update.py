@@ -1,4 +1,4 @@
-"""One gradient step of DQN: loss, backward, gradient clipping, optimizer step.
+"""One gradient step of DQN: loss, backward, gradient clipping, optimizer step, new noise.
 
 ``make_update`` closes over the loss module and the optimizer and returns a function of the
 sampled batch only, with no Python-side state, so ``torch.compile`` can take it whole.
@@ -11,6 +11,8 @@ from collections.abc import Callable, Iterable
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
+
+from trl_cartpole.models import reset_network_noise
 
 __all__ = ["make_optimizer", "make_update"]
 
@@ -30,6 +32,7 @@ def make_update(
     optimizer: torch.optim.Optimizer,
     grad_clip: str = "value",
     max_grad: float = 100.0,
+    noisy_network: nn.Module | None = None,
 ) -> Callable[[TensorDictBase], TensorDict]:
     """Return ``update(batch) -> TensorDict(loss=[], grad_norm=[])``.
 
@@ -37,6 +40,9 @@ def make_update(
     tutorial's ``clip_grad_value_(..., 100)``); ``"norm"`` rescales the whole gradient to an
     L2 norm of at most ``max_grad``; ``"none"`` leaves it. ``grad_norm`` is measured before
     clipping.
+
+    With ``noisy_network`` its ``NoisyLinear`` noise is resampled after the optimizer step,
+    once per update as in Fortunato et al. (2018, section 3.1).
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
     if grad_clip not in ("value", "norm", "none"):
@@ -44,7 +50,7 @@ def make_update(
 
     def update(batch: TensorDictBase) -> TensorDict:
         optimizer.zero_grad(set_to_none=True)
-        loss = loss_module(batch)["loss"]  # [] (mean over the batch)
+        loss = loss_module(batch)["loss"]  # [] (weighted mean over the batch)
         loss.backward()
         if grad_clip == "norm":
             grad_norm = nn.utils.clip_grad_norm_(params, max_grad)
@@ -53,6 +59,8 @@ def make_update(
             if grad_clip == "value":
                 nn.utils.clip_grad_value_(params, max_grad)
         optimizer.step()
+        if noisy_network is not None:
+            reset_network_noise(noisy_network)
         return TensorDict(loss=loss.detach(), grad_norm=grad_norm.detach())
 
     return update
