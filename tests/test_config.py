@@ -74,9 +74,30 @@ def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
         (["loss.loss_function=l3"], "choose one of"),
         (["network.head=fancy"], "is not a known head"),
         (["collector.total_frames=0"], "must be >= collector.frames_per_batch"),
+        (["buffer.n_steps=0"], "buffer.n_steps=0 must be >= 1"),
+        (["buffer.beta=1.5"], r"buffer.beta=1.5 must lie in \[0, 1\]"),
+        (["network.atoms=1"], "network.atoms=1 must be >= 2"),
+        (["network.v_min=5", "network.v_max=5"], "must be < network.v_max"),
+        (["exploration.schedule=greedy"], "choose one of"),
     ],
 )
 def test_impossible_values_raise_config_error(compose, overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        validate(to_config(compose(*overrides)))
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["network.noisy=true"], "set exploration.schedule=none"),
+        (["algo=noisy", "exploration.schedule=linear"], "set exploration.schedule=none"),
+        (["exploration.schedule=none"], "no exploration at all"),
+        (["network.distributional=true"], "cannot switch it off; set loss.double_dqn=true"),
+        (["algo=c51", "loss.double_dqn=false"], "set loss.double_dqn=true"),
+        (["algo=rainbow", "loss.loss_function=l2"], "cross-entropy"),
+    ],
+)
+def test_combinations_the_code_cannot_honour_are_refused(compose, overrides, message):
     with pytest.raises(ConfigError, match=message):
         validate(to_config(compose(*overrides)))
 
@@ -88,6 +109,7 @@ def test_impossible_values_raise_config_error(compose, overrides, message):
         ("loss.gamma=1.5", "loss.gamma=1.5 must lie in (0, 1]"),
         ("env.id=Nope-v0", "env.id='Nope-v0' is not a registered Gymnasium env"),
         ("buffer.batch_size=big", "could not be converted to Integer"),
+        ("network.noisy=true", "set exploration.schedule=none"),
     ],
 )
 def test_cli_bad_input_is_one_line_and_exit_2(python, tmp_path, override, expected):
