@@ -11,7 +11,7 @@ matplotlib.use("Agg")  # headless: the plots are files
 import matplotlib.pyplot as plt
 import numpy as np
 
-__all__ = ["moving_average", "plot_dashboard", "plot_durations"]
+__all__ = ["hold_last", "moving_average", "plot_dashboard", "plot_durations", "plot_seed_groups"]
 
 
 def moving_average(values: Sequence[float], window: int) -> np.ndarray:
@@ -79,6 +79,61 @@ def plot_dashboard(
         ax.set_title(title)
         ax.set_xlabel("Frames")
         ax.grid(alpha=0.3)
+    fig.tight_layout()
+    _atomic_savefig(fig, path)
+    return path
+
+
+def hold_last(frames: Sequence[int], values: Sequence[float], grid: np.ndarray) -> np.ndarray:
+    """``[len(grid)]``: at each grid frame, the last value recorded at or before it.
+
+    NaN before the first record; after the last one (a run that stopped once solved) the last
+    value is held.
+    """
+    frames_arr = np.asarray(frames, dtype=np.float64)
+    values_arr = np.asarray(values, dtype=np.float64)
+    position = np.searchsorted(frames_arr, grid, side="right") - 1  # [G]
+    held = values_arr[np.clip(position, 0, None)] if values_arr.size else np.full(grid.shape, 0.0)
+    return np.where(position >= 0, held, np.nan)
+
+
+def plot_seed_groups(
+    curves: dict[str, list[tuple[Sequence[int], Sequence[float]]]],
+    path: str | Path,
+    threshold: float | None = None,
+    ylabel: str = "Mean greedy return (eval)",
+) -> Path:
+    """One panel per group: each seed's curve, their median and interquartile band.
+
+    ``curves`` maps a group name (a preset) to one ``(frames, values)`` per seed; every seed
+    is held at its last value up to the longest run of the group (see :func:`hold_last`).
+    """
+    path = Path(path)
+    columns = min(4, len(curves))
+    rows = -(-len(curves) // columns)
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(4 * columns, 3.2 * rows), squeeze=False, sharey=True
+    )
+    for ax, (name, seeds) in zip(axes.flat, curves.items(), strict=False):
+        end = max(max(frames) for frames, _ in seeds if len(frames))
+        grid = np.linspace(0, end, 200)  # [G]
+        held = np.stack([hold_last(f, v, grid) for f, v in seeds])  # [S, G]
+        for row in held:
+            ax.plot(grid, row, color="grey", alpha=0.35, linewidth=0.8)
+        started = ~np.isnan(held).any(0)  # [G] every seed has its first evaluation
+        low, median, high = np.percentile(held[:, started], [25, 50, 75], axis=0)
+        ax.fill_between(grid[started], low, high, alpha=0.3, label="interquartile range")
+        ax.plot(grid[started], median, linewidth=2, label=f"median of {len(seeds)} seeds")
+        if threshold is not None:
+            ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8)
+        ax.set_title(name)
+        ax.set_xlabel("Frames")
+        ax.grid(alpha=0.3)
+    for ax in axes[:, 0]:
+        ax.set_ylabel(ylabel)
+    for ax in list(axes.flat)[len(curves) :]:
+        ax.set_visible(False)
+    axes.flat[0].legend(loc="lower right", fontsize="small")
     fig.tight_layout()
     _atomic_savefig(fig, path)
     return path

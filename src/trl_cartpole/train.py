@@ -399,6 +399,10 @@ def _summary(
         "final_eval_returns": final.returns,
         "best_eval_return_mean": progress.best_eval,
         "episodes": len(progress.history.episode_returns),
+        "eval_curve": {
+            "frames": progress.history.eval_frames,
+            "returns": progress.history.eval_returns,
+        },
         "checkpoint": str(best) if cfg.checkpoint.save_best else None,
         "run_dir": str(run_dir),
         "versions": {

@@ -1,0 +1,67 @@
+"""Every DQN variant preset on CartPole-v1 over seeds: the table and plot of docs/ablations.md.
+
+    python scripts/ablate.py [--algos dqn double ...] [--seeds 0 1 2 3 4] \
+        [--out runs/ablations] [--doc docs/ablations.md] [key=value ...]
+
+Runs each preset once per seed (``scripts/train.py`` in its own process, one after another;
+finished runs are reused), then writes ``OUT/results.json``, the plot of greedy evaluation
+return against frames (median and interquartile band over seeds, one panel per preset) to
+``docs/images/ablations.png`` and the table between the ``ablation`` markers of ``--doc``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from trl_cartpole.benchmarking import markdown_table, run_presets
+from trl_cartpole.plotting import plot_seed_groups
+
+PRESETS = ["dqn", "double", "dueling", "noisy", "prioritized", "nstep", "c51", "rainbow"]
+BEGIN, END = "<!-- ablation:begin -->", "<!-- ablation:end -->"
+
+
+def write_between_markers(doc: Path, block: str) -> None:
+    """Replace the text between BEGIN and END in ``doc`` (appending the markers if absent)."""
+    text = doc.read_text() if doc.exists() else "# Ablations\n"
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        tail = rest.split(END, 1)[1]
+    else:
+        head, tail = text.rstrip("\n") + "\n\n", "\n"
+    doc.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--algos", nargs="+", default=PRESETS)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    parser.add_argument("--out", type=Path, default=Path("runs/ablations"))
+    parser.add_argument("--doc", type=Path, default=Path("docs/ablations.md"))
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every run")
+    args = parser.parse_args()
+
+    results = run_presets(args.algos, args.seeds, args.out, args.overrides)
+    (args.out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    curves = {
+        algo: [(r["eval_curve"]["frames"], r["eval_curve"]["returns"]) for r in runs]
+        for algo, runs in results.items()
+    }
+    image = args.doc.parent / "images" / "ablations.png"
+    image.parent.mkdir(parents=True, exist_ok=True)
+    threshold = next(iter(results.values()))[0]["solve_threshold"]
+    plot_seed_groups(curves, image, threshold=threshold)
+    table = markdown_table(results)
+    print(table)
+    seeds = " ".join(str(seed) for seed in args.seeds)
+    block = (
+        f"Seeds {seeds}; command: `python scripts/ablate.py --seeds {seeds}"
+        f"{''.join(' ' + o for o in args.overrides)}`.\n\n{table}\n\n"
+        f"![eval return against frames per preset]({image.relative_to(args.doc.parent)})"
+    )
+    write_between_markers(args.doc, block)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,78 @@
+"""Run presets over seeds in separate processes and summarise them: the engine of the scripts.
+
+``scripts/benchmark.py`` and ``scripts/ablate.py`` are thin command lines over these functions.
+Each (preset, seed) is one ``scripts/train.py`` process run one after another, so every run
+sees the same machine; a run whose ``summary.json`` already exists is read, not repeated.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = ["markdown_table", "median_to_solve", "run_presets", "run_training"]
+
+TRAIN_SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "train.py"
+
+
+def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
+    """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary."""
+    run_dir = out / f"{algo}-seed{seed}"
+    summary_path = run_dir / "summary.json"
+    if not summary_path.exists():
+        command = [
+            sys.executable,
+            str(TRAIN_SCRIPT),
+            f"algo={algo}",
+            f"seed={seed}",
+            f"run_dir={run_dir}",
+            "logger.progress_bar=false",
+            *overrides,
+        ]
+        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    return json.loads(summary_path.read_text())
+
+
+def run_presets(
+    algos: Sequence[str], seeds: Sequence[int], out: Path, overrides: Sequence[str] = ()
+) -> dict[str, list[dict[str, Any]]]:
+    """``{algo: [summary per seed]}``, every run in its own process, one after another."""
+    return {algo: [run_training(algo, seed, out, overrides) for seed in seeds] for algo in algos}
+
+
+def median_to_solve(values: Sequence[float | None]) -> float:
+    """Median over seeds with an unsolved seed counted as infinitely slow.
+
+    The result is finite when more than half of the seeds solved; ``inf`` otherwise.
+    """
+    return statistics.median(math.inf if value is None else value for value in values)
+
+
+def _format(value: float, digits: int) -> str:
+    return "not solved" if math.isinf(value) else f"{value:.{digits}f}"
+
+
+def markdown_table(results: dict[str, list[dict[str, Any]]]) -> str:
+    """One row per preset: solve rate, medians to solve, final greedy return, per-seed frames."""
+    lines = [
+        "| preset | solved | median frames_to_solve | median seconds_to_solve | "
+        "median final 100-ep greedy return | frames_to_solve per seed | seconds per seed |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for algo, runs in results.items():
+        frames = [r["frames_to_solve"] for r in runs]
+        seconds = [r["seconds_to_solve"] for r in runs]
+        final = statistics.median(r["final_eval_return_mean"] for r in runs)
+        lines.append(
+            f"| {algo} | {sum(r['solved'] for r in runs)}/{len(runs)} | "
+            f"{_format(median_to_solve(frames), 0)} | {_format(median_to_solve(seconds), 1)} | "
+            f"{final:.1f} | {', '.join('-' if f is None else str(f) for f in frames)} | "
+            f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} |"
+        )
+    return "\n".join(lines)
