@@ -1,0 +1,70 @@
+"""The helpers behind scripts/benchmark.py and scripts/ablate.py."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+
+import numpy as np
+import pytest
+
+from trl_cartpole.benchmarking import markdown_table, median_to_solve
+from trl_cartpole.plotting import hold_last, plot_seed_groups
+
+from .conftest import SCRIPTS
+
+
+def test_median_to_solve_counts_unsolved_seeds_as_infinitely_slow():
+    assert median_to_solve([3000, 1000, 2000]) == 2000
+    assert median_to_solve([3000, None, 1000, 2000, None]) == 3000  # 3/5 solved: finite
+    assert math.isinf(median_to_solve([3000, None, None]))  # most seeds unsolved
+
+
+def test_hold_last_steps_through_evaluations_and_holds_after_the_run_ends():
+    grid = np.array([0, 500, 1000, 1500, 2000, 3000])
+    held = hold_last([1000, 2000], [10.0, 475.0], grid)
+    assert np.isnan(held[:2]).all()  # before the first evaluation
+    assert held[2:].tolist() == [10.0, 10.0, 475.0, 475.0]
+
+
+def _summary(frames, seconds, final):
+    return {
+        "solved": frames is not None,
+        "frames_to_solve": frames,
+        "seconds_to_solve": seconds,
+        "final_eval_return_mean": final,
+    }
+
+
+def test_markdown_table_rows():
+    results = {
+        "a": [_summary(1000, 2.0, 500.0), _summary(3000, 6.0, 490.0), _summary(None, None, 20)],
+        "b": [_summary(None, None, 10.0)],
+    }
+    lines = markdown_table(results).splitlines()
+    assert lines[2] == "| a | 2/3 | 3000 | 6.0 | 490.0 | 1000, 3000, - | 2.0, 6.0, - |"
+    assert lines[3] == "| b | 0/1 | not solved | not solved | 10.0 | - | - |"
+
+
+def test_seed_group_plot_and_doc_markers(tmp_path):
+    curves = {"x": [([1000, 2000], [10.0, 480.0]), ([1000, 2000, 3000], [9.0, 100.0, 490.0])]}
+    image = plot_seed_groups(curves, tmp_path / "plot.png", threshold=475)
+    assert image.stat().st_size > 1000
+    spec = importlib.util.spec_from_file_location("ablate", SCRIPTS / "ablate.py")
+    ablate = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ablate)
+    doc = tmp_path / "doc.md"
+    doc.write_text("# Title\n\nprose\n")
+    ablate.write_between_markers(doc, "table 1")
+    ablate.write_between_markers(doc, "table 2")  # replaces, keeps the prose
+    text = doc.read_text()
+    assert text.startswith("# Title\n\nprose\n") and text.count(ablate.BEGIN) == 1
+    assert "table 2" in text and "table 1" not in text
+
+
+@pytest.mark.parametrize("name", ["benchmark.py", "ablate.py"])
+def test_scripts_show_help(python, name):
+    import subprocess
+
+    proc = subprocess.run([python, str(SCRIPTS / name), "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0 and "--seeds" in proc.stdout
