@@ -68,3 +68,21 @@ def test_scripts_show_help(python, name):
 
     proc = subprocess.run([python, str(SCRIPTS / name), "--help"], capture_output=True, text=True)
     assert proc.returncode == 0 and "--seeds" in proc.stdout
+
+
+def test_update_cost_script_prints_a_row_per_preset(python):
+    import subprocess
+
+    proc = subprocess.run(
+        [python, str(SCRIPTS / "update_cost.py"), "--algos", "dqn", "rainbow", "--updates", "3"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows = [
+        line
+        for line in proc.stdout.splitlines()
+        if line.startswith("| dqn") or line.startswith("| rainbow")
+    ]
+    assert len(rows) == 2 and all(float(row.split("|")[-2]) > 0 for row in rows)
