@@ -14,6 +14,7 @@ from torchrl.modules import QValueActor
 
 from trl_cartpole.config import to_config
 from trl_cartpole.envs import make_env
+from trl_cartpole.evaluation import evaluate_checkpoint
 from trl_cartpole.losses import make_dqn_loss
 from trl_cartpole.models import make_q_actor, make_q_network
 from trl_cartpole.train import train
@@ -141,4 +142,6 @@ def test_variant_presets_switch_only_their_features_and_train(compose, tmp_path,
     assert written["algo"] == preset == summary["algo"]
     assert written["frames"] == 300 and written["final_eval_episodes"] == 4
     assert written["updates"] > 0 and len(written["final_eval_returns"]) == 4
-    assert (tmp_path / "checkpoints" / "best").is_dir()
+    # The best checkpoint rebuilds the preset's network from its stored config and plays.
+    result, stored = evaluate_checkpoint(str(tmp_path / "checkpoints" / "best"), episodes=2)
+    assert len(result.returns) == 2 and stored["algo"]["name"] == preset
