@@ -1,10 +1,11 @@
 """Greedy evaluation of a checkpoint.
 
     python scripts/evaluate.py checkpoint=runs/.../checkpoints/best episodes=100 \
-        [seed=N] [output=FILE]
+        [seed=N] [epsilon=0.05] [output=FILE]
 
 Prints mean, std, min and max of the per-episode returns and writes them all as JSON
-(default: ``evaluation.json`` beside the checkpoint directory).
+(default: ``evaluation.json`` beside the checkpoint directory). ``epsilon`` (default 0, greedy)
+replaces each action by a random one with that probability.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ class EvaluateArgs:
     episodes: int = 100
     seed: int | None = None
     output: str | None = None
+    epsilon: float = 0.0
 
 
 def main(argv: list[str]) -> None:
@@ -35,12 +37,15 @@ def main(argv: list[str]) -> None:
     )
     if args.episodes < 1:
         raise ConfigError(f"episodes={args.episodes} must be >= 1")
-    result, cfg = evaluate_checkpoint(args.checkpoint, args.episodes, args.seed)
+    if not 0.0 <= args.epsilon <= 1.0:
+        raise ConfigError(f"epsilon={args.epsilon} must lie in [0, 1]")
+    result, cfg = evaluate_checkpoint(args.checkpoint, args.episodes, args.seed, args.epsilon)
     returns = result.returns
     report = {
         "checkpoint": args.checkpoint,
         "env_id": cfg["env"]["id"],
         "episodes": len(returns),
+        "epsilon": args.epsilon,
         "mean": result.mean,
         "std": result.std,
         "min": min(returns),
@@ -51,7 +56,8 @@ def main(argv: list[str]) -> None:
     output = Path(args.output) if args.output else Path(args.checkpoint).parent / "evaluation.json"
     output.write_text(json.dumps(report, indent=2) + "\n")
     print(
-        f"{report['env_id']}: greedy return over {len(returns)} episodes: "
+        f"{report['env_id']}: {'greedy' if not args.epsilon else f'epsilon={args.epsilon}'} "
+        f"return over {len(returns)} episodes: "
         f"{report['mean']:.1f} +/- {report['std']:.1f} (min {report['min']:.0f}, "
         f"max {report['max']:.0f}); written to {output}"
     )

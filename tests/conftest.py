@@ -44,3 +44,15 @@ def compose():
 @pytest.fixture
 def python() -> str:
     return sys.executable
+
+
+@pytest.fixture(scope="session")
+def smoke_checkpoint(tmp_path_factory) -> Path:
+    """The best-policy checkpoint of a 300-frame default run (trained once per session)."""
+    from trl_cartpole.train import train
+
+    run_dir = tmp_path_factory.mktemp("smoke-checkpoint")
+    train(
+        compose_config(CONFIG_DIR, [*SMOKE_OVERRIDES, f"run_dir={run_dir}", "logger.plots=false"])
+    )
+    return run_dir / "checkpoints" / "best"

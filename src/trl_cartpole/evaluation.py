@@ -6,14 +6,22 @@ from dataclasses import dataclass, field
 
 import torch
 from omegaconf import OmegaConf
-from tensordict.nn import TensorDictModuleBase
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
+from torchrl.modules import EGreedyModule
 
 from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
 from trl_cartpole.envs import make_env
 from trl_cartpole.models import expected_action_values, make_q_actor_for_env
 
-__all__ = ["EvalResult", "evaluate", "evaluate_checkpoint", "first_episode_mask"]
+__all__ = [
+    "EpsilonGreedy",
+    "EvalResult",
+    "evaluate",
+    "evaluate_checkpoint",
+    "first_episode_mask",
+]
 
 
 @dataclass
@@ -46,17 +54,40 @@ def first_episode_mask(done: torch.Tensor) -> torch.Tensor:
     return (done.cumsum(-1) - done) == 0
 
 
+class EpsilonGreedy(TensorDictModuleBase):
+    """TorchRL's ``EGreedyModule`` with a fixed epsilon, active whatever the exploration type.
+
+    Evaluation runs under ``DETERMINISTIC`` (noisy layers use their mean weights), where
+    ``EGreedyModule`` would do nothing; this runs it under ``RANDOM`` on its own.
+    """
+
+    def __init__(self, action_spec, epsilon: float) -> None:
+        super().__init__()
+        self.egreedy = EGreedyModule(action_spec, eps_init=epsilon, eps_end=epsilon)
+        self.in_keys, self.out_keys = self.egreedy.in_keys, self.egreedy.out_keys
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        with set_exploration_type(ExplorationType.RANDOM):
+            return self.egreedy(tensordict)
+
+
 @torch.no_grad()
-def evaluate(actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000) -> EvalResult:
+def evaluate(
+    actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000, epsilon: float = 0.0
+) -> EvalResult:
     """Play one greedy episode (``ExplorationType.DETERMINISTIC``) in each env of ``env``.
 
     ``env`` is a batched env of batch size ``[E]`` (``make_env(..., num_envs=E)``): the rollout
     runs until every env has finished one episode (or ``max_steps``), and only each env's first
     episode counts. ``actor`` must write ``action_value`` (a ``QValueActor`` or a
-    ``DistributionalQValueActor``).
+    ``DistributionalQValueActor``). With ``epsilon > 0`` each action is replaced by a uniform
+    random one with that probability (the Atari protocol's epsilon = 0.05 evaluation).
     """
+    policy = actor
+    if epsilon > 0:
+        policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec, epsilon))
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        rollout = env.rollout(max_steps, actor, break_when_all_done=True)  # [E, T]
+        rollout = env.rollout(max_steps, policy, break_when_all_done=True)  # [E, T]
     if rollout.ndim == 1:  # a single, unbatched env: [T] -> [1, T]
         rollout = rollout.unsqueeze(0)
     first = first_episode_mask(rollout["next", "done"].squeeze(-1))  # [E, T]
@@ -70,7 +101,7 @@ def evaluate(actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000)
 
 
 def evaluate_checkpoint(
-    checkpoint: str, episodes: int = 100, seed: int | None = None
+    checkpoint: str, episodes: int = 100, seed: int | None = None, epsilon: float = 0.0
 ) -> tuple[EvalResult, dict]:
     """Rebuild the policy a checkpoint was trained with, load it, and evaluate it greedily.
 
@@ -84,6 +115,6 @@ def evaluate_checkpoint(
     env = make_env(cfg.env.id, seed, "cpu", cfg.env.max_episode_steps, num_envs=episodes)
     actor = make_q_actor_for_env(env, cfg.network)
     load_policy(checkpoint, actor)
-    result = evaluate(actor, env, cfg.eval.max_steps)
+    result = evaluate(actor, env, cfg.eval.max_steps, epsilon)
     env.close()
     return result, OmegaConf.to_container(OmegaConf.structured(cfg))
