@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
 
 import numpy as np
@@ -86,3 +87,54 @@ def test_update_cost_script_prints_a_row_per_preset(python):
         if line.startswith("| dqn") or line.startswith("| rainbow")
     ]
     assert len(rows) == 2 and all(float(row.split("|")[-2]) > 0 for row in rows)
+
+
+def _fake_run(root, name, seed, lr, frames_to_solve):
+    from omegaconf import OmegaConf
+
+    from trl_cartpole.config import Config
+
+    run_dir = root / name
+    run_dir.mkdir()
+    config = Config(seed=seed, run_dir=str(run_dir))
+    config.optim.lr = lr
+    OmegaConf.save(OmegaConf.structured(config), run_dir / "config.yaml")
+    summary = {
+        "solved": frames_to_solve is not None,
+        "frames_to_solve": frames_to_solve,
+        "seconds_to_solve": None if frames_to_solve is None else frames_to_solve / 1000,
+        "final_eval_return_mean": 500.0,
+        "solve_threshold": 475.0,
+        "eval_curve": {"frames": [1000, 2000], "seconds": [1.0, 2.0], "returns": [20.0, 480.0]},
+    }
+    (run_dir / "summary.json").write_text(json.dumps(summary))
+    return run_dir
+
+
+def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
+    import subprocess
+
+    for seed in (0, 1, 2):
+        _fake_run(tmp_path, f"a{seed}", seed, 1e-3, 1000 * (seed + 1))
+    for seed in (0, 1):
+        _fake_run(tmp_path, f"b{seed}", seed, 5e-4, None if seed else 4000)
+    (tmp_path / "unfinished").mkdir()
+    out = tmp_path / "cmp" / "comparison"
+    proc = subprocess.run(
+        [
+            python,
+            str(SCRIPTS / "plot.py"),
+            *map(str, sorted(tmp_path.iterdir())),
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "skipped" in proc.stderr and "unfinished" in proc.stderr
+    table = out.with_suffix(".md").read_text()
+    assert "| CartPole-v1 dqn optim.lr=0.001 | 3/3 | 2000 | 2.0 |" in table
+    assert "| CartPole-v1 dqn optim.lr=0.0005 | 1/2 | not solved |" in table
+    assert out.with_suffix(".png").stat().st_size > 1000

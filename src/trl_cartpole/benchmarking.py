@@ -16,7 +16,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["markdown_table", "median_to_solve", "run_presets", "run_training"]
+from omegaconf import OmegaConf
+
+__all__ = [
+    "group_runs",
+    "load_runs",
+    "markdown_table",
+    "median_to_solve",
+    "run_presets",
+    "run_training",
+]
 
 TRAIN_SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "train.py"
 
@@ -58,10 +67,10 @@ def _format(value: float, digits: int) -> str:
     return "not solved" if math.isinf(value) else f"{value:.{digits}f}"
 
 
-def markdown_table(results: dict[str, list[dict[str, Any]]]) -> str:
+def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "preset") -> str:
     """One row per preset: solve rate, medians to solve, final greedy return, per-seed frames."""
     lines = [
-        "| preset | solved | median frames_to_solve | median seconds_to_solve | "
+        f"| {label} | solved | median frames_to_solve | median seconds_to_solve | "
         "median final 100-ep greedy return | frames_to_solve per seed | seconds per seed |",
         "| --- | --- | --- | --- | --- | --- | --- |",
     ]
@@ -76,3 +85,72 @@ def markdown_table(results: dict[str, list[dict[str, Any]]]) -> str:
             f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} |"
         )
     return "\n".join(lines)
+
+
+# Fields that differ between seeds of one config, not between configs.
+PER_RUN_FIELDS = ("seed", "run_dir")
+
+
+def load_runs(run_dirs: Sequence[Path]) -> list[dict[str, Any]]:
+    """``[{"run_dir", "summary", "config"}]`` for each directory holding a ``summary.json``.
+
+    Directories without one (a run still going, or one that failed) or whose summary predates
+    ``eval_curve`` are skipped with a line on stderr.
+    """
+    runs = []
+    for run_dir in run_dirs:
+        summary_path, config_path = run_dir / "summary.json", run_dir / "config.yaml"
+        if not summary_path.is_file() or not config_path.is_file():
+            print(f"skipped {run_dir}: no summary.json/config.yaml", file=sys.stderr)
+            continue
+        summary = json.loads(summary_path.read_text())
+        if "eval_curve" not in summary:
+            print(f"skipped {run_dir}: summary.json has no eval_curve (older run)", file=sys.stderr)
+            continue
+        runs.append(
+            {
+                "run_dir": run_dir,
+                "summary": summary,
+                "config": OmegaConf.to_container(OmegaConf.load(config_path)),
+            }
+        )
+    return runs
+
+
+def _flatten(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat = {}
+    for key, value in config.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        elif f"{prefix}{key}" not in PER_RUN_FIELDS:
+            flat[f"{prefix}{key}"] = tuple(value) if isinstance(value, list) else value
+    return flat
+
+
+def group_runs(runs: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    """Group runs whose configs are equal but for the seed and run directory.
+
+    A group is labelled by its env and ``algo.name``; when several groups share that label,
+    the fields that tell them apart are appended (``CartPole-v1 dqn optim.lr=0.0005``).
+    """
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    flats: dict[tuple, dict[str, Any]] = {}
+    for run in runs:
+        flat = _flatten(run["config"])
+        key = tuple(sorted(flat.items(), key=lambda item: item[0]))
+        groups.setdefault(key, []).append(run)
+        flats[key] = flat
+    base_labels = {key: f"{flat['env.id']} {flat['algo.name']}" for key, flat in flats.items()}
+    labelled = {}
+    for key, members in groups.items():
+        label = base_labels[key]
+        clashes = [other for other in groups if other != key and base_labels[other] == label]
+        if clashes:
+            differing = sorted(
+                field
+                for field, value in flats[key].items()
+                if any(flats[other].get(field) != value for other in clashes)
+            )
+            label += " " + " ".join(f"{field}={flats[key][field]}" for field in differing)
+        labelled[label] = members
+    return labelled

@@ -43,5 +43,6 @@ class History:
     td_losses: list[float] = field(default_factory=list)
     grad_norms: list[float] = field(default_factory=list)
     eval_frames: list[int] = field(default_factory=list)
+    eval_seconds: list[float] = field(default_factory=list)
     eval_returns: list[float] = field(default_factory=list)
     eval_initial_values: list[float] = field(default_factory=list)

@@ -11,7 +11,14 @@ matplotlib.use("Agg")  # headless: the plots are files
 import matplotlib.pyplot as plt
 import numpy as np
 
-__all__ = ["hold_last", "moving_average", "plot_dashboard", "plot_durations", "plot_seed_groups"]
+__all__ = [
+    "hold_last",
+    "moving_average",
+    "plot_comparison",
+    "plot_dashboard",
+    "plot_durations",
+    "plot_seed_groups",
+]
 
 
 def moving_average(values: Sequence[float], window: int) -> np.ndarray:
@@ -115,15 +122,9 @@ def plot_seed_groups(
         rows, columns, figsize=(4 * columns, 3.2 * rows), squeeze=False, sharey=True
     )
     for ax, (name, seeds) in zip(axes.flat, curves.items(), strict=False):
-        end = max(max(frames) for frames, _ in seeds if len(frames))
-        grid = np.linspace(0, end, 200)  # [G]
-        held = np.stack([hold_last(f, v, grid) for f, v in seeds])  # [S, G]
-        for row in held:
-            ax.plot(grid, row, color="grey", alpha=0.35, linewidth=0.8)
-        started = ~np.isnan(held).any(0)  # [G] every seed has its first evaluation
-        low, median, high = np.percentile(held[:, started], [25, 50, 75], axis=0)
-        ax.fill_between(grid[started], low, high, alpha=0.3, label="interquartile range")
-        ax.plot(grid[started], median, linewidth=2, label=f"median of {len(seeds)} seeds")
+        for frames, values in seeds:
+            ax.step(frames, values, where="post", color="grey", alpha=0.35, linewidth=0.8)
+        _median_band(ax, "median, interquartile band", seeds)
         if threshold is not None:
             ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8)
         ax.set_title(name)
@@ -134,6 +135,45 @@ def plot_seed_groups(
     for ax in list(axes.flat)[len(curves) :]:
         ax.set_visible(False)
     axes.flat[0].legend(loc="lower right", fontsize="small")
+    fig.tight_layout()
+    _atomic_savefig(fig, path)
+    return path
+
+
+def _median_band(ax, name: str, seeds: list[tuple[Sequence[float], Sequence[float]]]) -> None:
+    """Draw the median over seeds of held curves and their interquartile band on ``ax``."""
+    end = max(max(x) for x, _ in seeds if len(x))
+    grid = np.linspace(0, end, 200)  # [G]
+    held = np.stack([hold_last(x, y, grid) for x, y in seeds])  # [S, G]
+    started = ~np.isnan(held).any(0)  # [G]
+    low, median, high = np.percentile(held[:, started], [25, 50, 75], axis=0)
+    (line,) = ax.plot(grid[started], median, linewidth=2, label=f"{name} ({len(seeds)} seeds)")
+    ax.fill_between(grid[started], low, high, alpha=0.2, color=line.get_color())
+
+
+def plot_comparison(
+    panels: dict[str, dict[str, list[tuple[Sequence[float], Sequence[float]]]]],
+    path: str | Path,
+    threshold: float | None = None,
+    ylabel: str = "Mean greedy return (eval)",
+) -> Path:
+    """Several configs on shared axes, one panel per x-axis (e.g. ``Frames``, ``Seconds``).
+
+    ``panels`` maps an x-axis label to ``{config label: [(x, y) per seed]}``; each config is
+    drawn as its median over seeds with an interquartile band (curves held as in
+    :func:`hold_last`).
+    """
+    path = Path(path)
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.2), squeeze=False)
+    for ax, (xlabel, groups) in zip(axes.flat, panels.items(), strict=True):
+        for name, seeds in groups.items():
+            _median_band(ax, name, seeds)
+        if threshold is not None:
+            ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="lower right", fontsize="small")
     fig.tight_layout()
     _atomic_savefig(fig, path)
     return path

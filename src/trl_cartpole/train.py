@@ -232,6 +232,7 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         progress.last_eval_frame = progress.frames
         history.eval_frames.append(progress.frames)
         history.eval_returns.append(result.mean)
+        history.eval_seconds.append(round(train_clock.seconds, 3))
         history.eval_initial_values.append(result.initial_value)
         _log(
             logger,
@@ -401,6 +402,7 @@ def _summary(
         "episodes": len(progress.history.episode_returns),
         "eval_curve": {
             "frames": progress.history.eval_frames,
+            "seconds": progress.history.eval_seconds,  # training seconds, evaluation excluded
             "returns": progress.history.eval_returns,
         },
         "checkpoint": str(best) if cfg.checkpoint.save_best else None,

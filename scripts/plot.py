@@ -1,0 +1,51 @@
+"""Compare runs: eval return against frames and seconds, one median line per config.
+
+    python scripts/plot.py RUN_DIR [RUN_DIR ...] [--out comparison]
+
+Run directories (shell globs welcome: ``runs/ablations/*``) whose configs differ only in seed
+and run directory are one config: drawn as the median over its seeds with an interquartile
+band. Writes ``OUT.png`` (two panels: against training frames and against training seconds,
+evaluation excluded) and ``OUT.md`` (solve rate and medians to solve per config), and prints
+the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from trl_cartpole.benchmarking import group_runs, load_runs, markdown_table
+from trl_cartpole.plotting import plot_comparison
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dirs", nargs="+", type=Path, help="run directories (globs)")
+    parser.add_argument("--out", type=Path, default=Path("comparison"), help="output prefix")
+    args = parser.parse_args()
+    groups = group_runs(load_runs(args.run_dirs))
+    if not groups:
+        print("error: none of the directories holds a finished run (summary.json)", file=sys.stderr)
+        return 2
+    curves = {"Frames": {}, "Training seconds": {}}
+    for label, runs in groups.items():
+        evals = [run["summary"]["eval_curve"] for run in runs]
+        curves["Frames"][label] = [(e["frames"], e["returns"]) for e in evals]
+        if all("seconds" in e for e in evals):  # summaries written before it lack it
+            curves["Training seconds"][label] = [(e["seconds"], e["returns"]) for e in evals]
+    if not curves["Training seconds"]:
+        del curves["Training seconds"]
+    threshold = next(iter(groups.values()))[0]["summary"]["solve_threshold"]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    image = plot_comparison(curves, args.out.with_suffix(".png"), threshold)
+    summaries = {label: [run["summary"] for run in runs] for label, runs in groups.items()}
+    table = markdown_table(summaries, label="config")
+    args.out.with_suffix(".md").write_text(f"{table}\n\n![comparison]({image.name})\n")
+    print(table)
+    print(f"written: {image}, {args.out.with_suffix('.md')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
