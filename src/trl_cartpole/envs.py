@@ -6,6 +6,8 @@ runs on the TorchRL specs of the built env, so the message names what the env re
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import torch
 from torchrl.data import Categorical, Composite, OneHot
@@ -74,6 +76,7 @@ def make_env(
     device: str | torch.device = "cpu",
     max_episode_steps: int | None = None,
     num_envs: int = 1,
+    render_mode: str | None = None,
 ) -> TransformedEnv:
     """Build ``GymEnv(env_id)`` wrapped in ``StepCounter``, ``RewardSum`` (+ ``DoubleToFloat``).
 
@@ -85,9 +88,18 @@ def make_env(
     training loop reads episode lengths and returns off the collected batch. Gymnasium's
     TimeLimit sets ``truncated`` (not ``terminated``) at the step limit, so the TD target keeps
     bootstrapping there.
+
+    ``render_mode`` (``"rgb_array"`` or ``"human"``, single env only) is passed to
+    ``gymnasium.make``; the Gymnasium env is ``env.base_env._env``.
     """
     check_env_id(env_id)
-    make_kwargs = {} if max_episode_steps is None else {"max_episode_steps": max_episode_steps}
+    make_kwargs: dict[str, Any] = {}
+    if max_episode_steps is not None:
+        make_kwargs["max_episode_steps"] = max_episode_steps
+    if render_mode is not None:
+        if num_envs != 1:
+            raise ValueError("render_mode needs a single env (num_envs=1)")
+        make_kwargs["render_mode"] = render_mode
     try:
         if num_envs == 1:
             base_env = GymEnv(env_id, device=device, **make_kwargs)

@@ -1,0 +1,93 @@
+"""Watch an agent: greedy episodes rendered to a GIF or MP4, or to a live window.
+
+Frames come from Gymnasium's ``render_mode="rgb_array"`` through the same ``make_env`` the
+training used; each frame carries the episode number, the step and the return so far. GIFs
+are written with Pillow (a matplotlib dependency); MP4 needs ``imageio[ffmpeg]``
+(``pip install -e '.[video]'``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image, ImageDraw
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
+
+from trl_cartpole.config import ConfigError
+
+__all__ = ["EpisodeFrames", "render_episodes", "write_video"]
+
+
+@dataclass
+class EpisodeFrames:
+    """One rendered episode: ``frames`` ``[T + 1]`` of ``[H, W, 3]`` uint8 and its return."""
+
+    frames: list[np.ndarray]
+    episode_return: float
+
+
+def _captioned(frame: np.ndarray, text: str, scale: float) -> np.ndarray:
+    """``frame`` ``[H, W, 3]`` resized by ``scale``, with ``text`` drawn in its top-left corner."""
+    image = Image.fromarray(frame)
+    if scale != 1.0:
+        size = (max(1, round(image.width * scale)), max(1, round(image.height * scale)))
+        image = image.resize(size)
+    ImageDraw.Draw(image).text((6, 6), text, fill=(0, 0, 0))
+    return np.asarray(image)
+
+
+@torch.no_grad()
+def render_episodes(
+    actor: TensorDictModuleBase,
+    env: EnvBase,
+    episodes: int,
+    max_steps: int = 10_000,
+    scale: float = 1.0,
+) -> Iterator[EpisodeFrames]:
+    """Play ``episodes`` greedy episodes on ``env`` (made with ``render_mode="rgb_array"``).
+
+    Yields each episode's frames: the reset state, then one frame after every step, each
+    resized by ``scale`` and captioned with the episode, step and return so far.
+    """
+    gym_env = env.base_env._env  # the Gymnasium env behind TorchRL's GymEnv
+    for episode in range(1, episodes + 1):
+        td = env.reset()
+        frames = [_captioned(gym_env.render(), f"episode {episode}  step 0  return 0", scale)]
+        episode_return = 0.0
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            for step in range(1, max_steps + 1):
+                td = env.step(actor(td))
+                episode_return += td["next", "reward"].item()
+                caption = f"episode {episode}  step {step}  return {episode_return:g}"
+                frames.append(_captioned(gym_env.render(), caption, scale))
+                if td["next", "done"].item():
+                    break
+                td = td["next"]
+        yield EpisodeFrames(frames, episode_return)
+
+
+def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Path:
+    """Write ``frames`` to ``path`` (``.gif`` or ``.mp4``) under a temporary name, then rename."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    if path.suffix == ".gif":
+        images = [Image.fromarray(frame) for frame in frames]
+        images[0].save(tmp, save_all=True, append_images=images[1:], duration=1000 / fps, loop=0)
+    elif path.suffix == ".mp4":
+        try:
+            import imageio.v3 as iio
+        except ImportError:
+            raise ConfigError(
+                "writing .mp4 needs imageio[ffmpeg]: pip install -e '.[video]' (or use .gif)"
+            ) from None
+        iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")
+    else:
+        raise ConfigError(f"output={str(path)!r}: choose a .gif or .mp4 file name")
+    os.replace(tmp, path)
+    return path

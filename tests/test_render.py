@@ -1,0 +1,57 @@
+"""Watching an agent headless: a GIF with one frame per step plus one per reset."""
+
+from __future__ import annotations
+
+import subprocess
+
+import pytest
+from PIL import Image
+
+from trl_cartpole.config import ConfigError
+from trl_cartpole.video import write_video
+
+from .conftest import SCRIPTS
+
+
+def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, python, tmp_path):
+    out = tmp_path / "agent.gif"
+    proc = subprocess.run(
+        [
+            python,
+            str(SCRIPTS / "render.py"),
+            f"checkpoint={smoke_checkpoint}",
+            "episodes=2",
+            "scale=0.25",
+            f"output={out}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)},  # headless: no DISPLAY
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    # "... returns [r1, r2], N frames written": a frame per step (r = steps in CartPole) + reset.
+    returns = [float(r) for r in proc.stdout.split("returns [")[1].split("]")[0].split(",")]
+    expected_frames = int(sum(returns)) + len(returns)
+    assert f"{expected_frames} frames written" in proc.stdout
+    with Image.open(out) as gif:
+        assert gif.n_frames == expected_frames
+        assert gif.size == (150, 100)  # 600x400 scaled by 0.25
+
+
+def test_human_mode_without_a_display_is_a_clear_error(smoke_checkpoint, python, tmp_path):
+    proc = subprocess.run(
+        [python, str(SCRIPTS / "render.py"), f"checkpoint={smoke_checkpoint}", "human=true"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)},
+    )
+    assert proc.returncode == 2
+    assert "error: human=true needs a display" in proc.stderr
+
+
+def test_unknown_video_format_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"choose a \.gif or \.mp4"):
+        write_video([], tmp_path / "x.avi")
+    assert not list(tmp_path.iterdir())
