@@ -127,9 +127,12 @@ class EvalConfig:
 
 @dataclass
 class LoggerConfig:
-    backend: str = "csv"  # csv | tensorboard | none
+    backend: str = "csv"  # csv | tensorboard | wandb | none
+    project: str = "trl_cartpole"  # wandb project
+    wandb_offline: bool = True  # wandb runs offline (sync later with `wandb sync`)
     progress_bar: bool = True
-    plots: bool = True
+    plots: bool = True  # durations.png and dashboard.png at the end of the run
+    live_plot: bool = True  # redraw the duration plot at each evaluation (notebook/window/PNG)
 
 
 @dataclass
@@ -186,7 +189,7 @@ _CHOICES = {
     "loss.loss_function": ("smooth_l1", "l2"),
     "loss.target_update": ("soft", "hard"),
     "optim.grad_clip": ("value", "norm", "none"),
-    "logger.backend": ("csv", "tensorboard", "none"),
+    "logger.backend": ("csv", "tensorboard", "wandb", "none"),
 }
 
 

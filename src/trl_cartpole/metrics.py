@@ -5,18 +5,25 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger
+from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLogger
 
 from trl_cartpole.config import ConfigError
 
 __all__ = ["History", "make_logger"]
 
 
-def make_logger(backend: str, run_dir: str | Path) -> Logger | None:
-    """Return TorchRL's ``CSVLogger`` or ``TensorboardLogger`` writing under ``run_dir/metrics``.
+def make_logger(
+    backend: str,
+    run_dir: str | Path,
+    project: str = "trl_cartpole",
+    wandb_offline: bool = True,
+) -> Logger | None:
+    """Return TorchRL's ``CSVLogger``, ``TensorboardLogger`` or ``WandbLogger`` for ``run_dir``.
 
     ``CSVLogger`` writes one ``metrics/scalars/<name>.csv`` per scalar, each row ``step,value``
-    with ``step`` the frame count. ``backend="none"`` returns ``None``.
+    with ``step`` the frame count; ``TensorboardLogger`` writes event files under
+    ``run_dir/metrics``; ``WandbLogger`` logs to ``project`` (offline by default, files under
+    ``run_dir/wandb``). ``backend="none"`` returns ``None``.
     """
     if backend == "none":
         return None
@@ -30,7 +37,20 @@ def make_logger(backend: str, run_dir: str | Path) -> Logger | None:
                 "logger.backend=tensorboard needs tensorboard: pip install -e '.[tensorboard]'"
             ) from None
         return TensorboardLogger(exp_name="metrics", log_dir=str(run_dir))
-    raise ConfigError(f"logger.backend={backend!r}; choose csv, tensorboard or none")
+    if backend == "wandb":
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            raise ConfigError(
+                "logger.backend=wandb needs wandb: pip install -e '.[wandb]'"
+            ) from None
+        return WandbLogger(
+            exp_name=Path(run_dir).name,
+            offline=wandb_offline,
+            save_dir=str(run_dir),
+            project=project,
+        )
+    raise ConfigError(f"logger.backend={backend!r}; choose csv, tensorboard, wandb or none")
 
 
 @dataclass

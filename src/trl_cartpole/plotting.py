@@ -1,18 +1,26 @@
-"""PNG plots of a run: the tutorial's duration plot and the Practical RL 4-panel dashboard."""
+"""Plots of a run: the tutorial's duration plot (also live) and the Practical RL dashboard.
+
+File plots are drawn on ``matplotlib.figure.Figure`` objects, which need no pyplot backend, so
+importing this module never changes the user's matplotlib backend; only a live window uses
+pyplot.
+"""
 
 from __future__ import annotations
 
+import io
+import os
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")  # headless: the plots are files
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 __all__ = [
+    "LiveDurationPlot",
+    "draw_durations",
     "hold_last",
+    "live_plot_target",
     "moving_average",
     "plot_comparison",
     "plot_dashboard",
@@ -32,17 +40,14 @@ def moving_average(values: Sequence[float], window: int) -> np.ndarray:
     return (cumsum[index] - cumsum[start]) / (index - start)
 
 
-def _atomic_savefig(fig: plt.Figure, path: Path) -> None:
+def _atomic_savefig(fig: Figure, path: Path) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
     tmp.replace(path)
 
 
-def plot_durations(episode_lengths: Sequence[int], path: str | Path, title: str = "") -> Path:
-    """The tutorial's ``plot_durations``: episode duration and its 100-episode mean."""
-    path = Path(path)
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+def draw_durations(ax, episode_lengths: Sequence[int], title: str = "") -> None:
+    """Draw the tutorial's ``plot_durations`` on ``ax``: durations and their 100-episode mean."""
     episodes = np.arange(1, len(episode_lengths) + 1)
     ax.plot(episodes, episode_lengths, label="duration", alpha=0.6)
     if len(episode_lengths) >= 100:
@@ -54,8 +59,75 @@ def plot_durations(episode_lengths: Sequence[int], path: str | Path, title: str 
     ax.set_title(title or "Training episode durations")
     ax.legend(loc="upper left")
     ax.grid(alpha=0.3)
+
+
+def plot_durations(episode_lengths: Sequence[int], path: str | Path, title: str = "") -> Path:
+    """The tutorial's ``plot_durations`` as a PNG file (written atomically)."""
+    path = Path(path)
+    fig = Figure(figsize=(8, 4.5))
+    draw_durations(fig.subplots(), episode_lengths, title)
     _atomic_savefig(fig, path)
     return path
+
+
+def live_plot_target() -> str:
+    """Where a live plot can go: ``notebook`` (a Jupyter kernel), ``window`` or ``file``.
+
+    ``window`` needs a display and an interactive matplotlib backend; anything else (a
+    headless machine, CI) gets ``file``.
+    """
+    try:
+        from IPython import get_ipython
+
+        shell = get_ipython()
+        if shell is not None and "IPKernelApp" in shell.config:
+            return "notebook"
+    except ImportError:
+        pass
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or sys.platform == "darwin":
+        import matplotlib
+
+        if matplotlib.get_backend().lower() not in NON_INTERACTIVE_BACKENDS:
+            return "window"
+    return "file"
+
+
+NON_INTERACTIVE_BACKENDS = {"agg", "cairo", "pdf", "pgf", "ps", "svg", "template"}
+
+
+class LiveDurationPlot:
+    """The seeds' live duration plot, redrawn at every :meth:`update`.
+
+    In a notebook the cell output is replaced by the new figure (``IPython.display``), with a
+    display a matplotlib window is redrawn, and headless the PNG at ``path`` is rewritten.
+    """
+
+    def __init__(self, path: str | Path, title: str = "", target: str | None = None) -> None:
+        self.path, self.title = Path(path), title
+        self.target = target or live_plot_target()
+        self._window = None
+
+    def update(self, episode_lengths: Sequence[int]) -> None:
+        if self.target == "file":
+            plot_durations(episode_lengths, self.path, self.title)
+        elif self.target == "notebook":
+            from IPython import display
+
+            fig = Figure(figsize=(8, 4.5))
+            draw_durations(fig.subplots(), episode_lengths, self.title)
+            buffer = io.BytesIO()
+            fig.savefig(buffer, format="png", dpi=80)
+            display.clear_output(wait=True)
+            display.display(display.Image(data=buffer.getvalue()))
+        else:
+            import matplotlib.pyplot as plt
+
+            if self._window is None:
+                plt.ion()
+                self._window = plt.figure(figsize=(8, 4.5))
+            self._window.clf()
+            draw_durations(self._window.subplots(), episode_lengths, self.title)
+            plt.pause(0.001)
 
 
 def plot_dashboard(
@@ -73,7 +145,8 @@ def plot_dashboard(
     TD loss and grad norm are smoothed with a moving average over ``smoothing`` updates.
     """
     path = Path(path)
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8))
+    fig = Figure(figsize=(12, 8))
+    axes = fig.subplots(2, 2)
     panels = [
         (axes[0, 0], eval_frames, eval_returns, "Mean greedy return (eval)", False),
         (axes[0, 1], update_frames, td_losses, "TD loss (smoothed)", True),
@@ -118,9 +191,8 @@ def plot_seed_groups(
     path = Path(path)
     columns = min(4, len(curves))
     rows = -(-len(curves) // columns)
-    fig, axes = plt.subplots(
-        rows, columns, figsize=(4 * columns, 3.2 * rows), squeeze=False, sharey=True
-    )
+    fig = Figure(figsize=(4 * columns, 3.2 * rows))
+    axes = fig.subplots(rows, columns, squeeze=False, sharey=True)
     for ax, (name, seeds) in zip(axes.flat, curves.items(), strict=False):
         for frames, values in seeds:
             ax.step(frames, values, where="post", color="grey", alpha=0.35, linewidth=0.8)
@@ -164,7 +236,8 @@ def plot_comparison(
     :func:`hold_last`).
     """
     path = Path(path)
-    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.2), squeeze=False)
+    fig = Figure(figsize=(6 * len(panels), 4.2))
+    axes = fig.subplots(1, len(panels), squeeze=False)
     for ax, (xlabel, groups) in zip(axes.flat, panels.items(), strict=True):
         for name, seeds in groups.items():
             _median_band(ax, name, seeds)

@@ -39,8 +39,8 @@ from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_from_loss
 from trl_cartpole.metrics import History, make_logger
-from trl_cartpole.models import make_q_actor_for_env, reset_network_noise
-from trl_cartpole.plotting import plot_dashboard, plot_durations
+from trl_cartpole.models import expected_action_values, make_q_actor_for_env, reset_network_noise
+from trl_cartpole.plotting import LiveDurationPlot, plot_dashboard, plot_durations
 from trl_cartpole.update import make_optimizer, make_update
 
 __all__ = ["TRANSITION_KEYS", "prepare_run_dir", "seed_everything", "train"]
@@ -209,7 +209,9 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         cfg.collector.init_random_frames,
         cfg.device,
     )
-    logger = make_logger(cfg.logger.backend, run_dir)
+    logger = make_logger(cfg.logger.backend, run_dir, cfg.logger.project, cfg.logger.wandb_offline)
+    title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
+    live_plot = LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None
     learning_starts = max(
         cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
     )
@@ -298,24 +300,25 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
             postfix.update(eps=f"{exploration.eps.item():.3f}")
         bar.set_postfix(postfix, refresh=False)
         if progress.updates // UPDATE_LOG_INTERVAL > updates_before // UPDATE_LOG_INTERVAL:
-            _log(
-                logger,
-                {
-                    "train/td_loss": history.td_losses[-1],
-                    "train/grad_norm": history.grad_norms[-1],
-                    **({} if exploration is None else {"train/epsilon": exploration.eps.item()}),
-                    **(
-                        {"train/mean_importance_weight": sample["priority_weight"].mean().item()}
-                        if cfg.buffer.prioritized
-                        else {}
-                    ),
-                },
-                progress.frames,
-            )
+            scalars = {
+                "train/td_loss": history.td_losses[-1],
+                "train/grad_norm": history.grad_norms[-1],
+                "train/frames_per_second": progress.frames / max(train_clock.seconds, 1e-9),
+            }
+            if batch.get("action_value", None) is not None:  # None in random warm-up batches
+                q = expected_action_values(actor, batch["action_value"])  # [F, num_actions]
+                scalars["train/q_max_mean"] = q.max(-1).values.mean().item()
+            if exploration is not None:
+                scalars["train/epsilon"] = exploration.eps.item()
+            if cfg.buffer.prioritized:
+                scalars["train/mean_importance_weight"] = sample["priority_weight"].mean().item()
+            _log(logger, scalars, progress.frames)
 
         if progress.frames - max(progress.last_eval_frame, 0) >= cfg.eval.interval_frames:
             train_clock.pause()
             solved = run_evaluation()
+            if live_plot is not None:
+                live_plot.update(history.episode_lengths)
             train_clock.start()
             if solved and cfg.eval.stop_when_solved:
                 break
@@ -349,9 +352,10 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
     )
     final = evaluate(actor, final_env, cfg.eval.max_steps)
     _log(logger, {"eval/final_return_mean": final.mean}, progress.frames)
+    if logger is not None:
+        logger.close()  # flushes TensorBoard events, finishes a wandb run
 
     if cfg.logger.plots:
-        title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
         plot_durations(history.episode_lengths, run_dir / "durations.png", title)
         plot_dashboard(
             history.eval_frames,

@@ -1,0 +1,70 @@
+"""Logging backends for real: CSV rows and TensorBoard events read back; the live plot."""
+
+from __future__ import annotations
+
+import pytest
+
+from trl_cartpole.config import ConfigError
+from trl_cartpole.metrics import make_logger
+from trl_cartpole.plotting import LiveDurationPlot, live_plot_target
+from trl_cartpole.train import train
+
+from .conftest import SMOKE_OVERRIDES
+
+TRAIN_SCALARS = {
+    "train/episode_return",
+    "train/episode_length",
+    "train/td_loss",
+    "train/grad_norm",
+    "train/q_max_mean",
+    "train/frames_per_second",
+    "eval/return_mean",
+    "eval/final_return_mean",
+}
+
+
+def test_csv_backend_writes_every_scalar_with_frame_steps(compose, tmp_path):
+    train(compose(*SMOKE_OVERRIDES, f"run_dir={tmp_path}", "algo=prioritized"))
+    scalars = tmp_path / "metrics" / "scalars"
+    written = {str(p.relative_to(scalars).with_suffix("")) for p in scalars.rglob("*.csv")}
+    assert written >= TRAIN_SCALARS | {"train/epsilon", "train/mean_importance_weight"}
+    rows = (scalars / "eval" / "return_mean.csv").read_text().split()
+    assert [int(row.split(",")[0]) for row in rows] == [152, 300]  # first batch past 150, the end
+    weights = (scalars / "train" / "mean_importance_weight.csv").read_text().split()
+    assert all(0 < float(row.split(",")[1]) <= 1 for row in weights)
+
+
+def test_tensorboard_backend_events_read_back(compose, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    train(compose(*SMOKE_OVERRIDES, f"run_dir={tmp_path}", "logger.backend=tensorboard"))
+    events = list((tmp_path / "metrics").rglob("events.out.tfevents.*"))
+    assert len(events) == 1
+    accumulator = EventAccumulator(str(events[0].parent))
+    accumulator.Reload()
+    assert set(accumulator.Tags()["scalars"]) >= TRAIN_SCALARS | {"train/epsilon"}
+    evals = accumulator.Scalars("eval/return_mean")
+    assert [event.step for event in evals] == [152, 300]
+    assert not (tmp_path / "metrics" / "scalars").exists()  # no CSV files with TensorBoard
+
+
+def test_wandb_without_the_package_is_a_clear_error(tmp_path):
+    pytest.importorskip("tensorboard")
+    try:
+        import wandb  # noqa: F401
+
+        pytest.skip("wandb is installed")
+    except ImportError:
+        pass
+    with pytest.raises(ConfigError, match=r"pip install -e '\.\[wandb\]'"):
+        make_logger("wandb", tmp_path)
+
+
+def test_headless_live_plot_rewrites_the_png_at_each_evaluation(compose, tmp_path):
+    assert live_plot_target() == "file"  # the test machine has no display
+    plot = LiveDurationPlot(tmp_path / "durations.png")
+    plot.update([10, 20, 30])
+    first = (tmp_path / "durations.png").stat().st_mtime_ns
+    plot.update([10, 20, 30, 40] * 30)
+    assert (tmp_path / "durations.png").stat().st_mtime_ns >= first
+    assert not list(tmp_path.glob(".*.tmp"))  # written atomically
