@@ -34,6 +34,7 @@ def _summary(frames, seconds, final):
         "frames_to_solve": frames,
         "seconds_to_solve": seconds,
         "final_eval_return_mean": final,
+        "wall_seconds": 10.0,
     }
 
 
@@ -43,8 +44,8 @@ def test_markdown_table_rows():
         "b": [_summary(None, None, 10.0)],
     }
     lines = markdown_table(results).splitlines()
-    assert lines[2] == "| a | 2/3 | 3000 | 6.0 | 490.0 | 1000, 3000, - | 2.0, 6.0, - |"
-    assert lines[3] == "| b | 0/1 | not solved | not solved | 10.0 | - | - |"
+    assert lines[2] == "| a | 2/3 | 3000 | 6.0 | 490.0 | 1000, 3000, - | 2.0, 6.0, - | 10.0 |"
+    assert lines[3] == "| b | 0/1 | not solved | not solved | 10.0 | - | - | 10.0 |"
 
 
 def test_seed_group_plot_and_doc_markers(tmp_path):
@@ -104,6 +105,7 @@ def _fake_run(root, name, seed, lr, frames_to_solve):
         "frames_to_solve": frames_to_solve,
         "seconds_to_solve": None if frames_to_solve is None else frames_to_solve / 1000,
         "final_eval_return_mean": 500.0,
+        "wall_seconds": 3.0,
         "solve_threshold": 475.0,
         "eval_curve": {"frames": [1000, 2000], "seconds": [1.0, 2.0], "returns": [20.0, 480.0]},
     }

@@ -71,8 +71,9 @@ def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "prese
     """One row per preset: solve rate, medians to solve, final greedy return, per-seed frames."""
     lines = [
         f"| {label} | solved | median frames_to_solve | median seconds_to_solve | "
-        "median final 100-ep greedy return | frames_to_solve per seed | seconds per seed |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "median final 100-ep greedy return | frames_to_solve per seed | seconds per seed | "
+        "median wall seconds |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for algo, runs in results.items():
         frames = [r["frames_to_solve"] for r in runs]
@@ -82,7 +83,8 @@ def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "prese
             f"| {algo} | {sum(r['solved'] for r in runs)}/{len(runs)} | "
             f"{_format(median_to_solve(frames), 0)} | {_format(median_to_solve(seconds), 1)} | "
             f"{final:.1f} | {', '.join('-' if f is None else str(f) for f in frames)} | "
-            f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} |"
+            f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} | "
+            f"{statistics.median(r['wall_seconds'] for r in runs):.1f} |"
         )
     return "\n".join(lines)
 
