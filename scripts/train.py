@@ -1,18 +1,31 @@
-"""Train DQN: ``python scripts/train.py [key=value ...]`` (Hydra overrides, see configs/)."""
+"""Train DQN: ``python scripts/train.py [key=value ...]`` (Hydra overrides, see configs/).
+
+``python scripts/train.py resume=RUN_DIR [collector.total_frames=N ...]`` continues a stopped
+run from its newest checkpoint, with the config it was started with.
+"""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-from trl_cartpole.cli import compose_config, run_cli
+from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
+from trl_cartpole.cli import compose_config, run_cli, split_resume
 from trl_cartpole.train import train
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
 
 def main(argv: list[str]) -> None:
-    summary = train(compose_config(CONFIG_DIR, argv))
+    resume, overrides = split_resume(argv)
+    if resume is None:
+        summary = train(compose_config(CONFIG_DIR, overrides))
+    else:
+        checkpoint = find_resume_checkpoint(resume)
+        if not any(arg.startswith("run_dir=") for arg in overrides):  # continue where it is
+            overrides = [f"run_dir={run_dir_of(checkpoint)}", *overrides]
+        print(f"resuming from {checkpoint}", flush=True)
+        summary = train(resume_config(checkpoint, overrides), resume=checkpoint)
     solved = (
         f"solved at {summary['frames_to_solve']} frames, {summary['seconds_to_solve']:.1f} s"
         if summary["solved"]

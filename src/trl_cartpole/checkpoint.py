@@ -1,38 +1,230 @@
 """Checkpoints through ``torchrl.checkpoint.Checkpoint``: the best policy and the training state.
 
 ``Checkpoint.save`` stages every file under a temporary name and renames the directory into
-place, so an interrupted save leaves the previous checkpoint intact.
+place, so an interrupted (or killed) save leaves the previous checkpoint intact. Periodic
+training states rotate through ``CheckpointRotation`` (the newest ``keep_last`` are kept).
+
+Resuming: :func:`find_resume_checkpoint` turns ``resume=PATH`` (a run directory or a
+training-state checkpoint) into a checkpoint, :func:`resume_config` rebuilds the run's config
+from it (only a few fields may change), and :func:`load_training_state` restores every
+component in place. Anything wrong raises a one-line :class:`ConfigError`.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from omegaconf import OmegaConf
 from torch import nn
-from torchrl.checkpoint import Checkpoint, CheckpointError, GlobalRNGState
+from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
 
-from trl_cartpole.config import Config, ConfigError, to_config
+from trl_cartpole.config import Config, ConfigError, to_config, validate
 
-__all__ = ["load_policy", "read_checkpoint_config", "save_policy", "save_training_state"]
+__all__ = [
+    "RESUMABLE_FIELDS",
+    "find_resume_checkpoint",
+    "load_policy",
+    "load_training_state",
+    "read_checkpoint_config",
+    "resume_config",
+    "run_dir_of",
+    "save_policy",
+    "save_training_state",
+    "verify_integrity",
+]
+
+POLICY, TRAINING_STATE = "policy", "training_state"  # the two kinds of checkpoint
+INTEGRITY = "integrity.json"  # SHA-256 of every file, written once the checkpoint is complete
+# What a resumed run may change; everything else must match the stored config.
+RESUMABLE_FIELDS = (
+    "collector.total_frames",
+    "checkpoint.interval_frames",
+    "run_dir",
+    "checkpoint.keep_last",
+    "logger.progress_bar",
+    "logger.live_plot",
+    "logger.plots",
+)
 
 
-def _config_metadata(cfg: Config, **extra: Any) -> dict[str, Any]:
-    return {"config": OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True), **extra}
+def _config_metadata(cfg: Config, kind: str, **extra: Any) -> dict[str, Any]:
+    config = OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
+    return {"kind": kind, "config": config, **extra}
 
 
 def save_policy(path: str | Path, actor: nn.Module, cfg: Config, **metadata: Any) -> Path:
     """Save the Q-actor's weights with the config that rebuilds it."""
-    return Checkpoint(policy=actor).save(path, metadata=_config_metadata(cfg, **metadata))
+    saved = Checkpoint(policy=actor).save(path, metadata=_config_metadata(cfg, POLICY, **metadata))
+    return _write_integrity(Path(saved))
 
 
 def save_training_state(
-    path: str | Path, cfg: Config, counters: dict[str, Any], **components: Any
+    path: str | Path,
+    cfg: Config,
+    counters: dict[str, Any],
+    keep_last: int | None = None,
+    **components: Any,
 ) -> Path:
-    """Save every component (modules, optimizer, buffer, collector...) plus RNGs and counters."""
+    """Save every component (modules, optimizer, buffer, collector...) plus RNGs and counters.
+
+    With ``keep_last``, ``path`` is a directory of rotated checkpoints (``CheckpointRotation``)
+    of which the newest ``keep_last`` are kept; otherwise ``path`` is the checkpoint itself.
+    """
     checkpoint = Checkpoint(rng=GlobalRNGState(), **components)
-    return checkpoint.save(path, metadata=_config_metadata(cfg, counters=counters))
+    metadata = _config_metadata(cfg, TRAINING_STATE, counters=counters)
+    if keep_last is None:
+        return _write_integrity(Path(checkpoint.save(path, metadata=metadata)))
+    rotation = CheckpointRotation(path, keep_last=keep_last)
+    return _write_integrity(
+        Path(rotation.save(checkpoint, step=counters["frames"], metadata=metadata))
+    )
+
+
+def load_training_state(path: str | Path, **components: Any) -> dict[str, Any]:
+    """Load every component saved by :func:`save_training_state` in place; return the metadata."""
+    verify_integrity(path)
+    try:
+        Checkpoint(rng=GlobalRNGState(), **components).load(path)
+        return Checkpoint.manifest(path)["metadata"]
+    except Exception as error:  # torch, pickle, zip and JSON errors of a damaged checkpoint
+        first_line = (str(error).splitlines() or [type(error).__name__])[0]
+        raise ConfigError(
+            f"resume={str(path)!r} cannot be loaded ({first_line}); it is damaged or was not "
+            "written by this run's version"
+        ) from None
+
+
+def find_resume_checkpoint(path: str | Path) -> Path:
+    """The training state to resume from ``path``: a run directory or a checkpoint in one.
+
+    In a run directory that is the one with the most frames among the newest complete periodic
+    checkpoint (``checkpoints/periodic``) and the end-of-run state (``checkpoints/last``). A
+    periodic checkpoint without its integrity record was cut off while being written and is
+    passed over; one whose files do not match their record raises :class:`ConfigError`.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"resume={str(path)!r} does not exist; pass a run directory")
+    if (path / "manifest.json").is_file():
+        verify_integrity(path)
+        return path
+    candidates = []
+    periodic = path / "checkpoints" / "periodic"
+    entries = sorted(periodic.iterdir(), reverse=True) if periodic.is_dir() else []
+    for entry in entries:
+        if entry.is_dir() and not entry.name.startswith(".") and (entry / INTEGRITY).is_file():
+            candidates.append(entry)
+            break
+    last = path / "checkpoints" / "last"
+    if (last / INTEGRITY).is_file():
+        candidates.append(last)
+    if not candidates:
+        raise ConfigError(
+            f"resume={str(path)!r} holds no complete training state (checkpoints/periodic or "
+            "checkpoints/last); pass the run directory of a run with checkpoints"
+        )
+    for candidate in candidates:
+        verify_integrity(candidate)
+    return max(candidates, key=lambda c: _read_manifest(c)["metadata"]["counters"]["frames"])
+
+
+def _read_manifest(path: Path) -> dict[str, Any]:
+    try:
+        return Checkpoint.manifest(path)
+    except (CheckpointError, OSError, ValueError) as error:
+        raise ConfigError(
+            f"checkpoint={str(path)!r} is not a trl_cartpole checkpoint ({error})"
+        ) from None
+
+
+def _file_digests(path: Path) -> dict[str, str]:
+    return {
+        str(file.relative_to(path)): hashlib.sha256(file.read_bytes()).hexdigest()
+        for file in sorted(path.rglob("*"))
+        if file.is_file() and file.name != INTEGRITY
+    }
+
+
+def _write_integrity(path: Path) -> Path:
+    """Record a SHA-256 of every file of the checkpoint at ``path`` (written atomically)."""
+    tmp = path / f".{INTEGRITY}.tmp"
+    tmp.write_text(json.dumps(_file_digests(path), indent=1))
+    os.replace(tmp, path / INTEGRITY)
+    return path
+
+
+def verify_integrity(path: str | Path) -> None:
+    """Raise :class:`ConfigError` unless every file of the checkpoint matches its record."""
+    path = Path(path)
+    record = path / INTEGRITY
+    if not record.is_file():
+        raise ConfigError(
+            f"checkpoint={str(path)!r} has no {INTEGRITY}: it was cut off while being written "
+            "or is not a trl_cartpole checkpoint"
+        )
+    try:
+        expected = json.loads(record.read_text())
+    except ValueError:
+        raise ConfigError(f"checkpoint={str(path)!r} has a corrupt {INTEGRITY}") from None
+    found = _file_digests(path)
+    damaged = sorted(name for name in expected if found.get(name) != expected[name])
+    if damaged:
+        raise ConfigError(
+            f"checkpoint={str(path)!r} is damaged: {', '.join(damaged[:3])}"
+            f"{' ...' if len(damaged) > 3 else ''} missing, truncated or changed since it was "
+            "written; use an older checkpoint"
+        )
+
+
+def run_dir_of(checkpoint: str | Path) -> Path:
+    """The run directory a checkpoint belongs to (the nearest parent with ``config.yaml``)."""
+    for parent in Path(checkpoint).resolve().parents:
+        if (parent / "config.yaml").is_file() and (parent / "checkpoints").is_dir():
+            return parent
+    raise ConfigError(f"resume={str(checkpoint)!r} is not inside a run directory")
+
+
+def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Config:
+    """The stored config of a training-state checkpoint with ``overrides`` applied.
+
+    Only :data:`RESUMABLE_FIELDS` may differ from the stored run; any other override, or a
+    policy checkpoint (which holds no training state), raises :class:`ConfigError`.
+    """
+    kind = Checkpoint.manifest(checkpoint).get("metadata", {}).get("kind")
+    if kind != TRAINING_STATE:
+        raise ConfigError(
+            f"resume={str(checkpoint)!r} is a {kind or 'foreign'} checkpoint without training "
+            "state; pass the run directory (its checkpoints/periodic or checkpoints/last)"
+        )
+    stored = read_checkpoint_config(checkpoint)
+    merged = OmegaConf.merge(OmegaConf.structured(stored), OmegaConf.from_dotlist(list(overrides)))
+    cfg = validate(to_config(merged))
+    before, after = (
+        _flatten(OmegaConf.to_container(OmegaConf.structured(c))) for c in (stored, cfg)
+    )
+    changed = sorted(key for key in after if after[key] != before.get(key))
+    refused = [key for key in changed if key not in RESUMABLE_FIELDS]
+    if refused:
+        raise ConfigError(
+            f"resume continues the stored run, so {', '.join(refused)} cannot change; only "
+            f"{', '.join(RESUMABLE_FIELDS)} may"
+        )
+    return cfg
+
+
+def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def read_checkpoint_config(path: str | Path) -> Config:
@@ -51,6 +243,7 @@ def read_checkpoint_config(path: str | Path) -> Config:
 
 def load_policy(path: str | Path, actor: nn.Module) -> nn.Module:
     """Load policy weights saved by :func:`save_policy` into ``actor`` (in place)."""
+    verify_integrity(path)
     try:
         Checkpoint(policy=actor).load(path, components=["policy"])
     except (CheckpointError, RuntimeError, KeyError) as error:

@@ -1,8 +1,10 @@
 """Command-line plumbing shared by the scripts: compose the Hydra config, report bad input.
 
-Bad input (an unknown key, a wrong type, an impossible value, an unknown env) ends the
-program with one line on stderr and exit status 2, before any training. Set
-``HYDRA_FULL_ERROR=1`` to get the full traceback instead.
+Bad input (an unknown key, a wrong type, an impossible value, an unknown env, a bad
+checkpoint) ends the program with one line on stderr and exit status 2, before any training.
+An interrupted run exits with 128 + the signal (130 for Ctrl-C) after one line saying how to
+resume; a numerical fault exits with 1. Set ``HYDRA_FULL_ERROR=1`` to get the full traceback
+instead.
 """
 
 from __future__ import annotations
@@ -19,10 +21,13 @@ from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
 from trl_cartpole.config import ConfigError, register_configs
+from trl_cartpole.run_control import TrainingFailed, TrainingInterrupted
 
-__all__ = ["compose_config", "run_cli"]
+__all__ = ["compose_config", "run_cli", "split_resume"]
 
 EXIT_BAD_INPUT = 2
+EXIT_FAILED = 1
+EXIT_KEYBOARD_INTERRUPT = 130
 
 
 def compose_config(config_dir: str | Path, overrides: Sequence[str]) -> DictConfig:
@@ -55,8 +60,17 @@ def _one_line(error: BaseException) -> str:
     return ": ".join(parts) if parts else type(error).__name__
 
 
+def split_resume(argv: Sequence[str]) -> tuple[str | None, list[str]]:
+    """Take ``resume=PATH`` out of the overrides: ``(PATH or None, the other overrides)``."""
+    resume = [arg.split("=", 1)[1] for arg in argv if arg.startswith("resume=")]
+    others = [arg for arg in argv if not arg.startswith("resume=")]
+    if len(resume) > 1:
+        raise ConfigError("resume= is given more than once; pass one run directory")
+    return (resume[0] if resume else None), others
+
+
 def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None) -> int:
-    """Run ``main(argv)``; turn configuration errors into one line on stderr and exit code 2."""
+    """Run ``main(argv)``; report bad input, interrupts and faults in one line with its code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         main(argv)
@@ -65,4 +79,17 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
             raise
         print(f"error: {_one_line(error)}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except TrainingInterrupted as interrupted:
+        print(str(interrupted), file=sys.stderr)
+        return interrupted.exit_code
+    except TrainingFailed as failure:
+        print(f"error: {failure}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print(
+            "interrupted twice: exited at once; the newest complete checkpoint is intact "
+            "(resume=RUN_DIR)",
+            file=sys.stderr,
+        )
+        return EXIT_KEYBOARD_INTERRUPT
     return 0

@@ -139,7 +139,9 @@ class LoggerConfig:
 class CheckpointConfig:
     save_best: bool = True  # the best policy by periodic evaluation
     save_last: bool = True  # the full training state at the end of the run
-    include_buffer: bool = True  # store the replay buffer in the last training state
+    include_buffer: bool = True  # store the replay buffer in training states (exact resume)
+    interval_frames: int = 10_000  # a training state every this many frames (0: never)
+    keep_last: int = 2  # periodic training states kept (checkpoints/periodic)
 
 
 @dataclass
@@ -258,6 +260,8 @@ def validate(cfg: Config) -> Config:
             "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
         ),
         (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
+        (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
+        (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
         (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
         (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
         (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),

@@ -9,7 +9,7 @@ from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLo
 
 from trl_cartpole.config import ConfigError
 
-__all__ = ["History", "make_logger"]
+__all__ = ["History", "make_logger", "truncate_csv_metrics"]
 
 
 def make_logger(
@@ -66,3 +66,16 @@ class History:
     eval_seconds: list[float] = field(default_factory=list)
     eval_returns: list[float] = field(default_factory=list)
     eval_initial_values: list[float] = field(default_factory=list)
+
+
+def truncate_csv_metrics(run_dir: str | Path, frames: int) -> None:
+    """Drop the CSV rows logged after ``frames`` (``run_dir/metrics/scalars/**.csv``).
+
+    A resumed run logs those frames again; each file is rewritten atomically.
+    """
+    for path in (Path(run_dir) / "metrics" / "scalars").rglob("*.csv"):
+        rows = path.read_text().splitlines(keepends=True)
+        kept = [row for row in rows if row.strip() and int(row.split(",", 1)[0]) <= frames]
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text("".join(kept))
+        tmp.replace(path)

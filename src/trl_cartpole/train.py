@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import os
 import random
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,19 +30,22 @@ import torchrl
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
+from torchrl.checkpoint import Checkpoint
 from tqdm.auto import tqdm
 
 from trl_cartpole.buffers import annealed_beta, make_replay_buffer
-from trl_cartpole.checkpoint import save_policy, save_training_state
+from trl_cartpole.checkpoint import load_training_state, save_policy, save_training_state
 from trl_cartpole.collectors import make_collector
 from trl_cartpole.config import Config, ConfigError, to_config, validate
 from trl_cartpole.envs import make_env, solve_threshold
 from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_from_loss
-from trl_cartpole.metrics import History, make_logger
+from trl_cartpole.metrics import History, make_logger, truncate_csv_metrics
 from trl_cartpole.models import expected_action_values, make_q_actor_for_env, reset_network_noise
 from trl_cartpole.plotting import LiveDurationPlot, plot_dashboard, plot_durations
+from trl_cartpole.run_control import StopRequest, TrainingFailed, TrainingInterrupted
+from trl_cartpole.run_state import RunState
 from trl_cartpole.update import make_optimizer, make_update
 
 __all__ = ["TRANSITION_KEYS", "prepare_run_dir", "seed_everything", "train"]
@@ -144,17 +149,25 @@ def _record_episodes(batch: TensorDictBase, progress: _Progress, logger) -> None
         )
 
 
-def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
-    """Train DQN as configured, write the run directory and return the summary dict."""
+def train(
+    cfg: Config | DictConfig | dict[str, Any], resume: str | Path | None = None
+) -> dict[str, Any]:
+    """Train DQN as configured, write the run directory and return the summary dict.
+
+    With ``resume`` (a training-state checkpoint, see ``checkpoint.find_resume_checkpoint``)
+    every component is restored from it and the run continues where it stopped; ``cfg`` must
+    be its stored config (``checkpoint.resume_config``). SIGINT/SIGTERM write a checkpoint and
+    raise :class:`TrainingInterrupted`; a non-finite loss raises :class:`TrainingFailed`.
+    """
     cfg = validate(to_config(cfg))
     wall_start = time.perf_counter()
     torch.set_num_threads(cfg.num_threads)
     seed_everything(cfg.seed)
-    run_dir = prepare_run_dir(cfg.run_dir)
-    OmegaConf.save(OmegaConf.structured(cfg), run_dir / "config.yaml")
     threshold = solve_threshold(cfg.env.id, cfg.eval.solve_threshold)
 
     # --- components: each a stock TorchRL object -------------------------------------------
+    # The envs first: one that does not fit (continuous actions, images) stops the run here,
+    # before anything is written.
     env = make_env(cfg.env.id, cfg.seed, cfg.device, cfg.env.max_episode_steps)
     eval_env = make_env(
         cfg.env.id,
@@ -163,6 +176,11 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         cfg.env.max_episode_steps,
         num_envs=cfg.eval.episodes,
     )
+    run_dir = prepare_run_dir(cfg.run_dir)
+    if resume is not None:  # rows logged after the checkpoint will be logged again
+        counters = Checkpoint.manifest(resume)["metadata"]["counters"]
+        truncate_csv_metrics(run_dir, counters["frames"])
+    OmegaConf.save(OmegaConf.structured(cfg), run_dir / "config.yaml")
     actor = make_q_actor_for_env(env, cfg.network, cfg.device)
     exploration = make_exploration(
         env.action_spec,
@@ -216,10 +234,37 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
     )
 
+    def release() -> None:
+        """Close what holds resources before leaving the run early."""
+        bar.close()
+        collector.shutdown()
+        for closable in (env, eval_env):
+            closable.close()
+        if logger is not None:
+            logger.close()
+
     progress = _Progress()
     history = progress.history
     train_clock = _Stopwatch()
+    run_state = RunState(progress, train_clock, env, eval_env, collector, buffer, target_updater)
+    state_components: dict[str, Any] = {
+        "policy": actor,
+        "loss": loss,
+        "optimizer": optimizer,
+        **({} if exploration is None else {"exploration": exploration}),
+        **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
+        "collector": collector,
+        "run": run_state,  # last: its carrier replaces the one the collector's load makes
+    }
+    if resume is not None:
+        load_training_state(resume, **state_components)
+
+    def save_state(path: Path, keep_last: int | None = None) -> Path:
+        counters = {"frames": progress.frames, "updates": progress.updates}
+        return save_training_state(path, cfg, counters, keep_last, **state_components)
+
     bar = tqdm(
+        initial=progress.frames,
         total=cfg.collector.total_frames,
         disable=not cfg.logger.progress_bar,
         unit="frame",
@@ -265,77 +310,91 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
         return solved
 
     # --- the loop ----------------------------------------------------------------------------
+    periodic_dir = run_dir / "checkpoints" / "periodic"
+    last_periodic = progress.frames
+    stop = StopRequest()
     train_clock.start()
-    for batch in collector:  # batch: [frames_per_batch]
-        progress.frames += batch.numel()
-        buffer.extend(batch.reshape(-1).select(*TRANSITION_KEYS))
-        _record_episodes(batch, progress, logger)
+    with stop:
+        for batch in collector:  # batch: [frames_per_batch]
+            progress.frames += batch.numel()
+            buffer.extend(batch.reshape(-1).select(*TRANSITION_KEYS))
+            _record_episodes(batch, progress, logger)
 
-        updates_before = progress.updates
-        if len(buffer) >= learning_starts:
-            for _ in range(cfg.collector.updates_per_batch):
-                sample = buffer.sample()  # [batch_size]
-                metrics = update(sample)
-                if cfg.buffer.prioritized:
-                    buffer.update_priority(sample["index"], priority_from_loss(loss, sample))
-                target_updater.step()
-                progress.updates += 1
-                history.update_frames.append(progress.frames)
-                history.td_losses.append(metrics["loss"].item())
-                history.grad_norms.append(metrics["grad_norm"].item())
-        if exploration is not None:
-            exploration.step(batch.numel())
-        if cfg.network.noisy:
-            reset_network_noise(actor)  # fresh noise for the next collected batch too
-        if cfg.buffer.prioritized:
-            buffer.sampler.beta = annealed_beta(
-                cfg.buffer.beta, progress.frames, beta_anneal_frames
-            )
-        collector.update_policy_weights_()
-
-        bar.update(batch.numel())
-        if history.episode_returns:
-            postfix.update(ep_return=f"{history.episode_returns[-1]:.0f}")
-        if exploration is not None:
-            postfix.update(eps=f"{exploration.eps.item():.3f}")
-        bar.set_postfix(postfix, refresh=False)
-        if progress.updates // UPDATE_LOG_INTERVAL > updates_before // UPDATE_LOG_INTERVAL:
-            scalars = {
-                "train/td_loss": history.td_losses[-1],
-                "train/grad_norm": history.grad_norms[-1],
-                "train/frames_per_second": progress.frames / max(train_clock.seconds, 1e-9),
-            }
-            if batch.get("action_value", None) is not None:  # None in random warm-up batches
-                q = expected_action_values(actor, batch["action_value"])  # [F, num_actions]
-                scalars["train/q_max_mean"] = q.max(-1).values.mean().item()
+            updates_before = progress.updates
+            if len(buffer) >= learning_starts:
+                for _ in range(cfg.collector.updates_per_batch):
+                    sample = buffer.sample()  # [batch_size]
+                    metrics = update(sample)
+                    if cfg.buffer.prioritized:
+                        buffer.update_priority(sample["index"], priority_from_loss(loss, sample))
+                    target_updater.step()
+                    progress.updates += 1
+                    loss_value = metrics["loss"].item()
+                    if not math.isfinite(loss_value):
+                        release()
+                        _fail(cfg, run_dir, progress, f"TD loss is {loss_value}", wall_start)
+                    history.update_frames.append(progress.frames)
+                    history.td_losses.append(loss_value)
+                    history.grad_norms.append(metrics["grad_norm"].item())
             if exploration is not None:
-                scalars["train/epsilon"] = exploration.eps.item()
+                exploration.step(batch.numel())
+            if cfg.network.noisy:
+                reset_network_noise(actor)  # fresh noise for the next collected batch too
             if cfg.buffer.prioritized:
-                scalars["train/mean_importance_weight"] = sample["priority_weight"].mean().item()
-            _log(logger, scalars, progress.frames)
+                buffer.sampler.beta = annealed_beta(
+                    cfg.buffer.beta, progress.frames, beta_anneal_frames
+                )
+            collector.update_policy_weights_()
 
-        if progress.frames - max(progress.last_eval_frame, 0) >= cfg.eval.interval_frames:
-            train_clock.pause()
-            solved = run_evaluation()
-            if live_plot is not None:
-                live_plot.update(history.episode_lengths)
-            train_clock.start()
-            if solved and cfg.eval.stop_when_solved:
-                break
+            bar.update(batch.numel())
+            if history.episode_returns:
+                postfix.update(ep_return=f"{history.episode_returns[-1]:.0f}")
+            if exploration is not None:
+                postfix.update(eps=f"{exploration.eps.item():.3f}")
+            bar.set_postfix(postfix, refresh=False)
+            if progress.updates // UPDATE_LOG_INTERVAL > updates_before // UPDATE_LOG_INTERVAL:
+                scalars = {
+                    "train/td_loss": history.td_losses[-1],
+                    "train/grad_norm": history.grad_norms[-1],
+                    "train/frames_per_second": progress.frames / max(train_clock.seconds, 1e-9),
+                }
+                if batch.get("action_value", None) is not None:  # None in random warm-up batches
+                    q = expected_action_values(actor, batch["action_value"])  # [F, num_actions]
+                    scalars["train/q_max_mean"] = q.max(-1).values.mean().item()
+                if exploration is not None:
+                    scalars["train/epsilon"] = exploration.eps.item()
+                if cfg.buffer.prioritized:
+                    scalars["train/mean_importance_weight"] = (
+                        sample["priority_weight"].mean().item()
+                    )
+                _log(logger, scalars, progress.frames)
+
+            if progress.frames - max(progress.last_eval_frame, 0) >= cfg.eval.interval_frames:
+                train_clock.pause()
+                solved = run_evaluation()
+                if live_plot is not None:
+                    live_plot.update(history.episode_lengths)
+                train_clock.start()
+                if solved and cfg.eval.stop_when_solved:
+                    break
+            due = progress.frames - last_periodic >= (cfg.checkpoint.interval_frames or math.inf)
+            if due or stop.requested:  # a safe point: between batches
+                train_clock.pause()
+                save_state(periodic_dir, cfg.checkpoint.keep_last)
+                last_periodic = progress.frames
+                if stop.requested:
+                    release()
+                    raise TrainingInterrupted(
+                        f"stopped by {signal.Signals(stop.signum).name} at frame "
+                        f"{progress.frames}; checkpoint written; resume with: python "
+                        f"scripts/train.py resume={run_dir}",
+                        stop.signum,
+                    )
+                train_clock.start()
     train_clock.pause()
     bar.close()
     if cfg.checkpoint.save_last:
-        save_training_state(
-            run_dir / "checkpoints" / "last",
-            cfg,
-            counters={"frames": progress.frames, "updates": progress.updates},
-            policy=actor,
-            loss=loss,
-            optimizer=optimizer,
-            **({} if exploration is None else {"exploration": exploration}),
-            collector=collector,
-            **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
-        )
+        save_state(run_dir / "checkpoints" / "last")
     collector.shutdown()
 
     if progress.last_eval_frame != progress.frames:
@@ -372,6 +431,32 @@ def train(cfg: Config | DictConfig | dict[str, Any]) -> dict[str, Any]:
     summary = _summary(cfg, progress, final, threshold, train_clock.seconds, wall_start, run_dir)
     _write_json_atomic(run_dir / "summary.json", summary)
     return summary
+
+
+def _fail(cfg: Config, run_dir: Path, progress: _Progress, what: str, wall_start: float) -> None:
+    """Record a numerical fault in ``summary.json`` and raise :class:`TrainingFailed`.
+
+    The last periodic checkpoint (written before the fault) stays the one to resume from.
+    """
+    message = f"{what} at update {progress.updates} (frame {progress.frames}); training stopped"
+    periodic = run_dir / "checkpoints" / "periodic"
+    summary = {
+        "env_id": cfg.env.id,
+        "seed": cfg.seed,
+        "algo": cfg.algo.name,
+        "frames": progress.frames,
+        "updates": progress.updates,
+        "wall_seconds": round(time.perf_counter() - wall_start, 3),
+        "solved": progress.frames_to_solve is not None,
+        "frames_to_solve": progress.frames_to_solve,
+        "failed": True,
+        "failure": message,
+        "best_eval_return_mean": progress.best_eval if progress.best_state else None,
+        "last_good_checkpoint": str(periodic) if periodic.is_dir() else None,
+        "run_dir": str(run_dir),
+    }
+    _write_json_atomic(run_dir / "summary.json", summary)
+    raise TrainingFailed(f"{message}; the failure is recorded in {run_dir / 'summary.json'}")
 
 
 def _summary(

@@ -1,0 +1,140 @@
+"""The part of a run's state that no TorchRL component holds, as a checkpoint component.
+
+``torchrl.checkpoint.Checkpoint`` saves every component through ``state_dict()`` /
+``load_state_dict()``. The actor, loss (target network), optimizer, exploration module,
+replay buffer, collector counters and global RNGs have their own; :class:`RunState` gathers
+the rest, so that a run resumed from a checkpoint continues exactly as if never stopped:
+
+- the loop's progress (frames, updates, best evaluation and its weights, solve point,
+  training seconds) and the history the plots and summary read;
+- the Gymnasium envs' internal state (physics, ``np_random``, time-limit counters), pickled:
+  the training env mid-episode and the evaluation env, whose episodes follow one another
+  (with TorchRL's autoreset memo of the last evaluation step, which the next reset reads);
+- the collector's carrier (the last observation and the running step count and return);
+- the n-step window the replay buffer's ``MultiStepTransform`` holds back;
+- the hard target update's counter.
+
+An env that cannot be pickled (Box2D's LunarLander) is recorded as missing: the resumed run
+then resets it and says so, the only case where a resume is not exact.
+"""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+from dataclasses import asdict
+from typing import Any
+
+from gymnasium.vector import SyncVectorEnv
+from tensordict import TensorDict
+from torchrl.envs import EnvBase
+from torchrl.envs.transforms import VecGymEnvTransform
+
+__all__ = ["RunState"]
+
+
+def _pickled_env(env: EnvBase) -> bytes | None:
+    """The Gymnasium env behind ``env`` pickled; for a ``SyncVectorEnv``, its list of envs.
+
+    (A vector env made by ``gymnasium.make_vec`` holds local functions and cannot be pickled;
+    between two evaluations its only state is that of its envs.)
+    """
+    gym_env = env.base_env._env
+    try:
+        return pickle.dumps(gym_env.envs if isinstance(gym_env, SyncVectorEnv) else gym_env)
+    except Exception:  # Box2D worlds and other native handles cannot be pickled
+        return None
+
+
+def _autoreset_memo(env: EnvBase) -> VecGymEnvTransform | None:
+    """TorchRL's transform that bridges a vector env's same-step autoreset, if ``env`` has one.
+
+    Its ``_memo`` (the last step's done mask and observations) decides what the next
+    ``reset()`` returns, so it is part of the evaluation env's state.
+    """
+    transform = getattr(env, "transform", None)
+    for candidate in [] if transform is None else list(transform):
+        if isinstance(candidate, VecGymEnvTransform):
+            return candidate
+    return None
+
+
+def _restore_env(env: EnvBase, payload: bytes) -> None:
+    gym_env = env.base_env._env
+    if isinstance(gym_env, SyncVectorEnv):
+        gym_env.envs = pickle.loads(payload)
+    else:
+        env.base_env._env = pickle.loads(payload)
+
+
+class RunState:
+    """``state_dict`` / ``load_state_dict`` over the loop's own state (see the module doc)."""
+
+    def __init__(self, progress, stopwatch, env, eval_env, collector, buffer, target_updater):
+        self.progress = progress
+        self.stopwatch = stopwatch
+        self.env, self.eval_env = env, eval_env
+        self.collector, self.buffer, self.target_updater = collector, buffer, target_updater
+
+    def state_dict(self) -> dict[str, Any]:
+        progress = self.progress
+        n_step = getattr(self.buffer, "_transform", None)
+        window = getattr(n_step[0], "_buffer", None) if n_step is not None and len(n_step) else None
+        return {
+            "frames": progress.frames,
+            "updates": progress.updates,
+            "best_eval": progress.best_eval,
+            "best_state": progress.best_state,
+            "frames_to_solve": progress.frames_to_solve,
+            "seconds_to_solve": progress.seconds_to_solve,
+            "last_eval_frame": progress.last_eval_frame,
+            "history": asdict(progress.history),
+            "train_seconds": self.stopwatch.seconds,
+            "env": _pickled_env(self.env),
+            "eval_env": _pickled_env(self.eval_env),
+            "eval_env_memo": pickle.dumps(memo._memo)
+            if (memo := _autoreset_memo(self.eval_env))
+            else None,
+            "carrier": self.collector._carrier.to_dict(),
+            "n_step_window": None if window is None else window.to_dict(),
+            "n_step_window_size": None if window is None else list(window.batch_size),
+            "hard_update_counter": getattr(self.target_updater, "counter", None),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        progress = self.progress
+        for name in (
+            "frames",
+            "updates",
+            "best_eval",
+            "frames_to_solve",
+            "seconds_to_solve",
+            "last_eval_frame",
+        ):
+            setattr(progress, name, state[name])
+        progress.best_state = state["best_state"]
+        for name, values in state["history"].items():
+            getattr(progress.history, name)[:] = values
+        self.stopwatch.elapsed = state["train_seconds"]
+        carrier = self.collector._carrier
+        for env, key in ((self.env, "env"), (self.eval_env, "eval_env")):
+            if state[key] is not None:
+                _restore_env(env, state[key])
+                continue
+            warnings.warn(
+                f"the {key.replace('_', ' ')} could not be pickled when the checkpoint was "
+                "written, so the resumed run is not an exact continuation",
+                stacklevel=2,
+            )
+            if key == "env":  # start a new episode from the restored RNG
+                carrier.update(env.reset())
+        memo = _autoreset_memo(self.eval_env)
+        if memo is not None and state["eval_env_memo"] is not None:
+            memo._memo = pickle.loads(state["eval_env_memo"])
+        if state["env"] is not None:
+            carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
+        if state["n_step_window"] is not None:
+            window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
+            self.buffer._transform[0]._buffer = window
+        if state["hard_update_counter"] is not None:
+            self.target_updater.counter = state["hard_update_counter"]

@@ -1,0 +1,341 @@
+"""Fault injection: interrupts, exact resume, killed writes, numerical faults, bad input.
+
+Each case is listed with what it proves in docs/reliability.md.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from torchrl.checkpoint import Checkpoint, CheckpointRotation
+
+from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config
+from trl_cartpole.config import ConfigError
+from trl_cartpole.run_control import TrainingFailed
+from trl_cartpole.train import train
+
+from .conftest import SCRIPTS, SMOKE_OVERRIDES
+
+# 600 frames, an evaluation every 150, a training state every 200 (all of them kept).
+RESUMABLE = [
+    *SMOKE_OVERRIDES,
+    "collector.total_frames=600",
+    "checkpoint.interval_frames=200",
+    "checkpoint.keep_last=10",
+    "seed=2",
+]
+TIMINGS = {"train_seconds", "wall_seconds", "seconds_to_solve", "run_dir", "checkpoint"}
+
+
+def _comparable(summary: dict) -> dict:
+    summary = {key: value for key, value in summary.items() if key not in TIMINGS}
+    summary["eval_curve"] = {k: v for k, v in summary["eval_curve"].items() if k != "seconds"}
+    return summary
+
+
+def _weights(checkpoint: Path) -> dict[str, torch.Tensor]:
+    from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
+    from trl_cartpole.envs import make_env
+    from trl_cartpole.models import make_q_actor_for_env
+
+    cfg = read_checkpoint_config(checkpoint)
+    actor = make_q_actor_for_env(make_env(cfg.env.id), cfg.network)
+    load_policy(checkpoint, actor)
+    return actor.state_dict()
+
+
+def _periodic_at(run_dir: Path, frames: int) -> Path:
+    for path in CheckpointRotation(
+        run_dir / "checkpoints" / "periodic", keep_last=10
+    ).checkpoints():
+        if Checkpoint.manifest(path)["metadata"]["counters"]["frames"] == frames:
+            return path
+    raise AssertionError(f"no periodic checkpoint at frame {frames}")
+
+
+@pytest.mark.parametrize("preset", ["dqn", "rainbow"])
+def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, preset):
+    whole = tmp_path / "whole"
+    expected = train(compose(*RESUMABLE, f"algo={preset}", f"run_dir={whole}"))
+    resumed_dir = tmp_path / "resumed"
+    shutil.copytree(whole, resumed_dir)
+    (resumed_dir / "summary.json").unlink()
+    checkpoint = _periodic_at(resumed_dir, 400)
+    cfg = resume_config(checkpoint, [f"run_dir={resumed_dir}"])
+    resumed = train(cfg, resume=checkpoint)
+    assert _comparable(resumed) == _comparable(expected)
+    for name in ("best", "last"):
+        a, b = (_weights(d / "checkpoints" / name) for d in (whole, resumed_dir))
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    td_loss = "metrics/scalars/train/td_loss.csv"
+    assert (whole / td_loss).read_text() == (resumed_dir / td_loss).read_text()
+
+
+# --- interrupts: SIGINT / SIGTERM, a second Ctrl-C, SIGKILL --------------------------------
+
+LONG = [
+    "collector.total_frames=4000",
+    "collector.init_random_frames=64",
+    "buffer.batch_size=32",
+    "eval.interval_frames=1000",
+    "eval.episodes=3",
+    "eval.final_episodes=4",
+    "checkpoint.interval_frames=0",
+    "logger.progress_bar=false",
+    "logger.live_plot=false",
+    "seed=3",
+]
+
+
+def _start(python: str, run_dir: Path, *overrides: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [python, str(SCRIPTS / "train.py"), *overrides, f"run_dir={run_dir}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _wait_until_training(run_dir: Path, proc: subprocess.Popen, timeout: float = 120) -> None:
+    """Wait for the first finished episode (its CSV row) of the run in ``proc``."""
+    marker = run_dir / "metrics" / "scalars" / "train" / "episode_return.csv"
+    deadline = time.monotonic() + timeout
+    while not (marker.is_file() and marker.stat().st_size > 0):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "training did not start"
+        time.sleep(0.05)
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_checkpoints_and_the_resumed_run_equals_the_uninterrupted_one(
+    compose, python, tmp_path, signum, code
+):
+    run_dir = tmp_path / "interrupted"
+    proc = _start(python, run_dir, *LONG)
+    _wait_until_training(run_dir, proc)
+    time.sleep(0.5)
+    proc.send_signal(signum)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == code, stderr[-2000:]
+    last_line = stderr.strip().splitlines()[-1]
+    assert f"resume with: python scripts/train.py resume={run_dir}" in last_line
+    assert "Traceback" not in stderr
+    assert not (run_dir / "summary.json").exists()  # the run is not over
+
+    resumed = subprocess.run(
+        [python, str(SCRIPTS / "train.py"), f"resume={run_dir}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    expected = train(compose(*LONG, f"run_dir={tmp_path / 'whole'}"))
+    got = json.loads((run_dir / "summary.json").read_text())
+    assert _comparable(got) == _comparable(expected)
+    a, b = (_weights(d / "checkpoints" / "last") for d in (run_dir, tmp_path / "whole"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_second_ctrl_c_exits_at_once_and_corrupts_nothing(python, tmp_path):
+    run_dir = tmp_path / "run"
+    proc = _start(python, run_dir, *LONG, "checkpoint.interval_frames=100")
+    _wait_until_training(run_dir, proc)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in stderr
+    checkpoint = find_resume_checkpoint(run_dir)  # the newest complete one loads
+    resume_config(checkpoint)
+    Checkpoint.manifest(checkpoint)
+
+
+def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_path):
+    run_dir = tmp_path / "run"
+    for delay in (0.0, 0.37, 0.71):  # several moments, to land inside a write
+        shutil.rmtree(run_dir, ignore_errors=True)
+        proc = _start(
+            python, run_dir, *LONG, "collector.total_frames=50000", "checkpoint.interval_frames=40"
+        )
+        periodic = run_dir / "checkpoints" / "periodic"
+        _wait_until_training(run_dir, proc)
+        while not list(periodic.glob("*/integrity.json")):  # a first complete checkpoint
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.02)
+        time.sleep(delay)
+        proc.kill()
+        proc.communicate()
+        checkpoint = find_resume_checkpoint(run_dir)
+        frames = Checkpoint.manifest(checkpoint)["metadata"]["counters"]["frames"]
+        resumed = subprocess.run(
+            [
+                python,
+                str(SCRIPTS / "train.py"),
+                f"resume={run_dir}",
+                f"collector.total_frames={frames + 40}",
+                "checkpoint.interval_frames=0",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert resumed.returncode == 0, resumed.stderr[-2000:]
+        assert json.loads((run_dir / "summary.json").read_text())["frames"] == frames + 40
+
+
+# --- numerical faults ---------------------------------------------------------------------
+
+
+def test_non_finite_loss_stops_with_the_update_named_and_keeps_the_last_good_checkpoint(
+    compose, tmp_path, monkeypatch
+):
+    import trl_cartpole.train as training
+
+    real_make_update = training.make_update
+
+    def make_update_that_fails_at_update_37(*args, **kwargs):
+        update = real_make_update(*args, **kwargs)
+        calls = {"n": 0}
+
+        def update_or_nan(batch):
+            calls["n"] += 1
+            metrics = update(batch)
+            if calls["n"] == 37:
+                metrics["loss"] = torch.tensor(float("nan"))
+            return metrics
+
+        return update_or_nan
+
+    monkeypatch.setattr(training, "make_update", make_update_that_fails_at_update_37)
+    run_dir = tmp_path / "run"
+    overrides = [*SMOKE_OVERRIDES, "checkpoint.interval_frames=80", f"run_dir={run_dir}"]
+    with pytest.raises(TrainingFailed, match=r"TD loss is nan at update 37 \(frame \d+\)"):
+        train(compose(*overrides))
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["failed"] is True and "update 37" in summary["failure"]
+    assert not (run_dir / "checkpoints" / "last").exists()  # no state with a NaN in it
+    good = find_resume_checkpoint(run_dir)
+    assert Checkpoint.manifest(good)["metadata"]["counters"]["updates"] < 37
+
+
+# --- bad input: one line, exit 2, nothing trained ------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory) -> Path:
+    from trl_cartpole.cli import compose_config
+
+    from .conftest import CONFIG_DIR
+
+    run_dir = tmp_path_factory.mktemp("finished") / "run"
+    train(compose_config(CONFIG_DIR, [*RESUMABLE, f"run_dir={run_dir}"]))
+    return run_dir
+
+
+def _damaged_copy(run_dir: Path, target: Path, how: str) -> Path:
+    shutil.copytree(run_dir, target)
+    checkpoint = find_resume_checkpoint(target)
+    if how == "truncated":
+        biggest = max(checkpoint.rglob("*.memmap"), key=lambda p: p.stat().st_size)
+        biggest.write_bytes(biggest.read_bytes()[: biggest.stat().st_size // 2])
+    elif how == "corrupt manifest":
+        (checkpoint / "manifest.json").write_text("{ not json")
+    elif how == "missing file":
+        next(checkpoint.rglob("state.json")).unlink()
+    return target
+
+
+def _cli(python: str, script: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [python, str(SCRIPTS / script), *args], capture_output=True, text=True, timeout=120
+    )
+
+
+BAD_INPUTS = [
+    ("unknown key", ["loss.gama=0.5"], "Key 'gama' not in 'LossConfig'"),
+    ("unknown group option", ["algo=nosuch"], "Could not find 'algo/nosuch'"),
+    ("wrong type", ["buffer.batch_size=big"], "could not be converted to Integer"),
+    ("impossible value", ["loss.gamma=1.5"], "loss.gamma=1.5 must lie in (0, 1]"),
+    ("unknown env id", ["env.id=Nope-v0"], "is not a registered Gymnasium env"),
+    ("continuous actions", ["env.id=Pendulum-v1"], "discrete"),
+    ("unwritable run dir", ["run_dir=/proc/trl_cartpole"], "is not writable"),
+    ("missing checkpoint", ["resume=/nonexistent/run"], "does not exist"),
+]
+
+
+@pytest.mark.parametrize(("case", "args", "message"), BAD_INPUTS, ids=[c[0] for c in BAD_INPUTS])
+def test_bad_training_input_is_one_line_and_exit_2(python, tmp_path, case, args, message):
+    run_dir = tmp_path / "run"
+    proc = _cli(python, "train.py", f"run_dir={run_dir}", *args)
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
+    assert "Traceback" not in proc.stderr
+    assert not run_dir.exists()  # nothing written
+
+
+@pytest.mark.parametrize(
+    ("how", "message"),
+    [
+        ("truncated", "is damaged"),
+        ("corrupt manifest", "is damaged: manifest.json"),
+        ("missing file", "is damaged"),
+    ],
+)
+def test_damaged_checkpoint_is_refused_in_one_line(python, tmp_path, finished_run, how, message):
+    damaged = _damaged_copy(finished_run, tmp_path / "damaged", how)
+    before = sorted(p.relative_to(damaged) for p in damaged.rglob("*"))
+    proc = _cli(python, "train.py", f"resume={damaged}")
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
+    assert "Traceback" not in proc.stderr
+    assert sorted(p.relative_to(damaged) for p in damaged.rglob("*")) == before  # untouched
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["env.id=Acrobot-v1"], "env.id cannot change"),
+        (["network.hidden_sizes=[64]"], "network.hidden_sizes cannot change"),
+        (["loss.gama=1"], "Key 'gama' not in"),
+    ],
+)
+def test_resume_refuses_an_incompatible_config(python, finished_run, args, message):
+    proc = _cli(python, "train.py", f"resume={finished_run}", *args)
+    assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluated(
+    python, tmp_path, finished_run
+):
+    best = finished_run / "checkpoints" / "best"
+    proc = _cli(python, "train.py", f"resume={best}")
+    assert proc.returncode == 2 and "without training state" in proc.stderr
+    # A policy checkpoint whose stored config says another network shape.
+    foreign = tmp_path / "foreign"
+    shutil.copytree(best, foreign)
+    manifest = json.loads((foreign / "manifest.json").read_text())
+    manifest["metadata"]["config"]["network"]["hidden_sizes"] = [64, 64]
+    (foreign / "manifest.json").write_text(json.dumps(manifest))
+    proc = _cli(python, "evaluate.py", f"checkpoint={foreign}", "episodes=2")
+    assert proc.returncode == 2 and "is damaged: manifest.json" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    proc = _cli(python, "evaluate.py", "checkpoint=/nonexistent", "episodes=2")
+    assert proc.returncode == 2 and "does not exist" in proc.stderr
+
+
+def test_a_policy_checkpoint_loaded_into_another_network_shape_is_refused(finished_run):
+    from trl_cartpole.checkpoint import load_policy
+    from trl_cartpole.envs import make_env
+    from trl_cartpole.models import make_q_actor
+
+    env = make_env("CartPole-v1")
+    other = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[64])
+    with pytest.raises(ConfigError, match="does not fit this policy"):
+        load_policy(finished_run / "checkpoints" / "best", other)
