@@ -10,7 +10,6 @@ replaces each action by a random one with that probability.
 
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from omegaconf import OmegaConf
 from trl_cartpole.cli import run_cli
 from trl_cartpole.config import ConfigError
 from trl_cartpole.evaluation import evaluate_checkpoint
+from trl_cartpole.files import write_json_atomic
 
 
 @dataclass
@@ -54,7 +54,7 @@ def main(argv: list[str]) -> None:
         "lengths": result.lengths,
     }
     output = Path(args.output) if args.output else Path(args.checkpoint).parent / "evaluation.json"
-    output.write_text(json.dumps(report, indent=2) + "\n")
+    write_json_atomic(output, report)
     print(
         f"{report['env_id']}: {'greedy' if not args.epsilon else f'epsilon={args.epsilon}'} "
         f"return over {len(returns)} episodes: "

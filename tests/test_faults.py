@@ -339,3 +339,18 @@ def test_a_policy_checkpoint_loaded_into_another_network_shape_is_refused(finish
     other = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[64])
     with pytest.raises(ConfigError, match="does not fit this policy"):
         load_policy(finished_run / "checkpoints" / "best", other)
+
+
+def test_a_write_that_fails_halfway_leaves_the_previous_file(tmp_path):
+    from trl_cartpole.files import write_atomic, write_json_atomic
+
+    target = write_json_atomic(tmp_path / "summary.json", {"frames": 1})
+
+    def crash_after_half(tmp: Path) -> None:
+        tmp.write_text('{"frames": ')
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomic(target, crash_after_half)
+    assert json.loads(target.read_text()) == {"frames": 1}
+    assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]  # no temporary left

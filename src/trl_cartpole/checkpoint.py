@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
 
 from trl_cartpole.config import Config, ConfigError, to_config, validate
+from trl_cartpole.files import write_json_atomic
 
 __all__ = [
     "RESUMABLE_FIELDS",
@@ -152,9 +152,7 @@ def _file_digests(path: Path) -> dict[str, str]:
 
 def _write_integrity(path: Path) -> Path:
     """Record a SHA-256 of every file of the checkpoint at ``path`` (written atomically)."""
-    tmp = path / f".{INTEGRITY}.tmp"
-    tmp.write_text(json.dumps(_file_digests(path), indent=1))
-    os.replace(tmp, path / INTEGRITY)
+    write_json_atomic(path / INTEGRITY, _file_digests(path))
     return path
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLogger
 
 from trl_cartpole.config import ConfigError
+from trl_cartpole.files import write_text_atomic
 
 __all__ = ["History", "make_logger", "truncate_csv_metrics"]
 
@@ -76,6 +77,4 @@ def truncate_csv_metrics(run_dir: str | Path, frames: int) -> None:
     for path in (Path(run_dir) / "metrics" / "scalars").rglob("*.csv"):
         rows = path.read_text().splitlines(keepends=True)
         kept = [row for row in rows if row.strip() and int(row.split(",", 1)[0]) <= frames]
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text("".join(kept))
-        tmp.replace(path)
+        write_text_atomic(path, "".join(kept))

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from trl_cartpole.files import write_atomic
+
 __all__ = [
     "LiveDurationPlot",
     "draw_durations",
@@ -41,9 +43,7 @@ def moving_average(values: Sequence[float], window: int) -> np.ndarray:
 
 
 def _atomic_savefig(fig: Figure, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, format="png", dpi=100)
-    tmp.replace(path)
+    write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
 
 
 def draw_durations(ax, episode_lengths: Sequence[int], title: str = "") -> None:

@@ -12,9 +12,7 @@ policy (by periodic evaluation) is evaluated over ``eval.final_episodes`` episod
 from __future__ import annotations
 
 import copy
-import json
 import math
-import os
 import random
 import signal
 import time
@@ -40,6 +38,7 @@ from trl_cartpole.config import Config, ConfigError, to_config, validate
 from trl_cartpole.envs import make_env, solve_threshold
 from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
+from trl_cartpole.files import write_json_atomic, write_text_atomic
 from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_from_loss
 from trl_cartpole.metrics import History, make_logger, truncate_csv_metrics
 from trl_cartpole.models import expected_action_values, make_q_actor_for_env, reset_network_noise
@@ -85,12 +84,6 @@ def prepare_run_dir(run_dir: str | Path) -> Path:
             f"run_dir={str(path)!r} is not writable ({error.strerror}); choose another run_dir"
         ) from None
     return path
-
-
-def _write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(payload, indent=2) + "\n")
-    os.replace(tmp, path)
 
 
 class _Stopwatch:
@@ -180,7 +173,7 @@ def train(
     if resume is not None:  # rows logged after the checkpoint will be logged again
         counters = Checkpoint.manifest(resume)["metadata"]["counters"]
         truncate_csv_metrics(run_dir, counters["frames"])
-    OmegaConf.save(OmegaConf.structured(cfg), run_dir / "config.yaml")
+    write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
     actor = make_q_actor_for_env(env, cfg.network, cfg.device)
     exploration = make_exploration(
         env.action_spec,
@@ -429,7 +422,7 @@ def train(
         closable.close()
 
     summary = _summary(cfg, progress, final, threshold, train_clock.seconds, wall_start, run_dir)
-    _write_json_atomic(run_dir / "summary.json", summary)
+    write_json_atomic(run_dir / "summary.json", summary)
     return summary
 
 
@@ -455,7 +448,7 @@ def _fail(cfg: Config, run_dir: Path, progress: _Progress, what: str, wall_start
         "last_good_checkpoint": str(periodic) if periodic.is_dir() else None,
         "run_dir": str(run_dir),
     }
-    _write_json_atomic(run_dir / "summary.json", summary)
+    write_json_atomic(run_dir / "summary.json", summary)
     raise TrainingFailed(f"{message}; the failure is recorded in {run_dir / 'summary.json'}")
 
 

@@ -8,7 +8,6 @@ are written with Pillow (a matplotlib dependency); MP4 needs ``imageio[ffmpeg]``
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
 from trl_cartpole.config import ConfigError
+from trl_cartpole.files import write_atomic
 
 __all__ = ["EpisodeFrames", "render_episodes", "write_video"]
 
@@ -75,19 +75,22 @@ def render_episodes(
 def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Path:
     """Write ``frames`` to ``path`` (``.gif`` or ``.mp4``) under a temporary name, then rename."""
     path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
     if path.suffix == ".gif":
         images = [Image.fromarray(frame) for frame in frames]
-        images[0].save(tmp, save_all=True, append_images=images[1:], duration=1000 / fps, loop=0)
-    elif path.suffix == ".mp4":
+        return write_atomic(
+            path,
+            lambda tmp: images[0].save(
+                tmp, save_all=True, append_images=images[1:], duration=1000 / fps, loop=0
+            ),
+        )
+    if path.suffix == ".mp4":
         try:
             import imageio.v3 as iio
         except ImportError:
             raise ConfigError(
                 "writing .mp4 needs imageio[ffmpeg]: pip install -e '.[video]' (or use .gif)"
             ) from None
-        iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")
-    else:
-        raise ConfigError(f"output={str(path)!r}: choose a .gif or .mp4 file name")
-    os.replace(tmp, path)
-    return path
+        return write_atomic(
+            path, lambda tmp: iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")
+        )
+    raise ConfigError(f"output={str(path)!r}: choose a .gif or .mp4 file name")

@@ -1,0 +1,41 @@
+"""Write files so that a reader (or a crash) never sees half of one.
+
+Every file a run writes goes to a temporary name in the same directory first and is renamed
+into place (``os.replace`` is atomic on POSIX), so a process killed at any moment leaves the
+previous version or the new one, never a mix.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+__all__ = ["write_atomic", "write_json_atomic", "write_text_atomic"]
+
+
+def write_atomic(path: str | Path, write: Callable[[Path], Any]) -> Path:
+    """Call ``write(tmp)`` for a temporary sibling of ``path``, then rename it to ``path``.
+
+    The temporary name keeps the suffix, for writers that pick a format from it.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically."""
+    return write_atomic(path, lambda tmp: tmp.write_text(text))
+
+
+def write_json_atomic(path: str | Path, payload: Any) -> Path:
+    """Write ``payload`` as indented JSON to ``path`` atomically."""
+    return write_text_atomic(path, json.dumps(payload, indent=2) + "\n")
