@@ -247,7 +247,7 @@ def train(
         **({} if exploration is None else {"exploration": exploration}),
         **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
         "collector": collector,
-        "run": run_state,  # last: its carrier replaces the one the collector's load makes
+        "run": run_state,  # loads after "collector": its carrier replaces the fresh one
     }
     if resume is not None:
         load_training_state(resume, **state_components)
