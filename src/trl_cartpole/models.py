@@ -167,10 +167,33 @@ def make_q_actor(
     ).to(device)
     spec = action_spec.to(device)
     if support is None:
-        return QValueActor(module, in_keys=["observation"], spec=spec)
-    return DistributionalQValueActor(
-        module, support=support.to(device), in_keys=["observation"], spec=spec
-    )
+        actor = QValueActor(module, in_keys=["observation"], spec=spec)
+    else:
+        actor = DistributionalQValueActor(
+            module, support=support.to(device), in_keys=["observation"], spec=spec
+        )
+    return _with_single_greedy_action(actor)
+
+
+def _with_single_greedy_action(actor: QValueActor | DistributionalQValueActor):
+    """Make the one-hot greedy action pick the first maximum when action values tie.
+
+    TorchRL's Q-value modules build the one-hot action as ``value == value.max()``, which marks
+    every tied action. C51 distributions that saturate on the support tie exactly, and a
+    two-hot action then breaks ``DistributionalDQNLoss`` (a run crashed on it). The module's
+    own categorical rule (the arg-max of the (expected) values) is used instead.
+    """
+    for module in actor.modules():
+        rules = getattr(module, "action_func_mapping", None)
+        if rules is not None and "one_hot" in rules:
+            categorical = rules["categorical"]
+
+            def one_hot(value: torch.Tensor, _categorical=categorical) -> torch.Tensor:
+                greedy = _categorical(value)  # [*B]
+                return nn.functional.one_hot(greedy, value.shape[-1]).to(torch.long)
+
+            rules["one_hot"] = one_hot
+    return actor
 
 
 def make_q_actor_for_env(
