@@ -87,8 +87,8 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
         return EXIT_FAILED
     except KeyboardInterrupt:
         print(
-            "interrupted twice: exited at once; the newest complete checkpoint is intact "
-            "(resume=RUN_DIR)",
+            "interrupted outside a safe point (or twice): exited at once; the newest complete "
+            "checkpoint is intact (python scripts/train.py resume=RUN_DIR)",
             file=sys.stderr,
         )
         return EXIT_KEYBOARD_INTERRUPT
