@@ -167,21 +167,22 @@ def make_q_actor(
     ).to(device)
     spec = action_spec.to(device)
     if support is None:
-        actor = QValueActor(module, in_keys=["observation"], spec=spec)
-    else:
-        actor = DistributionalQValueActor(
-            module, support=support.to(device), in_keys=["observation"], spec=spec
-        )
+        return QValueActor(module, in_keys=["observation"], spec=spec)
+    actor = DistributionalQValueActor(
+        module, support=support.to(device), in_keys=["observation"], spec=spec
+    )
     return _with_single_greedy_action(actor)
 
 
-def _with_single_greedy_action(actor: QValueActor | DistributionalQValueActor):
-    """Make the one-hot greedy action pick the first maximum when action values tie.
+def _with_single_greedy_action(actor: DistributionalQValueActor) -> DistributionalQValueActor:
+    """Make the one-hot greedy action pick the first maximum when expected values tie.
 
     TorchRL's Q-value modules build the one-hot action as ``value == value.max()``, which marks
     every tied action. C51 distributions that saturate on the support tie exactly, and a
     two-hot action then breaks ``DistributionalDQNLoss`` (a run crashed on it). The module's
-    own categorical rule (the arg-max of the (expected) values) is used instead.
+    own categorical rule (the arg-max of the expected values) is used instead. The plain
+    ``QValueActor`` keeps TorchRL's rule: every measured figure was taken with it, and
+    changing it changed the default run's trajectory (see the README's choices).
     """
     for module in actor.modules():
         rules = getattr(module, "action_func_mapping", None)
