@@ -6,13 +6,12 @@ import json
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.config import to_config
+from trl_cartpole.config import flat_fields, to_config
 from trl_cartpole.envs import make_env
 from trl_cartpole.evaluation import evaluate_checkpoint
 from trl_cartpole.losses import make_dqn_loss
@@ -122,19 +121,10 @@ PRESET_CHANGES = {
 }
 
 
-def _flat(cfg) -> dict:
-    return {
-        f"{section}.{key}": value
-        for section, fields in OmegaConf.to_container(OmegaConf.structured(cfg)).items()
-        if isinstance(fields, dict)
-        for key, value in fields.items()
-    }
-
-
 @pytest.mark.parametrize("preset", sorted(PRESET_CHANGES))
 def test_variant_presets_switch_only_their_features_and_train(compose, tmp_path, preset):
-    cfg = _flat(to_config(compose(f"algo={preset}", f"run_dir={tmp_path}")))
-    default = _flat(to_config(compose(f"run_dir={tmp_path}")))
+    cfg = flat_fields(to_config(compose(f"algo={preset}", f"run_dir={tmp_path}")))
+    default = flat_fields(to_config(compose(f"run_dir={tmp_path}")))
     changed = {key: cfg[key] for key in cfg if cfg[key] != default[key] and key != "algo.name"}
     assert changed == PRESET_CHANGES[preset]
     summary = train(compose(f"algo={preset}", *SMOKE_OVERRIDES, f"run_dir={tmp_path}"))

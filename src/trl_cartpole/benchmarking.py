@@ -18,6 +18,8 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from trl_cartpole.config import flat_fields
+
 __all__ = [
     "group_runs",
     "load_runs",
@@ -119,16 +121,6 @@ def load_runs(run_dirs: Sequence[Path]) -> list[dict[str, Any]]:
     return runs
 
 
-def _flatten(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    flat = {}
-    for key, value in config.items():
-        if isinstance(value, dict):
-            flat.update(_flatten(value, f"{prefix}{key}."))
-        elif f"{prefix}{key}" not in PER_RUN_FIELDS:
-            flat[f"{prefix}{key}"] = tuple(value) if isinstance(value, list) else value
-    return flat
-
-
 def group_runs(runs: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
     """Group runs whose configs are equal but for the seed and run directory.
 
@@ -138,7 +130,7 @@ def group_runs(runs: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]
     groups: dict[tuple, list[dict[str, Any]]] = {}
     flats: dict[tuple, dict[str, Any]] = {}
     for run in runs:
-        flat = _flatten(run["config"])
+        flat = {k: v for k, v in flat_fields(run["config"]).items() if k not in PER_RUN_FIELDS}
         key = tuple(sorted(flat.items(), key=lambda item: item[0]))
         groups.setdefault(key, []).append(run)
         flats[key] = flat

@@ -22,7 +22,7 @@ from omegaconf import OmegaConf
 from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
 
-from trl_cartpole.config import Config, ConfigError, to_config, validate
+from trl_cartpole.config import Config, ConfigError, flat_fields, to_config, validate
 from trl_cartpole.files import write_json_atomic
 
 __all__ = [
@@ -202,9 +202,7 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
     stored = read_checkpoint_config(checkpoint)
     merged = OmegaConf.merge(OmegaConf.structured(stored), OmegaConf.from_dotlist(list(overrides)))
     cfg = validate(to_config(merged))
-    before, after = (
-        _flatten(OmegaConf.to_container(OmegaConf.structured(c))) for c in (stored, cfg)
-    )
+    before, after = flat_fields(stored), flat_fields(cfg)
     changed = sorted(key for key in after if after[key] != before.get(key))
     refused = [key for key in changed if key not in RESUMABLE_FIELDS]
     if refused:
@@ -213,16 +211,6 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
             f"{', '.join(RESUMABLE_FIELDS)} may"
         )
     return cfg
-
-
-def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    flat: dict[str, Any] = {}
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            flat.update(_flatten(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
 
 
 def read_checkpoint_config(path: str | Path) -> Config:

@@ -32,6 +32,7 @@ __all__ = [
     "LossConfig",
     "NetworkConfig",
     "OptimConfig",
+    "flat_fields",
     "register_configs",
     "to_config",
     "validate",
@@ -193,6 +194,18 @@ _CHOICES = {
     "optim.grad_clip": ("value", "norm", "none"),
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
 }
+
+
+def flat_fields(cfg: Config | dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"section.key": value}`` for every leaf of a config (lists become tuples, hashable)."""
+    tree = cfg if isinstance(cfg, dict) else OmegaConf.to_container(OmegaConf.structured(cfg))
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(flat_fields(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = tuple(value) if isinstance(value, list) else value
+    return flat
 
 
 def _get(cfg: Config, dotted: str) -> Any:
