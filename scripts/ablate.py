@@ -15,10 +15,9 @@ import argparse
 import json
 from pathlib import Path
 
-from trl_cartpole.benchmarking import markdown_table, run_presets
+from trl_cartpole.benchmarking import VARIANT_PRESETS, markdown_table, run_presets
 from trl_cartpole.plotting import plot_seed_groups
 
-PRESETS = ["dqn", "double", "dueling", "noisy", "prioritized", "nstep", "c51", "rainbow"]
 BEGIN, END = "<!-- ablation:begin -->", "<!-- ablation:end -->"
 
 
@@ -35,7 +34,7 @@ def write_between_markers(doc: Path, block: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--algos", nargs="+", default=PRESETS)
+    parser.add_argument("--algos", nargs="+", default=list(VARIANT_PRESETS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--out", type=Path, default=Path("runs/ablations"))
     parser.add_argument("--doc", type=Path, default=Path("docs/ablations.md"))

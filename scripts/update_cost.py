@@ -13,10 +13,10 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 
 import torch
 
+from trl_cartpole.benchmarking import CONFIG_DIR, VARIANT_PRESETS
 from trl_cartpole.buffers import make_replay_buffer
 from trl_cartpole.cli import compose_config
 from trl_cartpole.config import to_config
@@ -25,9 +25,6 @@ from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_fro
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.train import TRANSITION_KEYS
 from trl_cartpole.update import make_optimizer, make_update
-
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
-PRESETS = ["dqn", "double", "dueling", "noisy", "prioritized", "nstep", "c51", "rainbow"]
 
 
 def time_preset(algo: str, updates: int, overrides: list[str]) -> tuple[float, float, float]:
@@ -70,7 +67,7 @@ def time_preset(algo: str, updates: int, overrides: list[str]) -> tuple[float, f
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--algos", nargs="+", default=PRESETS)
+    parser.add_argument("--algos", nargs="+", default=list(VARIANT_PRESETS))
     parser.add_argument("--updates", type=int, default=300)
     parser.add_argument("overrides", nargs="*", help="Hydra overrides applied to every preset")
     args = parser.parse_args()

@@ -29,7 +29,11 @@ __all__ = [
     "run_training",
 ]
 
-TRAIN_SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "train.py"
+REPOSITORY = Path(__file__).resolve().parents[2]  # an editable install's checkout
+TRAIN_SCRIPT = REPOSITORY / "scripts" / "train.py"
+CONFIG_DIR = REPOSITORY / "configs"
+# Every preset of configs/algo/ that is the default plus DQN improvements.
+VARIANT_PRESETS = ("dqn", "double", "dueling", "noisy", "prioritized", "nstep", "c51", "rainbow")
 
 
 def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
