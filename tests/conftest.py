@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -56,3 +57,16 @@ def smoke_checkpoint(tmp_path_factory) -> Path:
         compose_config(CONFIG_DIR, [*SMOKE_OVERRIDES, f"run_dir={run_dir}", "logger.plots=false"])
     )
     return run_dir / "checkpoints" / "best"
+
+
+def run_script(
+    name: str, *args: str, timeout: float = 120, **kwargs
+) -> subprocess.CompletedProcess:
+    """Run ``scripts/<name>`` with this interpreter and capture its text output."""
+    return subprocess.run(
+        [sys.executable, str(SCRIPTS / name), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        **kwargs,
+    )

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
 
 import torch
 from tensordict import TensorDict
@@ -13,7 +12,7 @@ from trl_cartpole.envs import make_env
 from trl_cartpole.evaluation import EpsilonGreedy, evaluate
 from trl_cartpole.models import make_q_actor
 
-from .conftest import SCRIPTS
+from .conftest import run_script
 
 
 def test_epsilon_greedy_replaces_a_fraction_of_actions_even_in_deterministic_mode():
@@ -38,29 +37,18 @@ def test_epsilon_zero_is_the_greedy_evaluation_and_one_is_random():
     assert greedy.returns != uniform.returns
 
 
-def test_evaluate_cli_epsilon_is_reported(smoke_checkpoint, python, tmp_path):
+def test_evaluate_cli_epsilon_is_reported(smoke_checkpoint, tmp_path):
     out = tmp_path / "eval.json"
-    proc = subprocess.run(
-        [
-            python,
-            str(SCRIPTS / "evaluate.py"),
-            f"checkpoint={smoke_checkpoint}",
-            "episodes=30",
-            "epsilon=0.05",
-            f"output={out}",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
+    proc = run_script(
+        "evaluate.py",
+        f"checkpoint={smoke_checkpoint}",
+        "episodes=30",
+        "epsilon=0.05",
+        f"output={out}",
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = json.loads(out.read_text())
     assert report["epsilon"] == 0.05 and report["episodes"] == 30 == len(report["returns"])
     assert "epsilon=0.05 return over 30 episodes" in proc.stdout
-    bad = subprocess.run(
-        [python, str(SCRIPTS / "evaluate.py"), f"checkpoint={smoke_checkpoint}", "epsilon=2"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    bad = run_script("evaluate.py", f"checkpoint={smoke_checkpoint}", "epsilon=2")
     assert bad.returncode == 2 and "error: epsilon=2.0 must lie in [0, 1]" in bad.stderr

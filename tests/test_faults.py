@@ -21,7 +21,7 @@ from trl_cartpole.config import ConfigError
 from trl_cartpole.run_control import TrainingFailed
 from trl_cartpole.train import train
 
-from .conftest import SCRIPTS, SMOKE_OVERRIDES
+from .conftest import SCRIPTS, SMOKE_OVERRIDES, run_script
 
 # 600 frames, an evaluation every 150, a training state every 200 (all of them kept).
 RESUMABLE = [
@@ -252,12 +252,6 @@ def _damaged_copy(run_dir: Path, target: Path, how: str) -> Path:
     return target
 
 
-def _cli(python: str, script: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [python, str(SCRIPTS / script), *args], capture_output=True, text=True, timeout=120
-    )
-
-
 BAD_INPUTS = [
     ("unknown key", ["loss.gama=0.5"], "Key 'gama' not in 'LossConfig'"),
     ("unknown group option", ["algo=nosuch"], "Could not find 'algo/nosuch'"),
@@ -271,9 +265,9 @@ BAD_INPUTS = [
 
 
 @pytest.mark.parametrize(("case", "args", "message"), BAD_INPUTS, ids=[c[0] for c in BAD_INPUTS])
-def test_bad_training_input_is_one_line_and_exit_2(python, tmp_path, case, args, message):
+def test_bad_training_input_is_one_line_and_exit_2(tmp_path, case, args, message):
     run_dir = tmp_path / "run"
-    proc = _cli(python, "train.py", f"run_dir={run_dir}", *args)
+    proc = run_script("train.py", f"run_dir={run_dir}", *args)
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
     assert "Traceback" not in proc.stderr
@@ -288,10 +282,10 @@ def test_bad_training_input_is_one_line_and_exit_2(python, tmp_path, case, args,
         ("missing file", "is damaged"),
     ],
 )
-def test_damaged_checkpoint_is_refused_in_one_line(python, tmp_path, finished_run, how, message):
+def test_damaged_checkpoint_is_refused_in_one_line(tmp_path, finished_run, how, message):
     damaged = _damaged_copy(finished_run, tmp_path / "damaged", how)
     before = sorted(p.relative_to(damaged) for p in damaged.rglob("*"))
-    proc = _cli(python, "train.py", f"resume={damaged}")
+    proc = run_script("train.py", f"resume={damaged}")
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
     assert "Traceback" not in proc.stderr
@@ -306,16 +300,16 @@ def test_damaged_checkpoint_is_refused_in_one_line(python, tmp_path, finished_ru
         (["loss.gama=1"], "Key 'gama' not in"),
     ],
 )
-def test_resume_refuses_an_incompatible_config(python, finished_run, args, message):
-    proc = _cli(python, "train.py", f"resume={finished_run}", *args)
+def test_resume_refuses_an_incompatible_config(finished_run, args, message):
+    proc = run_script("train.py", f"resume={finished_run}", *args)
     assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluated(
-    python, tmp_path, finished_run
+    tmp_path, finished_run
 ):
     best = finished_run / "checkpoints" / "best"
-    proc = _cli(python, "train.py", f"resume={best}")
+    proc = run_script("train.py", f"resume={best}")
     assert proc.returncode == 2 and "without training state" in proc.stderr
     # A policy checkpoint whose stored config says another network shape.
     foreign = tmp_path / "foreign"
@@ -323,10 +317,10 @@ def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluat
     manifest = json.loads((foreign / "manifest.json").read_text())
     manifest["metadata"]["config"]["network"]["hidden_sizes"] = [64, 64]
     (foreign / "manifest.json").write_text(json.dumps(manifest))
-    proc = _cli(python, "evaluate.py", f"checkpoint={foreign}", "episodes=2")
+    proc = run_script("evaluate.py", f"checkpoint={foreign}", "episodes=2")
     assert proc.returncode == 2 and "is damaged: manifest.json" in proc.stderr
     assert "Traceback" not in proc.stderr
-    proc = _cli(python, "evaluate.py", "checkpoint=/nonexistent", "episodes=2")
+    proc = run_script("evaluate.py", "checkpoint=/nonexistent", "episodes=2")
     assert proc.returncode == 2 and "does not exist" in proc.stderr
 
 

@@ -2,30 +2,23 @@
 
 from __future__ import annotations
 
-import subprocess
-
 import pytest
 from PIL import Image
 
 from trl_cartpole.config import ConfigError
 from trl_cartpole.video import write_video
 
-from .conftest import SCRIPTS
+from .conftest import run_script
 
 
-def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, python, tmp_path):
+def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, tmp_path):
     out = tmp_path / "agent.gif"
-    proc = subprocess.run(
-        [
-            python,
-            str(SCRIPTS / "render.py"),
-            f"checkpoint={smoke_checkpoint}",
-            "episodes=2",
-            "scale=0.25",
-            f"output={out}",
-        ],
-        capture_output=True,
-        text=True,
+    proc = run_script(
+        "render.py",
+        f"checkpoint={smoke_checkpoint}",
+        "episodes=2",
+        "scale=0.25",
+        f"output={out}",
         timeout=300,
         env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)},  # headless: no DISPLAY
     )
@@ -39,12 +32,11 @@ def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, p
         assert gif.size == (150, 100)  # 600x400 scaled by 0.25
 
 
-def test_human_mode_without_a_display_is_a_clear_error(smoke_checkpoint, python, tmp_path):
-    proc = subprocess.run(
-        [python, str(SCRIPTS / "render.py"), f"checkpoint={smoke_checkpoint}", "human=true"],
-        capture_output=True,
-        text=True,
-        timeout=120,
+def test_human_mode_without_a_display_is_a_clear_error(smoke_checkpoint, tmp_path):
+    proc = run_script(
+        "render.py",
+        f"checkpoint={smoke_checkpoint}",
+        "human=true",
         env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)},
     )
     assert proc.returncode == 2

@@ -13,7 +13,7 @@ from trl_cartpole.envs import make_env
 from trl_cartpole.models import make_q_actor
 from trl_cartpole.train import train
 
-from .conftest import SCRIPTS, SMOKE_OVERRIDES
+from .conftest import SCRIPTS, SMOKE_OVERRIDES, run_script
 
 SUMMARY_KEYS = {
     "env_id",
@@ -101,7 +101,7 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
     assert set(summary["versions"]) == {"torch", "torchrl", "tensordict", "gymnasium"}
 
 
-def test_best_checkpoint_loads_and_evaluates(smoke_run, python):
+def test_best_checkpoint_loads_and_evaluates(smoke_run):
     run_dir, _ = smoke_run
     env = make_env("CartPole-v1")
     actor = make_q_actor(env.observation_spec, env.action_spec)
@@ -110,17 +110,11 @@ def test_best_checkpoint_loads_and_evaluates(smoke_run, python):
     assert any(not torch.equal(a, b) for a, b in zip(before, actor.parameters(), strict=True))
 
     out = run_dir / "eval.json"
-    proc = subprocess.run(
-        [
-            python,
-            str(SCRIPTS / "evaluate.py"),
-            f"checkpoint={run_dir / 'checkpoints' / 'best'}",
-            "episodes=7",
-            f"output={out}",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
+    proc = run_script(
+        "evaluate.py",
+        f"checkpoint={run_dir / 'checkpoints' / 'best'}",
+        "episodes=7",
+        f"output={out}",
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = json.loads(out.read_text())
