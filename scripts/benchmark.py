@@ -1,12 +1,16 @@
-"""Median frames and seconds to solve over seeds, per preset.
+"""Median frames and seconds to solve over seeds, per preset, optionally against peer DQNs.
 
     python scripts/benchmark.py --algos dqn tutorial --seeds 0 1 2 3 4 \
-        [--out runs/bench] [key=value ...]
+        [--peers tutorial_loop sb3_dqn] [--jobs 1] [--out runs/benchmark] [key=value ...]
 
-Each (preset, seed) is one ``scripts/train.py`` run in its own process, one after another (the
-machine's noise is the same for all); the table of medians is printed and written to
-``OUT/results.md`` and ``OUT/results.json``. Timings are training wall time without
-evaluation, as in summary.json.
+Each (preset, seed) is one ``scripts/train.py`` run, each (peer, seed) one
+``python -m trl_cartpole.peers.<peer>`` run, in their own processes (``--jobs`` at a time;
+1, the default, keeps the machine's noise the same for all). Every run evaluates greedily over
+``--eval-episodes`` episodes every ``--eval-interval`` frames with the training clock stopped
+(``trl_cartpole.peers.protocol``). The table of medians (solve rate, frames and seconds to
+solve, collection frames/s, updates/s, peak RSS) is printed and written to ``OUT/results.md``
+and ``OUT/results.json``, followed by the ratios: each peer's median seconds_to_solve over the
+first preset's, and seconds per frame of ``tutorial`` against ``tutorial_loop``.
 """
 
 from __future__ import annotations
@@ -15,18 +19,61 @@ import argparse
 import json
 from pathlib import Path
 
-from trl_cartpole.benchmarking import markdown_table, run_presets
+from trl_cartpole.benchmarking import (
+    PEERS,
+    markdown_table,
+    run_presets,
+    seconds_per_frame,
+    speed_ratios,
+)
+
+
+def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
+    """The ratios the table's medians give, one line each."""
+    lines = [
+        f"- {peer} needs {ratio:.1f}x the seconds to solve of {algos[0]} (medians)"
+        for peer, ratio in speed_ratios(results, algos[0], peers).items()
+    ]
+    if "tutorial" in results and "tutorial_loop" in results:
+        ours, theirs = (
+            seconds_per_frame(results["tutorial"]),
+            seconds_per_frame(results["tutorial_loop"]),
+        )
+        lines.append(
+            f"- seconds per frame: tutorial {1e3 * ours:.2f} ms, tutorial_loop "
+            f"{1e3 * theirs:.2f} ms (tutorial_loop / tutorial = {theirs / ours:.2f})"
+        )
+    return lines
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--algos", nargs="+", default=["dqn"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    parser.add_argument("--peers", nargs="*", default=[], choices=sorted(PEERS))
+    parser.add_argument("--peer-frames", type=int, default=150_000, help="peers' frame budget")
+    parser.add_argument("--eval-interval", type=int, default=1000)
+    parser.add_argument("--eval-episodes", type=int, default=20)
+    parser.add_argument("--jobs", type=int, default=1, help="runs at a time")
     parser.add_argument("--out", type=Path, default=Path("runs/benchmark"))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every run")
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every preset run")
     args = parser.parse_args()
-    results = run_presets(args.algos, args.seeds, args.out, args.overrides)
-    text = markdown_table(results)
+    protocol = [f"eval.interval_frames={args.eval_interval}", f"eval.episodes={args.eval_episodes}"]
+    peer_args = [
+        f"--total-frames={args.peer_frames}",
+        f"--eval-interval={args.eval_interval}",
+        f"--eval-episodes={args.eval_episodes}",
+    ]
+    results = run_presets(
+        args.algos,
+        args.seeds,
+        args.out,
+        [*protocol, *args.overrides],
+        peers=args.peers,
+        peer_args=peer_args,
+        jobs=args.jobs,
+    )
+    text = "\n".join([markdown_table(results), "", *ratio_lines(results, args.algos, args.peers)])
     print(text)
     (args.out / "results.md").write_text(text + "\n")
     (args.out / "results.json").write_text(json.dumps(results, indent=2) + "\n")

@@ -79,6 +79,11 @@ def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
         (["network.atoms=1"], "network.atoms=1 must be >= 2"),
         (["network.v_min=5", "network.v_max=5"], "must be < network.v_max"),
         (["exploration.schedule=greedy"], "choose one of"),
+        (["env.num_envs=0"], "env.num_envs=0 must be >= 1"),
+        (
+            ["env.num_envs=3", "collector.frames_per_batch=16"],
+            "frames_per_batch=16 must be a multiple of env.num_envs=3",
+        ),
     ],
 )
 def test_impossible_values_raise_config_error(compose, overrides, message):

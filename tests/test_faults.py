@@ -31,7 +31,16 @@ RESUMABLE = [
     "checkpoint.keep_last=10",
     "seed=2",
 ]
-TIMINGS = {"train_seconds", "wall_seconds", "seconds_to_solve", "run_dir", "checkpoint"}
+TIMINGS = {
+    "train_seconds",
+    "wall_seconds",
+    "seconds_to_solve",
+    "collect_frames_per_second",
+    "updates_per_second",
+    "peak_rss_mb",
+    "run_dir",
+    "checkpoint",
+}
 
 
 def _comparable(summary: dict) -> dict:

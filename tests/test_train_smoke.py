@@ -23,6 +23,9 @@ SUMMARY_KEYS = {
     "updates",
     "train_seconds",
     "wall_seconds",
+    "collect_frames_per_second",
+    "updates_per_second",
+    "peak_rss_mb",
     "solved",
     "solve_threshold",
     "frames_to_solve",
@@ -98,6 +101,8 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
     )
     assert summary["solved"] is (summary["frames_to_solve"] is not None)
     assert 0 < summary["train_seconds"] <= summary["wall_seconds"]
+    assert summary["collect_frames_per_second"] > 0 and summary["updates_per_second"] > 0
+    assert 100 < summary["peak_rss_mb"] < 4096
     assert set(summary["versions"]) == {"torch", "torchrl", "tensordict", "gymnasium"}
 
 

@@ -1,7 +1,8 @@
 """Run presets over seeds in separate processes and summarise them: the engine of the scripts.
 
 ``scripts/benchmark.py`` and ``scripts/ablate.py`` are thin command lines over these functions.
-Each (preset, seed) is one ``scripts/train.py`` process run one after another, so every run
+Each (preset, seed) is one ``scripts/train.py`` process, each (peer, seed) one
+``python -m trl_cartpole.peers.<peer>`` process, run one after another by default so every run
 sees the same machine; a run whose ``summary.json`` already exists is read, not repeated.
 """
 
@@ -13,6 +14,7 @@ import statistics
 import subprocess
 import sys
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -21,12 +23,16 @@ from omegaconf import OmegaConf
 from trl_cartpole.config import flat_fields
 
 __all__ = [
+    "PEERS",
     "group_runs",
     "load_runs",
     "markdown_table",
     "median_to_solve",
+    "run_peer",
     "run_presets",
     "run_training",
+    "seconds_per_frame",
+    "speed_ratios",
 ]
 
 REPOSITORY = Path(__file__).resolve().parents[2]  # an editable install's checkout
@@ -36,29 +42,64 @@ CONFIG_DIR = REPOSITORY / "configs"
 VARIANT_PRESETS = ("dqn", "double", "dueling", "noisy", "prioritized", "nstep", "c51", "rainbow")
 
 
-def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
-    """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary."""
-    run_dir = out / f"{algo}-seed{seed}"
+PEERS = {  # name -> module run as ``python -m`` (see trl_cartpole.peers)
+    "tutorial_loop": "trl_cartpole.peers.tutorial_loop",
+    "sb3_dqn": "trl_cartpole.peers.sb3_dqn",
+}
+
+
+def _run_once(command: list[str], run_dir: Path) -> dict[str, Any]:
+    """Run ``command`` unless ``run_dir/summary.json`` exists; return that summary."""
     summary_path = run_dir / "summary.json"
     if not summary_path.exists():
-        command = [
-            sys.executable,
-            str(TRAIN_SCRIPT),
-            f"algo={algo}",
-            f"seed={seed}",
-            f"run_dir={run_dir}",
-            "logger.progress_bar=false",
-            *overrides,
-        ]
         subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return json.loads(summary_path.read_text())
 
 
+def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
+    """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary."""
+    run_dir = out / f"{algo}-seed{seed}"
+    command = [
+        sys.executable,
+        str(TRAIN_SCRIPT),
+        f"algo={algo}",
+        f"seed={seed}",
+        f"run_dir={run_dir}",
+        "logger.progress_bar=false",
+        *overrides,
+    ]
+    return _run_once(command, run_dir)
+
+
+def run_peer(peer: str, seed: int, out: Path, peer_args: Sequence[str] = ()) -> dict[str, Any]:
+    """Run the peer ``peer`` (a key of ``PEERS``) with ``seed`` into ``out/<peer>-seed<seed>``."""
+    run_dir = out / f"{peer}-seed{seed}"
+    command = [sys.executable, "-m", PEERS[peer], "--seed", str(seed), "--run-dir", str(run_dir)]
+    return _run_once([*command, *peer_args], run_dir)
+
+
 def run_presets(
-    algos: Sequence[str], seeds: Sequence[int], out: Path, overrides: Sequence[str] = ()
+    algos: Sequence[str],
+    seeds: Sequence[int],
+    out: Path,
+    overrides: Sequence[str] = (),
+    peers: Sequence[str] = (),
+    peer_args: Sequence[str] = (),
+    jobs: int = 1,
 ) -> dict[str, list[dict[str, Any]]]:
-    """``{algo: [summary per seed]}``, every run in its own process, one after another."""
-    return {algo: [run_training(algo, seed, out, overrides) for seed in seeds] for algo in algos}
+    """``{algo or peer: [summary per seed]}``, every run in its own process.
+
+    ``jobs`` processes run at a time (1: one after another, so every run sees the same idle
+    machine; more overlap runs, slowing each a little but all alike).
+    """
+    tasks = [(run_training, algo, overrides) for algo in algos]
+    tasks += [(run_peer, peer, peer_args) for peer in peers]
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {
+            name: [pool.submit(run, name, seed, out, extra) for seed in seeds]
+            for run, name, extra in tasks
+        }
+        return {name: [future.result() for future in runs] for name, runs in futures.items()}
 
 
 def median_to_solve(values: Sequence[float | None]) -> float:
@@ -73,13 +114,19 @@ def _format(value: float, digits: int) -> str:
     return "not solved" if math.isinf(value) else f"{value:.{digits}f}"
 
 
+def _median_of(runs: Sequence[dict[str, Any]], key: str, digits: int) -> str:
+    values = [r[key] for r in runs if r.get(key) is not None]
+    return f"{statistics.median(values):.{digits}f}" if values else "-"
+
+
 def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "preset") -> str:
-    """One row per preset: solve rate, medians to solve, final greedy return, per-seed frames."""
+    """One row per preset: solve rate, medians to solve, final greedy return, per-seed frames,
+    and the medians of throughput (collection frames/s, updates/s) and peak memory."""
     lines = [
         f"| {label} | solved | median frames_to_solve | median seconds_to_solve | "
         "median final 100-ep greedy return | frames_to_solve per seed | seconds per seed | "
-        "median wall seconds |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "median wall seconds | collect frames/s | updates/s | peak RSS MiB |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for algo, runs in results.items():
         frames = [r["frames_to_solve"] for r in runs]
@@ -90,9 +137,27 @@ def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "prese
             f"{_format(median_to_solve(frames), 0)} | {_format(median_to_solve(seconds), 1)} | "
             f"{final:.1f} | {', '.join('-' if f is None else str(f) for f in frames)} | "
             f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} | "
-            f"{statistics.median(r['wall_seconds'] for r in runs):.1f} |"
+            f"{statistics.median(r['wall_seconds'] for r in runs):.1f} | "
+            f"{_median_of(runs, 'collect_frames_per_second', 0)} | "
+            f"{_median_of(runs, 'updates_per_second', 0)} | {_median_of(runs, 'peak_rss_mb', 0)} |"
         )
     return "\n".join(lines)
+
+
+def seconds_per_frame(runs: Sequence[dict[str, Any]]) -> float:
+    """Median over seeds of training seconds per collected frame (evaluation excluded)."""
+    return statistics.median(r["train_seconds"] / r["frames"] for r in runs)
+
+
+def speed_ratios(
+    results: dict[str, list[dict[str, Any]]], ours: str, peers: Sequence[str]
+) -> dict[str, float]:
+    """``{peer: median seconds_to_solve of peer / that of ours}`` (inf: ours did not solve)."""
+    mine = median_to_solve([r["seconds_to_solve"] for r in results[ours]])
+    return {
+        peer: median_to_solve([r["seconds_to_solve"] for r in results[peer]]) / mine
+        for peer in peers
+    }
 
 
 # Fields that differ between seeds of one config, not between configs.

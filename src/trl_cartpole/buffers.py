@@ -26,7 +26,7 @@ from torchrl.envs import MultiStepTransform
 
 from trl_cartpole.segment_trees import install_if_missing
 
-__all__ = ["NStepTransform", "annealed_beta", "make_replay_buffer"]
+__all__ = ["NStepTransform", "annealed_beta", "extend_with_batch", "make_replay_buffer"]
 
 
 class NStepTransform(MultiStepTransform):
@@ -46,6 +46,7 @@ class NStepTransform(MultiStepTransform):
         if out is not None:
             steps = out.get("steps_to_next_obs")  # [*B]
             out.set("steps_to_next_obs", steps.reshape(out["next", "reward"].shape))
+            out = out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
         return out
 
 
@@ -94,3 +95,12 @@ def annealed_beta(beta_start: float, frames: int, anneal_frames: int) -> float:
     updates matter most.
     """
     return beta_start + (1.0 - beta_start) * min(1.0, frames / anneal_frames)
+
+
+def extend_with_batch(buffer: TensorDictReplayBuffer, batch: TensorDictBase) -> None:
+    """Store a collected batch, ``[T]`` (one env) or ``[N, T]`` (a vector env of N envs).
+
+    An n-step buffer's transform needs each env's steps in time order, so it gets the batch
+    as collected and flattens its windows itself; any other buffer gets ``[N * T]``.
+    """
+    buffer.extend(batch if buffer._transform else batch.reshape(-1))

@@ -47,6 +47,7 @@ class ConfigError(ValueError):
 class EnvConfig:
     id: str = "CartPole-v1"  # any registered Gymnasium id with a vector obs and discrete actions
     max_episode_steps: int | None = None  # None: Gymnasium's registered TimeLimit
+    num_envs: int = 1  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
 
 
 @dataclass
@@ -247,6 +248,12 @@ def validate(cfg: Config) -> Config:
             f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
         ),
         (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
+        (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
+        (
+            cfg.collector.frames_per_batch % max(cfg.env.num_envs, 1) == 0,
+            f"collector.frames_per_batch={cfg.collector.frames_per_batch} must be a multiple "
+            f"of env.num_envs={cfg.env.num_envs} (each batch steps every env equally often)",
+        ),
         (
             cfg.collector.total_frames >= cfg.collector.frames_per_batch,
             f"collector.total_frames={cfg.collector.total_frames} must be >= "

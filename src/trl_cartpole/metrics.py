@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import resource
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -10,7 +11,12 @@ from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLo
 from trl_cartpole.config import ConfigError
 from trl_cartpole.files import write_text_atomic
 
-__all__ = ["History", "make_logger", "truncate_csv_metrics"]
+__all__ = ["History", "make_logger", "peak_rss_mb", "truncate_csv_metrics"]
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory in MiB (Linux reports ``ru_maxrss`` in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def make_logger(

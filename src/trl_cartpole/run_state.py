@@ -59,6 +59,11 @@ def _autoreset_memo(env: EnvBase) -> VecGymEnvTransform | None:
     return None
 
 
+def _pickled_memo(env: EnvBase) -> bytes | None:
+    memo = _autoreset_memo(env)
+    return None if memo is None else pickle.dumps(memo._memo)
+
+
 def _restore_env(env: EnvBase, payload: bytes) -> None:
     gym_env = env.base_env._env
     if isinstance(gym_env, SyncVectorEnv):
@@ -88,13 +93,14 @@ class RunState:
             "frames_to_solve": progress.frames_to_solve,
             "seconds_to_solve": progress.seconds_to_solve,
             "last_eval_frame": progress.last_eval_frame,
+            "collect_seconds": progress.collect_seconds,
+            "update_seconds": progress.update_seconds,
             "history": asdict(progress.history),
             "train_seconds": self.stopwatch.seconds,
             "env": _pickled_env(self.env),
             "eval_env": _pickled_env(self.eval_env),
-            "eval_env_memo": pickle.dumps(memo._memo)
-            if (memo := _autoreset_memo(self.eval_env))
-            else None,
+            "env_memo": _pickled_memo(self.env),
+            "eval_env_memo": _pickled_memo(self.eval_env),
             "carrier": self.collector._carrier.to_dict(),
             "n_step_window": None if window is None else window.to_dict(),
             "n_step_window_size": None if window is None else list(window.batch_size),
@@ -110,6 +116,8 @@ class RunState:
             "frames_to_solve",
             "seconds_to_solve",
             "last_eval_frame",
+            "collect_seconds",
+            "update_seconds",
         ):
             setattr(progress, name, state[name])
         progress.best_state = state["best_state"]
@@ -128,9 +136,10 @@ class RunState:
             )
             if key == "env":  # start a new episode from the restored RNG
                 carrier.update(env.reset())
-        memo = _autoreset_memo(self.eval_env)
-        if memo is not None and state["eval_env_memo"] is not None:
-            memo._memo = pickle.loads(state["eval_env_memo"])
+        for env, key in ((self.env, "env_memo"), (self.eval_env, "eval_env_memo")):
+            memo = _autoreset_memo(env)
+            if memo is not None and state.get(key) is not None:
+                memo._memo = pickle.loads(state[key])
         if state["env"] is not None:
             carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
         if state["n_step_window"] is not None:

@@ -31,7 +31,7 @@ from tensordict.nn import TensorDictSequential
 from torchrl.checkpoint import Checkpoint
 from tqdm.auto import tqdm
 
-from trl_cartpole.buffers import annealed_beta, make_replay_buffer
+from trl_cartpole.buffers import annealed_beta, extend_with_batch, make_replay_buffer
 from trl_cartpole.checkpoint import load_training_state, save_policy, save_training_state
 from trl_cartpole.collectors import make_collector
 from trl_cartpole.config import Config, ConfigError, to_config, validate
@@ -40,7 +40,7 @@ from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.files import write_json_atomic, write_text_atomic
 from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_from_loss
-from trl_cartpole.metrics import History, make_logger, truncate_csv_metrics
+from trl_cartpole.metrics import History, make_logger, peak_rss_mb, truncate_csv_metrics
 from trl_cartpole.models import expected_action_values, make_q_actor_for_env, reset_network_noise
 from trl_cartpole.plotting import LiveDurationPlot, plot_dashboard, plot_durations
 from trl_cartpole.run_control import StopRequest, TrainingFailed, TrainingInterrupted
@@ -116,7 +116,22 @@ class _Progress:
     frames_to_solve: int | None = None
     seconds_to_solve: float | None = None
     last_eval_frame: int = -1
+    collect_seconds: float = 0.0  # waiting on the collector (env steps + policy)
+    update_seconds: float = 0.0  # replay sampling + gradient steps + target updates
     history: History = field(default_factory=History)
+
+
+def _timed_batches(collector, progress: _Progress):
+    """Yield the collector's batches, adding the time spent producing each to ``progress``."""
+    iterator = iter(collector)
+    while True:
+        start = time.perf_counter()
+        try:
+            batch = next(iterator)
+        except StopIteration:
+            return
+        progress.collect_seconds += time.perf_counter() - start
+        yield batch
 
 
 def _log(logger, scalars: dict[str, float], step: int) -> None:
@@ -161,7 +176,9 @@ def train(
     # --- components: each a stock TorchRL object -------------------------------------------
     # The envs first: one that does not fit (continuous actions, images) stops the run here,
     # before anything is written.
-    env = make_env(cfg.env.id, cfg.seed, cfg.device, cfg.env.max_episode_steps)
+    env = make_env(
+        cfg.env.id, cfg.seed, cfg.device, cfg.env.max_episode_steps, num_envs=cfg.env.num_envs
+    )
     eval_env = make_env(
         cfg.env.id,
         cfg.seed + cfg.eval.seed_offset,
@@ -308,12 +325,15 @@ def train(
     stop = StopRequest()
     train_clock.start()
     with stop:
-        for batch in collector:  # batch: [frames_per_batch]
+        for batch in _timed_batches(
+            collector, progress
+        ):  # batch: [frames_per_batch] or [num_envs, frames / num_envs]
             progress.frames += batch.numel()
-            buffer.extend(batch.reshape(-1).select(*TRANSITION_KEYS))
+            extend_with_batch(buffer, batch.select(*TRANSITION_KEYS))
             _record_episodes(batch, progress, logger)
 
             updates_before = progress.updates
+            update_start = time.perf_counter()
             if len(buffer) >= learning_starts:
                 for _ in range(cfg.collector.updates_per_batch):
                     sample = buffer.sample()  # [batch_size]
@@ -329,6 +349,7 @@ def train(
                     history.update_frames.append(progress.frames)
                     history.td_losses.append(loss_value)
                     history.grad_norms.append(metrics["grad_norm"].item())
+            progress.update_seconds += time.perf_counter() - update_start
             if exploration is not None:
                 exploration.step(batch.numel())
             if cfg.network.noisy:
@@ -482,6 +503,10 @@ def _summary(
         "final_eval_returns": final.returns,
         "best_eval_return_mean": progress.best_eval,
         "episodes": len(progress.history.episode_returns),
+        # Throughput of the two halves of the loop, and the process's peak resident memory.
+        "collect_frames_per_second": round(progress.frames / max(progress.collect_seconds, 1e-9)),
+        "updates_per_second": round(progress.updates / max(progress.update_seconds, 1e-9), 1),
+        "peak_rss_mb": round(peak_rss_mb(), 1),
         "eval_curve": {
             "frames": progress.history.eval_frames,
             "seconds": progress.history.eval_seconds,  # training seconds, evaluation excluded

@@ -23,8 +23,12 @@ def make_optimizer(
     amsgrad: bool = True,
     weight_decay: float = 0.01,
 ) -> torch.optim.AdamW:
-    """AdamW (Loshchilov & Hutter 2019), with AMSGrad (Reddi et al. 2018) as in the tutorial."""
-    return torch.optim.AdamW(params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay)
+    """AdamW (Loshchilov & Hutter 2019), with AMSGrad (Reddi et al. 2018) as in the tutorial.
+
+    PyTorch's fused implementation: one kernel for all parameters instead of a Python loop
+    over them (0.55 -> 0.17 ms per step for the default network, docs/performance.md).
+    """
+    return torch.optim.AdamW(params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay, fused=True)
 
 
 def make_update(

@@ -1,0 +1,80 @@
+"""Stable-Baselines3 DQN with rl-zoo3's tuned CartPole-v1 settings, under the benchmark protocol.
+
+    pip install -e ".[bench]"
+    python -m trl_cartpole.peers.sb3_dqn --seed 0 --run-dir runs/peers/sb3_dqn-seed0
+
+rl-zoo3's ``hyperparams/dqn.yml`` for CartPole-v1: lr 2.3e-3, batch 64, buffer 100 000,
+learning_starts 1 000, gamma 0.99, target_update_interval 10, train_freq 256,
+gradient_steps 128, exploration_fraction 0.16, exploration_final_eps 0.04, net_arch [256, 256],
+over n_timesteps 50 000. SB3 scales the epsilon schedule to the ``learn()`` budget, so with a
+longer budget the fraction is rescaled to keep zoo's decay over 0.16 * 50 000 = 8 000 steps.
+A callback runs the protocol's greedy evaluation every ``--eval-interval`` steps (training
+clock stopped) and stops the run once solved.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import torch
+
+from trl_cartpole.peers.protocol import PeerRun, parse_peer_args
+
+ZOO_TIMESTEPS = 50_000
+ZOO_SETTINGS = {
+    "learning_rate": 2.3e-3,
+    "batch_size": 64,
+    "buffer_size": 100_000,
+    "learning_starts": 1000,
+    "gamma": 0.99,
+    "target_update_interval": 10,
+    "train_freq": 256,
+    "gradient_steps": 128,
+    "exploration_final_eps": 0.04,
+    "policy_kwargs": {"net_arch": [256, 256]},
+}
+ZOO_EXPLORATION_FRACTION = 0.16
+
+
+def main() -> None:
+    args = parse_peer_args(__doc__.splitlines()[0])
+    try:
+        from stable_baselines3 import DQN
+        from stable_baselines3.common.callbacks import BaseCallback
+    except ImportError:
+        raise SystemExit(
+            "error: stable-baselines3 is not installed; pip install -e '.[bench]'"
+        ) from None
+    torch.set_num_threads(1)
+    run = PeerRun("sb3_dqn", args)
+    fraction = ZOO_EXPLORATION_FRACTION * ZOO_TIMESTEPS / args.total_frames
+    model = DQN(
+        "MlpPolicy",
+        args.env_id,
+        exploration_fraction=fraction,
+        seed=args.seed,
+        device="cpu",
+        verbose=0,
+        **ZOO_SETTINGS,
+    )
+
+    @torch.no_grad()
+    def act(obs: np.ndarray) -> np.ndarray:  # obs [E, obs_dim] -> greedy actions [E]
+        return model.q_net(torch.from_numpy(obs)).argmax(1).numpy()
+
+    def snapshot() -> dict[str, torch.Tensor]:
+        return copy.deepcopy(model.q_net.state_dict())
+
+    class ProtocolCallback(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps % args.eval_interval:
+                return True
+            return not run.evaluate(self.num_timesteps, act, snapshot)
+
+    model.learn(total_timesteps=args.total_frames, callback=ProtocolCallback())
+    run.finish(model.num_timesteps, model._n_updates, act, model.q_net.load_state_dict)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,61 @@
+"""The peers of scripts/benchmark.py: the shared evaluation protocol and short real runs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from trl_cartpole.peers.protocol import GreedyEvaluation
+
+
+def _always_left(obs: np.ndarray) -> np.ndarray:
+    return np.zeros(len(obs), dtype=np.int64)
+
+
+def test_greedy_evaluation_scores_each_envs_first_episode():
+    evaluation = GreedyEvaluation("CartPole-v1", episodes=3, seed=11)
+    returns = evaluation(_always_left)
+    evaluation.close()
+    expected = []  # by hand: env i of the vector env is seeded 11 + i
+    for index in range(3):
+        env = gym.make("CartPole-v1")
+        env.reset(seed=11 + index)
+        steps, done = 0, False
+        while not done:
+            _, _, terminated, truncated, _ = env.step(0)
+            steps, done = steps + 1, terminated or truncated
+        expected.append(float(steps))
+    assert returns == expected
+    assert all(8 <= r <= 12 for r in returns)  # pushing left topples the pole in about 10 steps
+
+
+def test_later_evaluations_play_new_episodes():
+    evaluation = GreedyEvaluation("CartPole-v1", episodes=4, seed=0)
+    first, second = evaluation(_always_left), evaluation(_always_left)
+    evaluation.close()
+    assert first != second  # the envs' RNGs moved on: new start states
+
+
+@pytest.mark.parametrize("peer", ["tutorial_loop", "sb3_dqn"])
+def test_peer_runs_under_the_protocol_and_writes_a_summary(python, tmp_path, peer):
+    if peer == "sb3_dqn":
+        pytest.importorskip("stable_baselines3")
+    run_dir = tmp_path / peer
+    command = [python, "-m", f"trl_cartpole.peers.{peer}", "--seed", "1", "--run-dir", run_dir]
+    command += ["--total-frames", "1500", "--eval-interval", "500", "--eval-episodes", "3"]
+    command += ["--final-episodes", "4"]
+    subprocess.run([str(part) for part in command], check=True, timeout=300)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["algo"] == peer and summary["seed"] == 1
+    evaluated = summary["eval_curve"]["frames"]
+    assert evaluated == (
+        [500, 1000, 1500][: len(evaluated)] if summary["solved"] else [500, 1000, 1500]
+    )
+    assert summary["final_eval_episodes"] == 4
+    assert summary["updates"] > 0 and summary["frames"] >= 1500
+    assert 0 < summary["train_seconds"] < summary["wall_seconds"]
+    assert summary["best_eval_return_mean"] == max(summary["eval_curve"]["returns"])
