@@ -15,8 +15,10 @@ ROOT = Path(__file__).resolve().parent.parent
 CONFIG_DIR = ROOT / "configs"
 SCRIPTS = ROOT / "scripts"
 
-# A few hundred frames: enough to fill the buffer, update, evaluate and checkpoint.
+# A few hundred frames: enough to fill the buffer, update, evaluate and checkpoint, on four
+# envs (the default steps 16) so a batch of 4 frames is one step of each.
 SMOKE_OVERRIDES = [
+    "env.num_envs=4",
     "collector.total_frames=300",
     "collector.init_random_frames=64",
     "collector.frames_per_batch=4",
@@ -27,6 +29,18 @@ SMOKE_OVERRIDES = [
     "eval.final_episodes=4",
     "logger.progress_bar=false",
 ]
+
+# summary.json keys that differ between two runs of one config: timings, throughput, paths.
+TIMING_KEYS = {
+    "train_seconds",
+    "wall_seconds",
+    "seconds_to_solve",
+    "collect_frames_per_second",
+    "updates_per_second",
+    "peak_rss_mb",
+    "run_dir",
+    "checkpoint",
+}
 
 
 @pytest.fixture(autouse=True)

@@ -40,6 +40,7 @@ def test_tutorial_preset_is_the_pytorch_tutorial(compose):
     assert cfg.optim.grad_clip == "value" and cfg.optim.max_grad == 100.0
     assert list(cfg.network.hidden_sizes) == [128, 128]
     assert cfg.collector.frames_per_batch == 1 and cfg.collector.updates_per_batch == 1
+    assert cfg.env.num_envs == 1 and cfg.buffer.n_steps == 1  # the tutorial's single-env loop
 
 
 def test_contract_overrides_apply(compose):

@@ -21,7 +21,7 @@ from trl_cartpole.config import ConfigError
 from trl_cartpole.run_control import TrainingFailed
 from trl_cartpole.train import train
 
-from .conftest import SCRIPTS, SMOKE_OVERRIDES, run_script
+from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 
 # 600 frames, an evaluation every 150, a training state every 200 (all of them kept).
 RESUMABLE = [
@@ -31,20 +31,10 @@ RESUMABLE = [
     "checkpoint.keep_last=10",
     "seed=2",
 ]
-TIMINGS = {
-    "train_seconds",
-    "wall_seconds",
-    "seconds_to_solve",
-    "collect_frames_per_second",
-    "updates_per_second",
-    "peak_rss_mb",
-    "run_dir",
-    "checkpoint",
-}
 
 
 def _comparable(summary: dict) -> dict:
-    summary = {key: value for key, value in summary.items() if key not in TIMINGS}
+    summary = {key: value for key, value in summary.items() if key not in TIMING_KEYS}
     summary["eval_curve"] = {k: v for k, v in summary["eval_curve"].items() if k != "seconds"}
     return summary
 
@@ -188,7 +178,7 @@ def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_pat
                 python,
                 str(SCRIPTS / "train.py"),
                 f"resume={run_dir}",
-                f"collector.total_frames={frames + 40}",
+                f"collector.total_frames={frames + 48}",  # whole batches of 16 frames
                 "checkpoint.interval_frames=0",
             ],
             capture_output=True,
@@ -196,7 +186,7 @@ def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_pat
             timeout=300,
         )
         assert resumed.returncode == 0, resumed.stderr[-2000:]
-        assert json.loads((run_dir / "summary.json").read_text())["frames"] == frames + 40
+        assert json.loads((run_dir / "summary.json").read_text())["frames"] == frames + 48
 
 
 # --- numerical faults ---------------------------------------------------------------------

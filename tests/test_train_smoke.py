@@ -13,7 +13,7 @@ from trl_cartpole.envs import make_env
 from trl_cartpole.models import make_q_actor
 from trl_cartpole.train import train
 
-from .conftest import SCRIPTS, SMOKE_OVERRIDES, run_script
+from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 
 SUMMARY_KEYS = {
     "env_id",
@@ -38,7 +38,6 @@ SUMMARY_KEYS = {
     "checkpoint",
     "versions",
 }
-TIMING_KEYS = {"train_seconds", "wall_seconds", "seconds_to_solve", "run_dir", "checkpoint"}
 
 
 @pytest.fixture(scope="module")
@@ -91,9 +90,11 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
     assert summary["env_id"] == "CartPole-v1" and summary["seed"] == 1
     assert summary["algo"] == "dqn"
     assert summary["frames"] == 300
-    # Updates start once the buffer holds init_random_frames=64 (> batch 32): batches 16..75
-    # of 4 frames, 2 updates each.
-    assert summary["updates"] == 60 * 2
+    # Updates start once the buffer holds init_random_frames=64 (> batch 32) transitions. A
+    # batch of 4 frames is one step of each of the 4 envs, and the 3-step buffer stores a step
+    # once the 3 after it are in: after k batches it holds 4 * (k - 3) transitions, >= 64 from
+    # k = 19. So batches 19..75 update, 2 updates each.
+    assert summary["updates"] == 57 * 2
     assert summary["solve_threshold"] == 475.0
     assert summary["final_eval_episodes"] == 4 == len(summary["final_eval_returns"])
     assert summary["final_eval_return_mean"] == pytest.approx(
@@ -158,6 +159,6 @@ def test_update_metrics_logged_whenever_100_updates_pass(compose, tmp_path):
         f"run_dir={tmp_path}",
     )
     summary = train(cfg)
-    assert summary["updates"] == 60 * 3  # 180 updates: the 100th falls inside a batch
+    assert summary["updates"] == 57 * 3  # 171 updates: the 100th falls inside a batch
     rows = (tmp_path / "metrics/scalars/train/td_loss.csv").read_text().splitlines()
     assert len(rows) == 1

@@ -47,7 +47,7 @@ class ConfigError(ValueError):
 class EnvConfig:
     id: str = "CartPole-v1"  # any registered Gymnasium id with a vector obs and discrete actions
     max_episode_steps: int | None = None  # None: Gymnasium's registered TimeLimit
-    num_envs: int = 1  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
+    num_envs: int = 16  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
 
 
 @dataclass
@@ -65,7 +65,7 @@ class NetworkConfig:
     distributional: bool = False  # C51 (Bellemare et al. 2017): a return distribution per action
     atoms: int = 51  # support points of the distribution
     v_min: float = 0.0  # support [v_min, v_max]; CartPole's returns lie in [0, 1 / (1 - gamma)]
-    v_max: float = 100.0
+    v_max: float = 200.0  # 1 / (1 - 0.995), the default gamma
 
 
 @dataclass
@@ -79,28 +79,28 @@ class ExplorationConfig:
 @dataclass
 class BufferConfig:
     size: int = 50_000
-    batch_size: int = 256
+    batch_size: int = 512
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
     alpha: float = 0.6  # P(i) ~ (|delta_i| + priority_eps) ** alpha
     beta: float = 0.4  # importance-sampling exponent at the start, annealed linearly to 1
     beta_anneal_frames: int | None = None  # frames to reach beta = 1; None: collector.total_frames
     priority_eps: float = 1e-6
-    n_steps: int = 1  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
+    n_steps: int = 3  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
 
 
 @dataclass
 class LossConfig:
-    gamma: float = 0.99
+    gamma: float = 0.995
     loss_function: str = "smooth_l1"  # smooth_l1 (Huber, as the tutorial) | l2
     double_dqn: bool = False
     target_update: str = "soft"  # soft (Polyak, tau) | hard (copy every N updates)
-    tau: float = 0.01
+    tau: float = 0.02
     hard_update_interval: int = 100  # gradient updates between hard copies
 
 
 @dataclass
 class OptimConfig:
-    lr: float = 1e-3
+    lr: float = 2.5e-3
     amsgrad: bool = True
     weight_decay: float = 0.0  # the tutorial keeps AdamW's default 0.01
     grad_clip: str = "norm"  # norm | value | none
@@ -110,9 +110,9 @@ class OptimConfig:
 @dataclass
 class CollectorConfig:
     total_frames: int = 50_000
-    frames_per_batch: int = 4
+    frames_per_batch: int = 16  # frames per collected batch, over all envs
     init_random_frames: int = 1000  # frames drawn with a uniform random policy first
-    updates_per_batch: int = 2  # gradient steps after each collected batch
+    updates_per_batch: int = 3  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
 
 

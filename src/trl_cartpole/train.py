@@ -237,6 +237,8 @@ def train(
         cfg.collector.init_random_frames,
         cfg.device,
     )
+    # A single-process collector steps the very policy being trained; only a copy needs syncing.
+    sync_policy_weights = collector.policy is not policy
     logger = make_logger(cfg.logger.backend, run_dir, cfg.logger.project, cfg.logger.wandb_offline)
     title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
     live_plot = LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None
@@ -267,11 +269,18 @@ def train(
         "run": run_state,  # loads after "collector": its carrier replaces the fresh one
     }
     if resume is not None:
-        load_training_state(resume, **state_components)
+        saved = Checkpoint.manifest(resume)["components"]
+        load_training_state(resume, **{k: v for k, v in state_components.items() if k in saved})
 
     def save_state(path: Path, keep_last: int | None = None) -> Path:
         counters = {"frames": progress.frames, "updates": progress.updates}
-        return save_training_state(path, cfg, counters, keep_last, **state_components)
+        # An n-step buffer may still be empty (its windows are not complete yet): nothing to save.
+        components = {
+            name: component
+            for name, component in state_components.items()
+            if name != "replay_buffer" or len(buffer) > 0
+        }
+        return save_training_state(path, cfg, counters, keep_last, **components)
 
     bar = tqdm(
         initial=progress.frames,
@@ -358,7 +367,8 @@ def train(
                 buffer.sampler.beta = annealed_beta(
                     cfg.buffer.beta, progress.frames, beta_anneal_frames
                 )
-            collector.update_policy_weights_()
+            if sync_policy_weights:
+                collector.update_policy_weights_()
 
             bar.update(batch.numel())
             if history.episode_returns:
