@@ -47,7 +47,7 @@ class ConfigError(ValueError):
 class EnvConfig:
     id: str = "CartPole-v1"  # any registered Gymnasium id with a vector obs and discrete actions
     max_episode_steps: int | None = None  # None: Gymnasium's registered TimeLimit
-    num_envs: int = 16  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
+    num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
 
 
 @dataclass
@@ -93,14 +93,14 @@ class LossConfig:
     gamma: float = 0.995
     loss_function: str = "smooth_l1"  # smooth_l1 (Huber, as the tutorial) | l2
     double_dqn: bool = False
-    target_update: str = "soft"  # soft (Polyak, tau) | hard (copy every N updates)
+    target_update: str = "hard"  # hard (copy every N updates) | soft (Polyak, tau)
     tau: float = 0.02
-    hard_update_interval: int = 100  # gradient updates between hard copies
+    hard_update_interval: int = 50  # gradient updates between hard copies
 
 
 @dataclass
 class OptimConfig:
-    lr: float = 2.5e-3
+    lr: float = 4e-3
     amsgrad: bool = True
     weight_decay: float = 0.0  # the tutorial keeps AdamW's default 0.01
     grad_clip: str = "norm"  # norm | value | none
@@ -110,9 +110,9 @@ class OptimConfig:
 @dataclass
 class CollectorConfig:
     total_frames: int = 50_000
-    frames_per_batch: int = 16  # frames per collected batch, over all envs
+    frames_per_batch: int = 32  # frames per collected batch, over all envs
     init_random_frames: int = 1000  # frames drawn with a uniform random policy first
-    updates_per_batch: int = 3  # gradient steps after each collected batch
+    updates_per_batch: int = 6  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
 
 
