@@ -2,6 +2,9 @@
 
     python scripts/profile_frame.py [--rate 200] [--out runs/profile] [key=value ...]
 
+(``--train-script OTHER_CHECKOUT/scripts/train.py`` with ``PYTHONPATH=OTHER_CHECKOUT/src``
+profiles another version, as the "before" breakdown of docs/performance.md.)
+
 Runs ``scripts/train.py`` with the overrides under ``py-spy record`` (the ``bench`` extra
 installs py-spy), then prints a markdown table: seconds and share of the training time per
 phase (``trl_cartpole.profiling.PHASES``), and the evaluation and setup seconds beside it
@@ -27,6 +30,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rate", type=int, default=200, help="samples per second")
     parser.add_argument("--out", type=Path, default=Path("runs/profile"))
+    parser.add_argument(
+        "--train-script", type=Path, default=TRAIN_SCRIPT, help="another checkout's train.py"
+    )
     parser.add_argument("overrides", nargs="*", help="Hydra overrides for the profiled run")
     args = parser.parse_args()
     py_spy = shutil.which("py-spy") or str(Path(sys.executable).parent / "py-spy")
@@ -34,7 +40,7 @@ def main() -> None:
         raise SystemExit("error: py-spy is not installed; pip install -e '.[bench]'")
     args.out.mkdir(parents=True, exist_ok=True)
     stacks_path = args.out / "stacks.txt"
-    command = [sys.executable, str(TRAIN_SCRIPT), f"run_dir={args.out / 'run'}"]
+    command = [sys.executable, str(args.train_script), f"run_dir={args.out / 'run'}"]
     command += ["logger.progress_bar=false", *args.overrides]
     record = [py_spy, "record", "-r", str(args.rate), "-f", "raw", "-o", str(stacks_path), "--"]
     subprocess.run([*record, *command], check=True, stdout=subprocess.DEVNULL)

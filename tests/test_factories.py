@@ -14,7 +14,7 @@ from torchrl.envs import RewardSum, StepCounter, TransformedEnv
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
-from trl_cartpole.buffers import make_replay_buffer
+from trl_cartpole.buffers import make_replay_buffer, sample_minibatches
 from trl_cartpole.collectors import make_collector
 from trl_cartpole.config import ConfigError
 from trl_cartpole.envs import make_env, solve_threshold
@@ -189,3 +189,17 @@ def test_collector_yields_batches_of_frames_per_batch(env):
     collector.shutdown()
     assert sizes == [8, 8, 8]
     assert math.isclose(sum(sizes), 24)
+
+
+def test_minibatches_of_one_draw_are_uniform_and_prioritized_ones_are_drawn_one_by_one():
+    uniform = make_replay_buffer(1000, 8)
+    uniform.extend(TensorDict(x=torch.arange(100.0)[:, None], batch_size=[100]))
+    torch.manual_seed(0)
+    batches = list(sample_minibatches(uniform, 5))
+    assert [b.shape for b in batches] == [torch.Size([8])] * 5
+    drawn = torch.cat([b["x"] for b in batches]).flatten()  # 40 indices with replacement
+    assert drawn.min() >= 0 and drawn.max() < 100 and len(drawn.unique()) > 20
+    prioritized = make_replay_buffer(1000, 8, prioritized=True)
+    prioritized.extend(TensorDict(x=torch.arange(100.0)[:, None], batch_size=[100]))
+    batches = list(sample_minibatches(prioritized, 3))
+    assert len(batches) == 3 and all("priority_weight" in b for b in batches)

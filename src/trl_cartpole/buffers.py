@@ -15,6 +15,9 @@
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Iterator
+
 from tensordict import TensorDictBase
 from torchrl.data import (
     LazyTensorStorage,
@@ -26,7 +29,13 @@ from torchrl.envs import MultiStepTransform
 
 from trl_cartpole.segment_trees import install_if_missing
 
-__all__ = ["NStepTransform", "annealed_beta", "extend_with_batch", "make_replay_buffer"]
+__all__ = [
+    "NStepTransform",
+    "annealed_beta",
+    "extend_with_batch",
+    "make_replay_buffer",
+    "sample_minibatches",
+]
 
 
 class NStepTransform(MultiStepTransform):
@@ -104,3 +113,21 @@ def extend_with_batch(buffer: TensorDictReplayBuffer, batch: TensorDictBase) -> 
     as collected and flattens its windows itself; any other buffer gets ``[N * T]``.
     """
     buffer.extend(batch if buffer._transform else batch.reshape(-1))
+
+
+def sample_minibatches(buffer: TensorDictReplayBuffer, count: int) -> Iterator[TensorDictBase]:
+    """Yield ``count`` minibatches ``[batch_size]`` for the updates after one collected batch.
+
+    A uniform buffer (sampling with replacement) draws all ``count * batch_size`` indices in
+    one call and splits them: the same distribution as ``count`` calls, for the overhead of one
+    (about 0.3 ms saved per extra update, docs/performance.md). A prioritized buffer samples
+    one minibatch at a time, since each update rewrites the priorities the next draw uses.
+    """
+    if count == 1 or isinstance(buffer, TensorDictPrioritizedReplayBuffer):
+        for _ in range(count):
+            yield buffer.sample()
+        return
+    with warnings.catch_warnings():  # TorchRL warns that the call's batch size prevails
+        warnings.simplefilter("ignore", UserWarning)
+        drawn = buffer.sample(buffer.batch_size * count)  # [count * batch_size]
+    yield from drawn.split(buffer.batch_size)

@@ -27,7 +27,7 @@ PHASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("replay extend", ("extend_with_batch (trl_cartpole/buffers.py",)),
     ("policy (Q-network + epsilon-greedy)", ("tensordict/nn/sequence.py",)),
     ("env step (Gymnasium + TorchRL transforms)", ("step_and_maybe_reset",)),
-    ("collector bookkeeping", ("_timed_batches (trl_cartpole/train.py",)),
+    ("collector bookkeeping", ("(torchrl/collectors/",)),
     ("epsilon schedule", ("EGreedyModule.step",)),
     ("episode statistics", ("_record_episodes (trl_cartpole/train.py",)),
     ("policy weight sync", ("update_policy_weights_",)),

@@ -31,7 +31,12 @@ from tensordict.nn import TensorDictSequential
 from torchrl.checkpoint import Checkpoint
 from tqdm.auto import tqdm
 
-from trl_cartpole.buffers import annealed_beta, extend_with_batch, make_replay_buffer
+from trl_cartpole.buffers import (
+    annealed_beta,
+    extend_with_batch,
+    make_replay_buffer,
+    sample_minibatches,
+)
 from trl_cartpole.checkpoint import load_training_state, save_policy, save_training_state
 from trl_cartpole.collectors import make_collector
 from trl_cartpole.config import Config, ConfigError, to_config, validate
@@ -344,9 +349,8 @@ def train(
             updates_before = progress.updates
             update_start = time.perf_counter()
             if len(buffer) >= learning_starts:
-                for _ in range(cfg.collector.updates_per_batch):
-                    sample = buffer.sample()  # [batch_size]
-                    metrics = update(sample)
+                for sample in sample_minibatches(buffer, cfg.collector.updates_per_batch):
+                    metrics = update(sample)  # sample: [batch_size]
                     if cfg.buffer.prioritized:
                         buffer.update_priority(sample["index"], priority_from_loss(loss, sample))
                     target_updater.step()

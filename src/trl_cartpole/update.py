@@ -57,7 +57,7 @@ def make_update(
         loss = loss_module(batch)["loss"]  # [] (weighted mean over the batch)
         loss.backward()
         if grad_clip == "norm":
-            grad_norm = nn.utils.clip_grad_norm_(params, max_grad)
+            grad_norm = nn.utils.clip_grad_norm_(params, max_grad, foreach=True)
         else:
             grad_norm = nn.utils.get_total_norm([p.grad for p in params if p.grad is not None])
             if grad_clip == "value":
