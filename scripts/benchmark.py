@@ -31,7 +31,9 @@ from trl_cartpole.benchmarking import (
 def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
     """The ratios the table's medians give, one line each."""
     lines = [
-        f"- {peer} needs {ratio:.1f}x the seconds to solve of {algos[0]} (medians)"
+        f"- {peer} and {algos[0]}: neither solved most seeds"
+        if ratio is None
+        else f"- {peer} needs {ratio:.1f}x the seconds to solve of {algos[0]} (medians)"
         for peer, ratio in speed_ratios(results, algos[0], peers).items()
     ]
     if "tutorial" in results and "tutorial_loop" in results:

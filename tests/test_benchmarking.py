@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from trl_cartpole.benchmarking import markdown_table, median_to_solve
+from trl_cartpole.benchmarking import markdown_table, median_to_solve, speed_ratios
 from trl_cartpole.plotting import hold_last, plot_seed_groups
 
 from .conftest import SCRIPTS
@@ -43,9 +43,29 @@ def test_markdown_table_rows():
         "a": [_summary(1000, 2.0, 500.0), _summary(3000, 6.0, 490.0), _summary(None, None, 20)],
         "b": [_summary(None, None, 10.0)],
     }
+    results["a"][0] |= {"collect_frames_per_second": 900, "updates_per_second": 250.0}
+    results["a"][1] |= {"collect_frames_per_second": 1100, "updates_per_second": 150.0}
+    results["a"][2] |= {"collect_frames_per_second": 1000, "updates_per_second": 200.0}
+    for run, rss in zip(results["a"], (400.0, 500.0, 450.0), strict=True):
+        run["peak_rss_mb"] = rss
     lines = markdown_table(results).splitlines()
-    assert lines[2] == "| a | 2/3 | 3000 | 6.0 | 490.0 | 1000, 3000, - | 2.0, 6.0, - | 10.0 |"
-    assert lines[3] == "| b | 0/1 | not solved | not solved | 10.0 | - | - | 10.0 |"
+    assert lines[2] == (
+        "| a | 2/3 | 3000 | 6.0 | 490.0 | 1000, 3000, - | 2.0, 6.0, - | 10.0 | 1000 | 200 | 450 |"
+    )
+    # A peer's summary has no throughput figures: dashes.
+    assert lines[3] == "| b | 0/1 | not solved | not solved | 10.0 | - | - | 10.0 | - | - | - |"
+
+
+def test_speed_ratios_divide_medians_and_name_the_unsolved():
+    results = {
+        "ours": [_summary(1000, 2.0, 500.0), _summary(2000, 4.0, 500.0), _summary(None, None, 9)],
+        "peer": [_summary(9000, 30.0, 500.0), _summary(9000, 10.0, 500.0), _summary(1, 20.0, 1)],
+        "stuck": [_summary(None, None, 9.0)] * 3,
+    }
+    ratios = speed_ratios(results, "ours", ["peer", "stuck"])
+    assert ratios["peer"] == 20.0 / 4.0  # medians: 20 s vs 4 s (unsolved counts as slowest)
+    assert math.isinf(ratios["stuck"])
+    assert speed_ratios(results, "stuck", ["peer", "stuck"]) == {"peer": 0.0, "stuck": None}
 
 
 def test_seed_group_plot_and_doc_markers(tmp_path):

@@ -151,13 +151,21 @@ def seconds_per_frame(runs: Sequence[dict[str, Any]]) -> float:
 
 def speed_ratios(
     results: dict[str, list[dict[str, Any]]], ours: str, peers: Sequence[str]
-) -> dict[str, float]:
-    """``{peer: median seconds_to_solve of peer / that of ours}`` (inf: ours did not solve)."""
+) -> dict[str, float | None]:
+    """``{peer: median seconds_to_solve of peer / that of ours}``.
+
+    ``inf`` when the peer did not solve most seeds and ours did, ``0`` the other way round,
+    ``None`` when neither did (no ratio to speak of).
+    """
     mine = median_to_solve([r["seconds_to_solve"] for r in results[ours]])
-    return {
-        peer: median_to_solve([r["seconds_to_solve"] for r in results[peer]]) / mine
-        for peer in peers
-    }
+    ratios: dict[str, float | None] = {}
+    for peer in peers:
+        theirs = median_to_solve([r["seconds_to_solve"] for r in results[peer]])
+        if math.isinf(mine):
+            ratios[peer] = None if math.isinf(theirs) else 0.0
+        else:
+            ratios[peer] = theirs / mine
+    return ratios
 
 
 # Fields that differ between seeds of one config, not between configs.
