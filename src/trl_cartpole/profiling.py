@@ -24,13 +24,13 @@ PHASES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("gradient clipping", ("clip_grad",)),
     ("optimizer step", ("torch/optim/",)),
     ("target update (SoftUpdate/HardUpdate)", ("step (torchrl/objectives/utils.py",)),
-    ("replay extend", ("extend_with_batch (trl_cartpole/buffers.py",)),
+    ("replay extend", ("extend_with_batch (trl_cartpole/buffers.py", "extend (torchrl/data/")),
     ("policy (Q-network + epsilon-greedy)", ("tensordict/nn/sequence.py",)),
     ("env step (Gymnasium + TorchRL transforms)", ("step_and_maybe_reset",)),
+    ("policy weight sync", ("update_policy_weights_",)),
     ("collector bookkeeping", ("(torchrl/collectors/",)),
     ("epsilon schedule", ("EGreedyModule.step",)),
     ("episode statistics", ("_record_episodes (trl_cartpole/train.py",)),
-    ("policy weight sync", ("update_policy_weights_",)),
     ("logging and progress bar", ("_log (trl_cartpole/train.py", "tqdm/")),
 )
 LOOP_MARK = "train (trl_cartpole/train.py"
