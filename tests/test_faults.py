@@ -161,7 +161,13 @@ def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_pat
     for delay in (0.0, 0.37, 0.71):  # several moments, to land inside a write
         shutil.rmtree(run_dir, ignore_errors=True)
         proc = _start(
-            python, run_dir, *LONG, "collector.total_frames=50000", "checkpoint.interval_frames=40"
+            python,
+            run_dir,
+            *LONG,
+            "collector.total_frames=50000",
+            "checkpoint.interval_frames=40",
+            "env.num_envs=16",
+            "collector.frames_per_batch=16",  # so that + 48 frames below is 3 whole batches
         )
         periodic = run_dir / "checkpoints" / "periodic"
         _wait_until_training(run_dir, proc)
@@ -178,7 +184,7 @@ def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_pat
                 python,
                 str(SCRIPTS / "train.py"),
                 f"resume={run_dir}",
-                f"collector.total_frames={frames + 48}",  # whole batches of 16 frames
+                f"collector.total_frames={frames + 48}",
                 "checkpoint.interval_frames=0",
             ],
             capture_output=True,
