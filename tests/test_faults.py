@@ -77,6 +77,17 @@ def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, preset):
     assert (whole / td_loss).read_text() == (resumed_dir / td_loss).read_text()
 
 
+def test_a_state_saved_before_the_nstep_buffer_holds_anything_resumes(compose, tmp_path):
+    # 2 steps of each of 4 envs: a 3-step buffer has no complete window yet, so it is empty.
+    overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("collector.total_frames")]
+    train(compose(*overrides, "collector.total_frames=8", f"run_dir={tmp_path}"))
+    last = tmp_path / "checkpoints" / "last"
+    assert "replay_buffer" not in Checkpoint.manifest(last)["components"]
+    assert "policy" in Checkpoint.manifest(last)["components"]
+    resumed = train(resume_config(last, ["collector.total_frames=100"]), resume=last)
+    assert resumed["frames"] == 100 and resumed["updates"] > 0
+
+
 # --- interrupts: SIGINT / SIGTERM, a second Ctrl-C, SIGKILL --------------------------------
 
 LONG = [

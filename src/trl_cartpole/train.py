@@ -274,8 +274,10 @@ def train(
         "run": run_state,  # loads after "collector": its carrier replaces the fresh one
     }
     if resume is not None:
-        saved = Checkpoint.manifest(resume)["components"]
-        load_training_state(resume, **{k: v for k, v in state_components.items() if k in saved})
+        components = dict(state_components)
+        if "replay_buffer" not in Checkpoint.manifest(resume)["components"]:
+            components.pop("replay_buffer", None)  # saved while an n-step buffer was empty
+        load_training_state(resume, **components)
 
     def save_state(path: Path, keep_last: int | None = None) -> Path:
         counters = {"frames": progress.frames, "updates": progress.updates}
@@ -339,9 +341,8 @@ def train(
     stop = StopRequest()
     train_clock.start()
     with stop:
-        for batch in _timed_batches(
-            collector, progress
-        ):  # batch: [frames_per_batch] or [num_envs, frames / num_envs]
+        # batch: [frames_per_batch] (one env) or [num_envs, frames_per_batch / num_envs]
+        for batch in _timed_batches(collector, progress):
             progress.frames += batch.numel()
             extend_with_batch(buffer, batch.select(*TRANSITION_KEYS))
             _record_episodes(batch, progress, logger)
