@@ -4,7 +4,7 @@
     python -m trl_cartpole.peers.sb3_dqn --seed 0 --run-dir runs/peers/sb3_dqn-seed0
 
 rl-zoo3's ``hyperparams/dqn.yml`` for CartPole-v1: lr 2.3e-3, batch 64, buffer 100 000,
-learning_starts 1 000, gamma 0.99, target_update_interval 10, train_freq 256,
+learning_starts 1 000, gamma 0.99, target_update_interval 10 (env steps), train_freq 256,
 gradient_steps 128, exploration_fraction 0.16, exploration_final_eps 0.04, net_arch [256, 256],
 over n_timesteps 50 000. SB3 scales the epsilon schedule to the ``learn()`` budget, so with a
 longer budget the fraction is rescaled to keep zoo's decay over 0.16 * 50 000 = 8 000 steps.
