@@ -16,6 +16,7 @@ first preset's, and seconds per frame of ``tutorial`` against ``tutorial_loop``.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 from pathlib import Path
 
@@ -60,6 +61,10 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/benchmark"))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every preset run")
     args = parser.parse_args()
+    if args.jobs < 1:
+        parser.error(f"--jobs {args.jobs}: run at least one process at a time (--jobs 1)")
+    if "sb3_dqn" in args.peers and importlib.util.find_spec("stable_baselines3") is None:
+        parser.error("--peers sb3_dqn needs Stable-Baselines3: pip install -e '.[bench]'")
     protocol = [f"eval.interval_frames={args.eval_interval}", f"eval.episodes={args.eval_episodes}"]
     peer_args = [
         f"--total-frames={args.peer_frames}",

@@ -160,3 +160,13 @@ def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
     assert "| CartPole-v1 dqn optim.lr=0.001 | 3/3 | 2000 | 2.0 |" in table
     assert "| CartPole-v1 dqn optim.lr=0.0005 | 1/2 | not solved |" in table
     assert out.with_suffix(".png").stat().st_size > 1000
+
+
+def test_benchmark_refuses_a_bad_job_count_before_running_anything(python, tmp_path):
+    import subprocess
+
+    command = [python, str(SCRIPTS / "benchmark.py"), "--jobs", "0", "--out", str(tmp_path)]
+    proc = subprocess.run(command, capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "--jobs 0: run at least one process at a time" in proc.stderr
+    assert not any(tmp_path.iterdir())  # no run started
