@@ -59,3 +59,15 @@ def test_peer_runs_under_the_protocol_and_writes_a_summary(python, tmp_path, pee
     assert summary["updates"] > 0 and summary["frames"] >= 1500
     assert 0 < summary["train_seconds"] < summary["wall_seconds"]
     assert summary["best_eval_return_mean"] == max(summary["eval_curve"]["returns"])
+
+
+def test_tutorial_loop_repeats_itself_with_the_same_seed(python, tmp_path):
+    summaries = []
+    for name in ("a", "b"):
+        command = [python, "-m", "trl_cartpole.peers.tutorial_loop", "--seed", "2"]
+        command += ["--run-dir", str(tmp_path / name), "--total-frames", "600"]
+        command += ["--eval-interval", "300", "--eval-episodes", "2", "--final-episodes", "2"]
+        subprocess.run(command, check=True, timeout=300)
+        summaries.append(json.loads((tmp_path / name / "summary.json").read_text()))
+    first, second = (s["eval_curve"]["returns"] + [s["final_eval_return_mean"]] for s in summaries)
+    assert first == second

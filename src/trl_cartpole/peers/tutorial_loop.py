@@ -7,8 +7,8 @@ The training code is the tutorial's (``../shared/seeds/001_*.txt``), kept as wri
 non-final mask, Huber loss, gradient value clipping at 100, AdamW(amsgrad) lr 1e-4, and the
 soft target update through ``state_dict`` after every step. Batch 128, gamma 0.99,
 epsilon 0.9 -> 0.05 with exponential decay 1000, tau 0.005, memory 10 000, MLP 128-128. The
-only additions are the seeds, one torch thread (as ``train()``), and the protocol's periodic
-greedy evaluation with the clock stopped.
+only additions are the seeds (the action space's too), one torch thread (as ``train()``),
+and the protocol's periodic greedy evaluation with the clock stopped.
 """
 
 from __future__ import annotations
@@ -74,6 +74,7 @@ def main() -> None:
     env = gym.make(args.env_id)
     n_actions = env.action_space.n
     state, _ = env.reset(seed=args.seed)
+    env.action_space.seed(args.seed)  # the tutorial leaves it unseeded; seeded, runs repeat
     policy_net = DQN(len(state), n_actions)
     target_net = DQN(len(state), n_actions)
     target_net.load_state_dict(policy_net.state_dict())
