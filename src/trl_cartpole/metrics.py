@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import resource
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,12 +12,36 @@ from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLo
 from trl_cartpole.config import ConfigError
 from trl_cartpole.files import write_text_atomic
 
-__all__ = ["History", "make_logger", "peak_rss_mb", "truncate_csv_metrics"]
+__all__ = ["History", "Stopwatch", "make_logger", "peak_rss_mb", "truncate_csv_metrics"]
 
 
 def peak_rss_mb() -> float:
     """This process's peak resident memory in MiB (Linux reports ``ru_maxrss`` in KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+class Stopwatch:
+    """Wall time with pauses, so evaluation can be left out of the training time.
+
+    ``train()`` and the benchmark's peers (``trl_cartpole.peers.protocol``) time with it.
+    """
+
+    def __init__(self) -> None:
+        self.elapsed = 0.0
+        self._start: float | None = None
+
+    def start(self) -> None:
+        self._start = time.perf_counter()
+
+    def pause(self) -> None:
+        if self._start is not None:
+            self.elapsed += time.perf_counter() - self._start
+            self._start = None
+
+    @property
+    def seconds(self) -> float:
+        running = 0.0 if self._start is None else time.perf_counter() - self._start
+        return self.elapsed + running
 
 
 def make_logger(

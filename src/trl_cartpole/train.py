@@ -45,7 +45,13 @@ from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.files import write_json_atomic, write_text_atomic
 from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_from_loss
-from trl_cartpole.metrics import History, make_logger, peak_rss_mb, truncate_csv_metrics
+from trl_cartpole.metrics import (
+    History,
+    Stopwatch,
+    make_logger,
+    peak_rss_mb,
+    truncate_csv_metrics,
+)
 from trl_cartpole.models import expected_action_values, make_q_actor_for_env, reset_network_noise
 from trl_cartpole.plotting import LiveDurationPlot, plot_dashboard, plot_durations
 from trl_cartpole.run_control import StopRequest, TrainingFailed, TrainingInterrupted
@@ -89,27 +95,6 @@ def prepare_run_dir(run_dir: str | Path) -> Path:
             f"run_dir={str(path)!r} is not writable ({error.strerror}); choose another run_dir"
         ) from None
     return path
-
-
-class _Stopwatch:
-    """Wall time with pauses, so evaluation can be left out of the training time."""
-
-    def __init__(self) -> None:
-        self.elapsed = 0.0
-        self._start: float | None = None
-
-    def start(self) -> None:
-        self._start = time.perf_counter()
-
-    def pause(self) -> None:
-        if self._start is not None:
-            self.elapsed += time.perf_counter() - self._start
-            self._start = None
-
-    @property
-    def seconds(self) -> float:
-        running = 0.0 if self._start is None else time.perf_counter() - self._start
-        return self.elapsed + running
 
 
 @dataclass
@@ -262,7 +247,7 @@ def train(
 
     progress = _Progress()
     history = progress.history
-    train_clock = _Stopwatch()
+    train_clock = Stopwatch()
     run_state = RunState(progress, train_clock, env, eval_env, collector, buffer, target_updater)
     state_components: dict[str, Any] = {
         "policy": actor,

@@ -21,7 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 from trl_cartpole.files import write_json_atomic
-from trl_cartpole.metrics import peak_rss_mb
+from trl_cartpole.metrics import Stopwatch, peak_rss_mb
 
 __all__ = ["GreedyEvaluation", "PeerRun", "parse_peer_args"]
 
@@ -70,8 +70,8 @@ class PeerRun:
         self.threshold = float(gym.spec(args.env_id).reward_threshold)
         self.evaluation = GreedyEvaluation(args.env_id, args.eval_episodes, args.seed + SEED_OFFSET)
         self.wall_start = time.perf_counter()
-        self.train_seconds = 0.0
-        self._clock_start = time.perf_counter()
+        self.clock = Stopwatch()  # training time: paused while evaluating
+        self.clock.start()
         self.eval_frames: list[int] = []
         self.eval_seconds: list[float] = []
         self.eval_returns: list[float] = []
@@ -80,27 +80,24 @@ class PeerRun:
         self.frames_to_solve: int | None = None
         self.seconds_to_solve: float | None = None
 
-    def _seconds(self) -> float:
-        return self.train_seconds + time.perf_counter() - self._clock_start
-
     def evaluate(self, frames: int, act: Act, snapshot: Callable[[], Any]) -> bool:
         """Evaluate greedily with the clock stopped; keep the best weights; return solved."""
-        self.train_seconds = self._seconds()
+        self.clock.pause()
         mean = statistics.fmean(self.evaluation(act))
         self.eval_frames.append(frames)
-        self.eval_seconds.append(round(self.train_seconds, 3))
+        self.eval_seconds.append(round(self.clock.seconds, 3))
         self.eval_returns.append(mean)
         if mean > self.best_return:
             self.best_return, self.best_weights = mean, snapshot()
         solved = mean >= self.threshold
         if solved and self.frames_to_solve is None:
-            self.frames_to_solve, self.seconds_to_solve = frames, self.train_seconds
-        self._clock_start = time.perf_counter()
+            self.frames_to_solve, self.seconds_to_solve = frames, self.clock.seconds
+        self.clock.start()
         return solved
 
     def finish(self, frames: int, updates: int, act: Act, load: Callable[[Any], None]) -> dict:
         """Evaluate the best weights over ``final_episodes`` and write ``summary.json``."""
-        self.train_seconds = self._seconds()
+        self.clock.pause()
         self.evaluation.close()
         load(self.best_weights)
         final = GreedyEvaluation(
@@ -114,7 +111,7 @@ class PeerRun:
             "algo": self.name,
             "frames": frames,
             "updates": updates,
-            "train_seconds": round(self.train_seconds, 3),
+            "train_seconds": round(self.clock.seconds, 3),
             "wall_seconds": round(time.perf_counter() - self.wall_start, 3),
             "solved": self.frames_to_solve is not None,
             "solve_threshold": self.threshold,
