@@ -22,7 +22,13 @@ from torchrl.envs import (
 
 from trl_cartpole.config import ConfigError
 
-__all__ = ["check_env_fits", "check_env_id", "make_env", "solve_threshold"]
+__all__ = [
+    "check_env_fits",
+    "check_env_id",
+    "make_env",
+    "make_sync_vector_env",
+    "solve_threshold",
+]
 
 OBSERVATION_KEY = "observation"
 
@@ -70,6 +76,21 @@ def check_env_fits(env: TransformedEnv | GymEnv, env_id: str) -> None:
         )
 
 
+def make_sync_vector_env(env_id: str, num_envs: int, **make_kwargs: Any) -> gym.vector.VectorEnv:
+    """``num_envs`` copies of ``env_id`` stepped in one process, with same-step autoreset.
+
+    The Gymnasium env under a batched :func:`make_env`, and the evaluation envs of the
+    benchmark's peers (``trl_cartpole.peers.protocol``), so both evaluate on the same envs.
+    """
+    return gym.make_vec(
+        env_id,
+        num_envs=num_envs,
+        vectorization_mode="sync",
+        vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
+        **make_kwargs,
+    )
+
+
 def make_env(
     env_id: str = "CartPole-v1",
     seed: int | None = None,
@@ -104,14 +125,9 @@ def make_env(
         if num_envs == 1:
             base_env = GymEnv(env_id, device=device, **make_kwargs)
         else:
-            vector_env = gym.make_vec(
-                env_id,
-                num_envs=num_envs,
-                vectorization_mode="sync",
-                vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
-                **make_kwargs,
+            base_env = GymWrapper(
+                make_sync_vector_env(env_id, num_envs, **make_kwargs), device=device
             )
-            base_env = GymWrapper(vector_env, device=device)
     except (ImportError, gym.error.DependencyNotInstalled) as error:
         raise ConfigError(
             f"env {env_id!r} needs a package that is not installed ({error})"

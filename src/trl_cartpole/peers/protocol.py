@@ -17,9 +17,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
+from trl_cartpole.envs import make_sync_vector_env, solve_threshold
 from trl_cartpole.files import write_json_atomic
 from trl_cartpole.metrics import Stopwatch, peak_rss_mb
 
@@ -35,12 +35,7 @@ class GreedyEvaluation:
     """Greedy episodes on ``episodes`` envs stepped together; each env's first episode counts."""
 
     def __init__(self, env_id: str, episodes: int, seed: int, max_steps: int = 10_000) -> None:
-        self.env = gym.make_vec(
-            env_id,
-            num_envs=episodes,
-            vectorization_mode="sync",
-            vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
-        )
+        self.env = make_sync_vector_env(env_id, episodes)
         self.seed: int | None = seed  # used by the first reset only; later ones continue
         self.max_steps = max_steps
 
@@ -67,7 +62,10 @@ class PeerRun:
 
     def __init__(self, name: str, args: argparse.Namespace) -> None:
         self.name, self.args = name, args
-        self.threshold = float(gym.spec(args.env_id).reward_threshold)
+        threshold = solve_threshold(args.env_id)
+        if threshold is None:
+            raise SystemExit(f"error: {args.env_id} has no reward_threshold to count a solve at")
+        self.threshold = threshold
         self.evaluation = GreedyEvaluation(args.env_id, args.eval_episodes, args.seed + SEED_OFFSET)
         self.wall_start = time.perf_counter()
         self.clock = Stopwatch()  # training time: paused while evaluating
