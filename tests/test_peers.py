@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-import subprocess
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
+from trl_cartpole.benchmarking import run_peer
 from trl_cartpole.peers.protocol import GreedyEvaluation
 
 
@@ -41,15 +41,12 @@ def test_later_evaluations_play_new_episodes():
 
 
 @pytest.mark.parametrize("peer", ["tutorial_loop", "sb3_dqn"])
-def test_peer_runs_under_the_protocol_and_writes_a_summary(python, tmp_path, peer):
+def test_peer_runs_under_the_protocol_and_writes_a_summary(tmp_path, peer):
     if peer == "sb3_dqn":
         pytest.importorskip("stable_baselines3")
-    run_dir = tmp_path / peer
-    command = [python, "-m", f"trl_cartpole.peers.{peer}", "--seed", "1", "--run-dir", run_dir]
-    command += ["--total-frames", "1500", "--eval-interval", "500", "--eval-episodes", "3"]
-    command += ["--final-episodes", "4"]
-    subprocess.run([str(part) for part in command], check=True, timeout=300)
-    summary = json.loads((run_dir / "summary.json").read_text())
+    protocol = ["--total-frames=1500", "--eval-interval=500", "--eval-episodes=3"]
+    summary = run_peer(peer, 1, tmp_path, [*protocol, "--final-episodes=4"])
+    assert summary == json.loads((tmp_path / f"{peer}-seed1" / "summary.json").read_text())
     assert summary["algo"] == peer and summary["seed"] == 1
     evaluated = summary["eval_curve"]["frames"]
     assert evaluated == (
@@ -61,13 +58,11 @@ def test_peer_runs_under_the_protocol_and_writes_a_summary(python, tmp_path, pee
     assert summary["best_eval_return_mean"] == max(summary["eval_curve"]["returns"])
 
 
-def test_tutorial_loop_repeats_itself_with_the_same_seed(python, tmp_path):
-    summaries = []
-    for name in ("a", "b"):
-        command = [python, "-m", "trl_cartpole.peers.tutorial_loop", "--seed", "2"]
-        command += ["--run-dir", str(tmp_path / name), "--total-frames", "600"]
-        command += ["--eval-interval", "300", "--eval-episodes", "2", "--final-episodes", "2"]
-        subprocess.run(command, check=True, timeout=300)
-        summaries.append(json.loads((tmp_path / name / "summary.json").read_text()))
+def test_tutorial_loop_repeats_itself_with_the_same_seed(tmp_path):
+    protocol = ["--total-frames=600", "--eval-interval=300", "--eval-episodes=2"]
+    summaries = [
+        run_peer("tutorial_loop", 2, tmp_path / name, [*protocol, "--final-episodes=2"])
+        for name in ("a", "b")
+    ]
     first, second = (s["eval_curve"]["returns"] + [s["final_eval_return_mean"]] for s in summaries)
     assert first == second

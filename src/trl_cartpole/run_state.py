@@ -138,7 +138,7 @@ class RunState:
                 carrier.update(env.reset())
         for env, key in ((self.env, "env_memo"), (self.eval_env, "eval_env_memo")):
             memo = _autoreset_memo(env)
-            if memo is not None and state.get(key) is not None:
+            if memo is not None and state[key] is not None:
                 memo._memo = pickle.loads(state[key])
         if state["env"] is not None:
             carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
