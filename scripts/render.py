@@ -18,10 +18,10 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
+from trl_cartpole.checkpoint import load_policy, read_checkpoint_config, read_observation_norm
 from trl_cartpole.cli import run_cli
 from trl_cartpole.config import ConfigError
-from trl_cartpole.envs import make_env
+from trl_cartpole.envs import make_env_from_config
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.video import render_episodes, write_video
 
@@ -45,16 +45,17 @@ def main(argv: list[str]) -> None:
         raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
     cfg = read_checkpoint_config(args.checkpoint)
     seed = cfg.seed + 2 * cfg.eval.seed_offset if args.seed is None else args.seed
+    observation_norm = read_observation_norm(args.checkpoint)
     if args.human:
         if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
             raise ConfigError("human=true needs a display; write a file instead (output=x.gif)")
-        env = make_env(
-            cfg.env.id, seed, max_episode_steps=cfg.env.max_episode_steps, render_mode="human"
+        env = make_env_from_config(
+            cfg.env, seed, num_envs=1, observation_norm=observation_norm, render_mode="human"
         )
     else:
         os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # no window for rgb_array frames
-        env = make_env(
-            cfg.env.id, seed, max_episode_steps=cfg.env.max_episode_steps, render_mode="rgb_array"
+        env = make_env_from_config(
+            cfg.env, seed, num_envs=1, observation_norm=observation_norm, render_mode="rgb_array"
         )
     actor = load_policy(args.checkpoint, make_q_actor_for_env(env, cfg.network))
     if args.human:

@@ -55,18 +55,6 @@ def test_batched_env_has_batch_dim():
     assert env.reset()["observation"].shape == torch.Size([3, 4])
 
 
-@pytest.mark.parametrize(
-    ("env_id", "message"),
-    [
-        ("Pendulum-v1", "DQN needs discrete actions"),
-        ("NoSuchEnv-v0", "is not a registered Gymnasium env"),
-    ],
-)
-def test_env_that_does_not_fit_is_refused(env_id, message):
-    with pytest.raises(ConfigError, match=message):
-        make_env(env_id)
-
-
 def test_solve_threshold_comes_from_gymnasium_unless_overridden():
     assert solve_threshold("CartPole-v1") == 475.0
     assert solve_threshold("CartPole-v1", 100) == 100.0

@@ -31,6 +31,7 @@ __all__ = [
     "load_policy",
     "load_training_state",
     "read_checkpoint_config",
+    "read_observation_norm",
     "resume_config",
     "run_dir_of",
     "save_policy",
@@ -58,7 +59,11 @@ def _config_metadata(cfg: Config, kind: str, **extra: Any) -> dict[str, Any]:
 
 
 def save_policy(path: str | Path, actor: nn.Module, cfg: Config, **metadata: Any) -> Path:
-    """Save the Q-actor's weights with the config that rebuilds it."""
+    """Save the Q-actor's weights with the config that rebuilds it.
+
+    ``metadata`` goes to the manifest; ``observation_norm`` there holds the run's
+    observation statistics (:func:`read_observation_norm`).
+    """
     saved = Checkpoint(policy=actor).save(path, metadata=_config_metadata(cfg, POLICY, **metadata))
     return _write_integrity(Path(saved))
 
@@ -68,15 +73,19 @@ def save_training_state(
     cfg: Config,
     counters: dict[str, Any],
     keep_last: int | None = None,
+    observation_norm: dict[str, list[float]] | None = None,
     **components: Any,
 ) -> Path:
     """Save every component (modules, optimizer, buffer, collector...) plus RNGs and counters.
 
     With ``keep_last``, ``path`` is a directory of rotated checkpoints (``CheckpointRotation``)
     of which the newest ``keep_last`` are kept; otherwise ``path`` is the checkpoint itself.
+    ``observation_norm`` (the run's observation statistics) goes to the manifest.
     """
     checkpoint = Checkpoint(rng=GlobalRNGState(), **components)
-    metadata = _config_metadata(cfg, TRAINING_STATE, counters=counters)
+    metadata = _config_metadata(
+        cfg, TRAINING_STATE, counters=counters, observation_norm=observation_norm
+    )
     if keep_last is None:
         return _write_integrity(Path(checkpoint.save(path, metadata=metadata)))
     rotation = CheckpointRotation(path, keep_last=keep_last)
@@ -225,6 +234,11 @@ def read_checkpoint_config(path: str | Path) -> Config:
         raise ConfigError(
             f"checkpoint={str(path)!r} is not a trl_cartpole checkpoint ({error})"
         ) from None
+
+
+def read_observation_norm(path: str | Path) -> dict[str, list[float]] | None:
+    """The observation statistics a checkpoint's run normalised with (None: it did not)."""
+    return Checkpoint.manifest(path)["metadata"].get("observation_norm")
 
 
 def load_policy(path: str | Path, actor: nn.Module) -> nn.Module:

@@ -45,9 +45,14 @@ class ConfigError(ValueError):
 
 @dataclass
 class EnvConfig:
-    id: str = "CartPole-v1"  # any registered Gymnasium id with a vector obs and discrete actions
+    # Any Gymnasium id with a vector observation and discrete actions: a registered id, or
+    # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.envs.
+    id: str = "CartPole-v1"
+    imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
     max_episode_steps: int | None = None  # None: Gymnasium's registered TimeLimit
     num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
+    normalize_observations: bool = False  # TorchRL ObservationNorm, stats from random rollouts
+    normalization_frames: int = 10_000  # random-policy frames the stats are estimated from
 
 
 @dataclass
@@ -250,6 +255,10 @@ def validate(cfg: Config) -> Config:
         (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
         (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
         (
+            cfg.env.normalization_frames >= 1,
+            f"env.normalization_frames={cfg.env.normalization_frames} must be >= 1",
+        ),
+        (
             cfg.collector.frames_per_batch % max(cfg.env.num_envs, 1) == 0,
             f"collector.frames_per_batch={cfg.collector.frames_per_batch} must be a multiple "
             f"of env.num_envs={cfg.env.num_envs} (each batch steps every env equally often)",
@@ -293,11 +302,11 @@ def validate(cfg: Config) -> Config:
         raise ConfigError(f"device={cfg.device!r} is not a torch device; use cpu or cuda[:N]")
     _check_combination(cfg)
     # Local imports: envs and models import this module.
-    from trl_cartpole.envs import check_env_id
+    from trl_cartpole.envs import resolve_env_id
     from trl_cartpole.models import check_network_choices
 
     check_network_choices(cfg.network.head, cfg.network.activation)
-    check_env_id(cfg.env.id)
+    resolve_env_id(cfg.env.id, cfg.env.imports)
     return cfg
 
 

@@ -2,77 +2,145 @@
 
 DQN as built here needs a single observation vector and a finite set of actions. The check
 runs on the TorchRL specs of the built env, so the message names what the env really has.
+
+Env ids: any id Gymnasium has registered (``CartPole-v1``), ``module:Id`` (the module's import
+registers ``Id``, Gymnasium's own convention), ``module:EnvClass`` (a ``gymnasium.Env``
+subclass, registered here under its class name), or an id registered by a module listed in
+``env.imports``. :func:`resolve_env_id` turns each into a registered id.
 """
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
 import torch
-from torchrl.data import Categorical, Composite, OneHot
+from torchrl.data import Categorical, OneHot
 from torchrl.envs import (
     DoubleToFloat,
-    GymEnv,
+    EnvBase,
     GymWrapper,
+    ObservationNorm,
     RewardSum,
     StepCounter,
     TransformedEnv,
 )
 
-from trl_cartpole.config import ConfigError
+from trl_cartpole.config import ConfigError, EnvConfig
 
 __all__ = [
     "check_env_fits",
-    "check_env_id",
+    "estimate_observation_norm",
     "make_env",
+    "make_env_from_config",
     "make_sync_vector_env",
+    "resolve_env_id",
     "solve_threshold",
 ]
 
 OBSERVATION_KEY = "observation"
+# Gymnasium env families whose dependencies come with an extra of this project (pyproject.toml).
+OPTIONAL_EXTRAS = {"gymnasium.envs.box2d": "box2d"}
+# The smallest scale ObservationNorm divides by: a feature that stayed constant during the random
+# rollouts (a leg contact flag) must not be blown up by 1 / std = 1 / 0 once it moves.
+MIN_OBSERVATION_SCALE = 1e-3
 
 
-def check_env_id(env_id: str) -> None:
-    """Raise :class:`ConfigError` if Gymnasium does not know ``env_id``."""
+def _import_module(name: str, field: str) -> Any:
+    try:
+        return importlib.import_module(name)
+    except ImportError as error:
+        raise ConfigError(
+            f"{field}: cannot import module {name!r} ({error}); install the package that "
+            "provides it or add its folder to PYTHONPATH"
+        ) from None
+
+
+def resolve_env_id(env_id: str, imports: Sequence[str] = ()) -> str:
+    """Import ``imports``, register a ``module:EnvClass`` entry point; return the registered id.
+
+    Raises :class:`ConfigError` (one line) for a module that cannot be imported, an attribute
+    that is not a ``gymnasium.Env`` subclass, or an id Gymnasium does not know.
+    """
+    for module_name in imports:
+        _import_module(module_name, "env.imports")
+    if ":" in env_id:
+        module_name, name = env_id.split(":", 1)
+        module = _import_module(module_name, f"env.id={env_id!r}")
+        if name not in gym.registry:  # not registered by the import: an env class?
+            target = getattr(module, name, None)
+            if not (isinstance(target, type) and issubclass(target, gym.Env)):
+                raise ConfigError(
+                    f"env.id={env_id!r}: module {module_name!r} neither registers {name!r} nor "
+                    "defines a gymnasium.Env subclass of that name"
+                )
+            gym.register(id=name, entry_point=env_id)
+        env_id = name
     try:
         gym.spec(env_id)
     except gym.error.Error as error:
         raise ConfigError(
-            f"env.id={env_id!r} is not a registered Gymnasium env ({error}); "
-            "check the spelling and version suffix, e.g. CartPole-v1"
+            f"env.id={env_id!r} is not a registered Gymnasium env ({error}); check the spelling "
+            "and version suffix (e.g. CartPole-v1), or name the module that registers it in "
+            "env.imports"
         ) from None
+    return env_id
 
 
 def solve_threshold(env_id: str, override: float | None = None) -> float | None:
     """The return that counts as solved: ``override`` or Gymnasium's ``reward_threshold``."""
     if override is not None:
         return float(override)
-    threshold = gym.spec(env_id).reward_threshold
+    threshold = gym.spec(resolve_env_id(env_id)).reward_threshold
     return None if threshold is None else float(threshold)
 
 
-def check_env_fits(env: TransformedEnv | GymEnv, env_id: str) -> None:
+def _missing_dependency(env_id: str, error: Exception) -> ConfigError:
+    """The one-line error for an env whose package is missing, naming the extra to install."""
+    entry_point = str(gym.spec(env_id).entry_point)
+    extra = next(
+        (e for prefix, e in OPTIONAL_EXTRAS.items() if entry_point.startswith(prefix)), None
+    )
+    how = f'pip install -e ".[{extra}]"' if extra else "install the package the message names"
+    reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+    return ConfigError(f"env {env_id!r} needs a package that is not installed ({reason}); {how}")
+
+
+def check_env_fits(env: EnvBase, env_id: str) -> None:
     """Raise :class:`ConfigError` unless ``env`` has one vector observation and discrete actions."""
     action_spec = env.action_spec
     if not isinstance(action_spec, (OneHot, Categorical)):
+        kind = "continuous (Box)" if action_spec.domain == "continuous" else "multi-part"
         raise ConfigError(
-            f"env {env_id!r} has a {type(action_spec).__name__} action space; "
-            "DQN needs discrete actions (a Gymnasium Discrete space)"
+            f"env {env_id!r} has {kind} actions (TorchRL spec {type(action_spec).__name__}); "
+            "DQN needs one discrete action (a Gymnasium Discrete space)"
         )
     observation_spec = env.observation_spec
     keys = list(observation_spec.keys(True, True))
-    obs = observation_spec.get(OBSERVATION_KEY, None) if OBSERVATION_KEY in keys else None
-    if obs is None or isinstance(obs, Composite) or len(keys) != 1:
+    batch_dims = len(env.batch_size)  # a vector env's leading batch dimension
+    if "pixels" in keys:  # TorchRL's key for a Gymnasium image observation
+        shape = tuple(observation_spec["pixels"].shape[batch_dims:])
         raise ConfigError(
-            f"env {env_id!r} has observation entries {keys}; "
+            f"env {env_id!r} has image observations of shape {shape}; DQN here needs one vector "
+            "observation: use the env's vector-state version or flatten it in a Gymnasium wrapper"
+        )
+    if keys != [OBSERVATION_KEY]:
+        raise ConfigError(
+            f"env {env_id!r} has observation entries {keys} (a Gymnasium Dict or Tuple space); "
             "DQN here needs one vector observation (a Gymnasium Box of rank 1)"
         )
-    obs_shape = tuple(obs.shape[len(env.batch_size) :])  # drop the batch dims of a vector env
+    if observation_spec[OBSERVATION_KEY].domain == "discrete":  # Gymnasium Discrete states
+        raise ConfigError(
+            f"env {env_id!r} has a discrete observation (a state index, e.g. Taxi or FrozenLake); "
+            "DQN here needs a vector observation (a Gymnasium Box of rank 1)"
+        )
+    obs_shape = tuple(observation_spec[OBSERVATION_KEY].shape[batch_dims:])
     if len(obs_shape) != 1:
         raise ConfigError(
-            f"env {env_id!r} has an observation of shape {obs_shape}; "
-            "DQN here needs a vector (rank 1): flatten images or use a vector-state env"
+            f"env {env_id!r} has an observation of shape {obs_shape}; DQN here needs a vector "
+            "(rank 1): flatten it (gymnasium.wrappers.FlattenObservation) or use a vector-state env"
         )
 
 
@@ -98,8 +166,17 @@ def make_env(
     max_episode_steps: int | None = None,
     num_envs: int = 1,
     render_mode: str | None = None,
+    observation_norm: Mapping[str, Sequence[float]] | None = None,
 ) -> TransformedEnv:
-    """Build ``GymEnv(env_id)`` wrapped in ``StepCounter``, ``RewardSum`` (+ ``DoubleToFloat``).
+    """Build the Gymnasium env in TorchRL's ``GymWrapper`` with ``StepCounter``, ``RewardSum``.
+
+    The base env is ``GymWrapper(gymnasium.make(env_id))``: the env ``GymEnv(env_id)`` builds,
+    made here because ``GymEnv`` first calls the env's constructor with ``frameskip=1``, which a
+    custom env class whose ``__init__`` takes no arguments rejects. ``DoubleToFloat`` is added
+    for float64 observations. ``env_id`` is any id :func:`resolve_env_id` accepts. With
+    ``observation_norm`` (``{"loc": [...], "scale": [...]}``, from
+    :func:`estimate_observation_norm`) a TorchRL ``ObservationNorm`` maps the observation to
+    ``(obs - loc) / scale``.
 
     With ``num_envs > 1`` the base env is a Gymnasium ``SyncVectorEnv`` (one process, same-step
     autoreset) in TorchRL's ``GymWrapper``, batch size ``[num_envs]``: evaluation plays all its
@@ -113,7 +190,7 @@ def make_env(
     ``render_mode`` (``"rgb_array"`` or ``"human"``, single env only) is passed to
     ``gymnasium.make``; the Gymnasium env is ``env.base_env._env``.
     """
-    check_env_id(env_id)
+    env_id = resolve_env_id(env_id)
     make_kwargs: dict[str, Any] = {}
     if max_episode_steps is not None:
         make_kwargs["max_episode_steps"] = max_episode_steps
@@ -123,15 +200,13 @@ def make_env(
         make_kwargs["render_mode"] = render_mode
     try:
         if num_envs == 1:
-            base_env = GymEnv(env_id, device=device, **make_kwargs)
+            base_env = GymWrapper(gym.make(env_id, **make_kwargs), device=device)
         else:
             base_env = GymWrapper(
                 make_sync_vector_env(env_id, num_envs, **make_kwargs), device=device
             )
     except (ImportError, gym.error.DependencyNotInstalled) as error:
-        raise ConfigError(
-            f"env {env_id!r} needs a package that is not installed ({error})"
-        ) from None
+        raise _missing_dependency(env_id, error) from None
     try:
         check_env_fits(base_env, env_id)
     except ConfigError:
@@ -140,6 +215,15 @@ def make_env(
     transforms = [StepCounter(), RewardSum()]
     if base_env.observation_spec[OBSERVATION_KEY].dtype == torch.float64:
         transforms.append(DoubleToFloat())
+    if observation_norm is not None:
+        transforms.append(
+            ObservationNorm(
+                loc=torch.as_tensor(observation_norm["loc"], dtype=torch.float32),
+                scale=torch.as_tensor(observation_norm["scale"], dtype=torch.float32),
+                in_keys=[OBSERVATION_KEY],
+                standard_normal=True,  # (obs - loc) / scale
+            )
+        )
     # append_transform wraps a plain env in a TransformedEnv and extends an existing one (the
     # GymWrapper of a vector env already is one, for its resets) instead of nesting them.
     env = base_env
@@ -148,3 +232,51 @@ def make_env(
     if seed is not None:
         env.set_seed(seed)
     return env
+
+
+def make_env_from_config(
+    env_cfg: EnvConfig,
+    seed: int | None = None,
+    device: str | torch.device = "cpu",
+    num_envs: int | None = None,
+    observation_norm: Mapping[str, Sequence[float]] | None = None,
+    render_mode: str | None = None,
+) -> TransformedEnv:
+    """:func:`make_env` for the ``env`` section of a config (``num_envs`` overrides its own).
+
+    ``observation_norm`` must be given when ``env_cfg.normalize_observations`` is on: the
+    statistics belong to a run (:func:`estimate_observation_norm`, stored in its checkpoints).
+    """
+    if env_cfg.normalize_observations and observation_norm is None:
+        raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
+    return make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        seed,
+        device,
+        env_cfg.max_episode_steps,
+        num_envs=env_cfg.num_envs if num_envs is None else num_envs,
+        render_mode=render_mode,
+        observation_norm=observation_norm if env_cfg.normalize_observations else None,
+    )
+
+
+def estimate_observation_norm(env_cfg: EnvConfig, seed: int) -> dict[str, list[float]]:
+    """Mean and std per observation feature over ``env_cfg.normalization_frames`` random frames.
+
+    TorchRL's ``ObservationNorm.init_stats`` plays uniform random actions in one env; the torch
+    RNG is forked, so estimating does not shift the run's random numbers. The scale is floored
+    at ``MIN_OBSERVATION_SCALE``. Returns ``{"loc": [...], "scale": [...]}`` (JSON-ready).
+    """
+    env = make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports), seed, "cpu", env_cfg.max_episode_steps
+    )
+    norm = ObservationNorm(in_keys=[OBSERVATION_KEY], standard_normal=True)
+    env.append_transform(norm)
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        norm.init_stats(num_iter=env_cfg.normalization_frames, reduce_dim=0, cat_dim=0)
+    env.close()
+    return {
+        "loc": norm.loc.tolist(),  # [obs_dim]
+        "scale": norm.scale.clamp_min(MIN_OBSERVATION_SCALE).tolist(),  # [obs_dim]
+    }

@@ -11,8 +11,8 @@ from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 from torchrl.modules import EGreedyModule
 
-from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
-from trl_cartpole.envs import make_env
+from trl_cartpole.checkpoint import load_policy, read_checkpoint_config, read_observation_norm
+from trl_cartpole.envs import make_env_from_config
 from trl_cartpole.models import expected_action_values, make_q_actor_for_env
 
 __all__ = [
@@ -112,7 +112,9 @@ def evaluate_checkpoint(
     cfg = read_checkpoint_config(checkpoint)
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
-    env = make_env(cfg.env.id, seed, "cpu", cfg.env.max_episode_steps, num_envs=episodes)
+    env = make_env_from_config(
+        cfg.env, seed, num_envs=episodes, observation_norm=read_observation_norm(checkpoint)
+    )
     actor = make_q_actor_for_env(env, cfg.network)
     load_policy(checkpoint, actor)
     result = evaluate(actor, env, cfg.eval.max_steps, epsilon)

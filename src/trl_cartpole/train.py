@@ -37,10 +37,15 @@ from trl_cartpole.buffers import (
     make_replay_buffer,
     sample_minibatches,
 )
-from trl_cartpole.checkpoint import load_training_state, save_policy, save_training_state
+from trl_cartpole.checkpoint import (
+    load_training_state,
+    read_observation_norm,
+    save_policy,
+    save_training_state,
+)
 from trl_cartpole.collectors import make_collector
 from trl_cartpole.config import Config, ConfigError, to_config, validate
-from trl_cartpole.envs import make_env, solve_threshold
+from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, solve_threshold
 from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.files import write_json_atomic, write_text_atomic
@@ -165,16 +170,22 @@ def train(
 
     # --- components: each a stock TorchRL object -------------------------------------------
     # The envs first: one that does not fit (continuous actions, images) stops the run here,
-    # before anything is written.
-    env = make_env(
-        cfg.env.id, cfg.seed, cfg.device, cfg.env.max_episode_steps, num_envs=cfg.env.num_envs
-    )
-    eval_env = make_env(
-        cfg.env.id,
+    # before anything is written. Observation statistics are estimated once per run (a resumed
+    # run reads them back) and shared by the training and evaluation envs.
+    observation_norm = None
+    if cfg.env.normalize_observations:
+        observation_norm = (
+            estimate_observation_norm(cfg.env, cfg.seed)
+            if resume is None
+            else read_observation_norm(resume)
+        )
+    env = make_env_from_config(cfg.env, cfg.seed, cfg.device, observation_norm=observation_norm)
+    eval_env = make_env_from_config(
+        cfg.env,
         cfg.seed + cfg.eval.seed_offset,
         cfg.device,
-        cfg.env.max_episode_steps,
         num_envs=cfg.eval.episodes,
+        observation_norm=observation_norm,
     )
     run_dir = prepare_run_dir(cfg.run_dir)
     if resume is not None:  # rows logged after the checkpoint will be logged again
@@ -272,7 +283,9 @@ def train(
             for name, component in state_components.items()
             if name != "replay_buffer" or len(buffer) > 0
         }
-        return save_training_state(path, cfg, counters, keep_last, **components)
+        return save_training_state(
+            path, cfg, counters, keep_last, observation_norm=observation_norm, **components
+        )
 
     bar = tqdm(
         initial=progress.frames,
@@ -311,6 +324,7 @@ def train(
                     cfg,
                     frames=progress.frames,
                     eval_return_mean=result.mean,
+                    observation_norm=observation_norm,
                 )
         solved = threshold is not None and result.mean >= threshold
         if solved and progress.frames_to_solve is None:
@@ -416,12 +430,12 @@ def train(
 
     # --- final evaluation of the best policy, artefacts ------------------------------------
     actor.load_state_dict(progress.best_state)
-    final_env = make_env(
-        cfg.env.id,
+    final_env = make_env_from_config(
+        cfg.env,
         cfg.seed + 2 * cfg.eval.seed_offset,
         cfg.device,
-        cfg.env.max_episode_steps,
         num_envs=cfg.eval.final_episodes,
+        observation_norm=observation_norm,
     )
     final = evaluate(actor, final_env, cfg.eval.max_steps)
     _log(logger, {"eval/final_return_mean": final.mean}, progress.frames)

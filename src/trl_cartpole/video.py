@@ -55,7 +55,7 @@ def render_episodes(
     Yields each episode's frames: the reset state, then one frame after every step, each
     resized by ``scale`` and captioned with the episode, step and return so far.
     """
-    gym_env = env.base_env._env  # the Gymnasium env behind TorchRL's GymEnv
+    gym_env = env.base_env._env  # the Gymnasium env behind TorchRL's GymWrapper
     for episode in range(1, episodes + 1):
         td = env.reset()
         frames = [_captioned(gym_env.render(), f"episode {episode}  step 0  return 0", scale)]

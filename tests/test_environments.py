@@ -1,0 +1,212 @@
+"""Any discrete-action Gymnasium env by config alone: presets, custom envs, refusals, norm."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+
+import gymnasium as gym
+import pytest
+import torch
+
+from trl_cartpole.checkpoint import read_observation_norm
+from trl_cartpole.config import ConfigError, EnvConfig, NetworkConfig, to_config
+from trl_cartpole.envs import (
+    MIN_OBSERVATION_SCALE,
+    estimate_observation_norm,
+    make_env,
+    make_env_from_config,
+    resolve_env_id,
+    solve_threshold,
+)
+from trl_cartpole.evaluation import evaluate, evaluate_checkpoint
+from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.train import train
+
+from .conftest import ROOT, SMOKE_OVERRIDES, run_script
+
+EXAMPLES = ROOT / "examples"
+# Corridor trains to its goal from config alone: 8 cells, +1 at the far end (examples/corridor.py).
+CORRIDOR_OVERRIDES = [
+    "env.id=corridor:Corridor",
+    "eval.solve_threshold=1",
+    "collector.total_frames=4000",
+    "eval.interval_frames=500",
+    "eval.episodes=5",
+    "eval.final_episodes=10",
+    "logger.progress_bar=false",
+    "logger.plots=false",
+]
+
+
+@pytest.fixture
+def examples_on_path(monkeypatch):
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+
+
+@pytest.fixture
+def fresh_registry(monkeypatch):
+    """Ids registered by a test are dropped afterwards (Gymnasium's registry is global)."""
+    monkeypatch.setattr(gym.envs.registration, "registry", dict(gym.registry))
+    monkeypatch.setattr(gym, "registry", gym.envs.registration.registry)
+
+
+@pytest.mark.parametrize(
+    ("preset", "env_id", "obs_dim", "actions"),
+    [
+        ("acrobot", "Acrobot-v1", 6, 3),
+        ("mountaincar", "MountainCar-v0", 2, 3),
+        ("lunarlander", "LunarLander-v3", 8, 4),
+    ],
+)
+def test_env_presets_compose_and_build(compose, preset, env_id, obs_dim, actions):
+    cfg = to_config(compose(f"env={preset}"))
+    assert cfg.env.id == env_id
+    env = make_env_from_config(
+        cfg.env, 0, num_envs=2, observation_norm={"loc": [0.0] * obs_dim, "scale": [1.0] * obs_dim}
+    )
+    assert env.observation_spec["observation"].shape == (2, obs_dim)
+    assert env.action_spec.space.n == actions
+    env.close()
+
+
+def test_env_preset_wins_over_the_algo_defaults_it_sets(compose):
+    cfg = to_config(compose("env=lunarlander"))
+    assert cfg.loss.gamma == 0.99 and cfg.network.hidden_sizes == [256, 256]
+    cfg = to_config(compose("env=lunarlander", "algo=double"))
+    assert cfg.loss.double_dqn and cfg.loss.gamma == 0.99
+
+
+def test_custom_env_class_trains_from_the_command_line(tmp_path, examples_on_path, fresh_registry):
+    proc = run_script(
+        "train.py",
+        *CORRIDOR_OVERRIDES,
+        f"run_dir={tmp_path}",
+        env={**os.environ, "PYTHONPATH": str(EXAMPLES)},
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["env_id"] == "corridor:Corridor"
+    assert summary["solved"] and summary["final_eval_return_mean"] == 1.0
+    # An untrained network does not walk the corridor: the 1.0 was learned.
+    env = make_env("corridor:Corridor", seed=1, num_envs=10)
+    torch.manual_seed(0)
+    assert evaluate(make_q_actor_for_env(env, NetworkConfig()), env, 200).mean < 1.0
+
+
+def test_ids_registered_by_an_import_named_in_config(tmp_path, monkeypatch, fresh_registry):
+    (tmp_path / "my_envs.py").write_text(
+        "import gymnasium\n"
+        "gymnasium.register('Corridor-v7', entry_point='corridor:Corridor',"
+        " kwargs={'length': 5}, reward_threshold=1.0)\n"
+    )
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ConfigError, match=r"name the module that registers it in env\.imports"):
+        resolve_env_id("Corridor-v7")
+    assert resolve_env_id("Corridor-v7", ["my_envs"]) == "Corridor-v7"
+    assert resolve_env_id("my_envs:Corridor-v7") == "Corridor-v7"  # Gymnasium's module:id
+    assert solve_threshold("Corridor-v7") == 1.0
+    env = make_env_from_config(EnvConfig(id="Corridor-v7", imports=["my_envs"], num_envs=1))
+    assert env.observation_spec["observation"].shape == (5,)
+
+
+class _ImageEnv(gym.Env):
+    observation_space = gym.spaces.Box(0, 255, (8, 8, 3), dtype="uint8")
+    action_space = gym.spaces.Discrete(2)
+
+
+class _MatrixEnv(gym.Env):
+    observation_space = gym.spaces.Box(0, 1, (3, 2))
+    action_space = gym.spaces.Discrete(2)
+
+
+class _DictEnv(gym.Env):
+    observation_space = gym.spaces.Dict(
+        {"a": gym.spaces.Box(0, 1, (2,)), "b": gym.spaces.Discrete(3)}
+    )
+    action_space = gym.spaces.Discrete(2)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "message"),
+    [
+        ("Pendulum-v1", "has continuous \\(Box\\) actions .*DQN needs one discrete action"),
+        ("tests.test_environments:_ImageEnv", r"has image observations of shape \(8, 8, 3\)"),
+        ("tests.test_environments:_MatrixEnv", r"has an observation of shape \(3, 2\)"),
+        ("tests.test_environments:_DictEnv", r"has observation entries \['a', 'b'\]"),
+        ("Taxi-v4", "has a discrete observation"),
+        ("Nope-v0", "is not a registered Gymnasium env"),
+        ("no_such_module:MyEnv", "cannot import module 'no_such_module'"),
+        ("json:JSONDecoder", "neither registers 'JSONDecoder' nor defines a gymnasium.Env"),
+    ],
+)
+def test_envs_that_cannot_work_are_refused_in_one_line(env_id, message, fresh_registry):
+    with pytest.raises(ConfigError, match=message) as caught:
+        make_env(env_id)
+    assert "\n" not in str(caught.value)
+
+
+def test_missing_optional_dependency_names_the_extra(monkeypatch):
+    # Make Box2D unimportable and forget Gymnasium's box2d modules, so LunarLander's entry point
+    # imports them again the way it does on a machine without the extra.
+    monkeypatch.setitem(sys.modules, "Box2D", None)
+    for name in [m for m in sys.modules if m.startswith("gymnasium.envs.box2d")]:
+        monkeypatch.delitem(sys.modules, name)
+    with pytest.raises(ConfigError, match=re.escape('pip install -e ".[box2d]"')) as caught:
+        make_env("LunarLander-v3")
+    assert "LunarLander-v3" in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_observation_norm_stats_standardise_random_play_and_are_reproducible():
+    cfg = EnvConfig(id="MountainCar-v0", normalize_observations=True, normalization_frames=2000)
+    stats = estimate_observation_norm(cfg, seed=0)
+    assert stats == estimate_observation_norm(cfg, seed=0)
+    rng_before = torch.get_rng_state()
+    estimate_observation_norm(cfg, seed=1)
+    assert torch.equal(torch.get_rng_state(), rng_before)  # the run's random numbers untouched
+    # MountainCar: position around -0.5 (the valley), velocity around 0 with a small spread.
+    assert -0.7 < stats["loc"][0] < -0.3 and abs(stats["loc"][1]) < 0.005
+    assert all(s >= MIN_OBSERVATION_SCALE for s in stats["scale"])
+    torch.manual_seed(5)  # the same random actions in both rollouts
+    raw = make_env("MountainCar-v0", seed=3).rollout(500, break_when_any_done=False)
+    torch.manual_seed(5)
+    normed = make_env("MountainCar-v0", seed=3, observation_norm=stats).rollout(
+        500, break_when_any_done=False
+    )
+    loc, scale = torch.tensor(stats["loc"]), torch.tensor(stats["scale"])
+    # The transform is (obs - loc) / scale, applied to every observation the agent sees.
+    torch.testing.assert_close(normed["observation"], (raw["observation"] - loc) / scale)
+    torch.testing.assert_close(
+        normed["next", "observation"], (raw["next", "observation"] - loc) / scale
+    )
+
+
+def test_observation_norm_travels_with_the_checkpoints(compose, tmp_path):
+    summary = train(
+        compose(
+            *SMOKE_OVERRIDES,
+            "env.normalize_observations=true",
+            "env.normalization_frames=500",
+            f"run_dir={tmp_path}",
+            "logger.plots=false",
+        )
+    )
+    stats = estimate_observation_norm(EnvConfig(normalization_frames=500), seed=0)
+    best = tmp_path / "checkpoints" / "best"
+    assert read_observation_norm(best) == stats
+    assert read_observation_norm(tmp_path / "checkpoints" / "last") == stats
+    # Evaluating the checkpoint rebuilds the normalised env: the final evaluation repeats.
+    result, _ = evaluate_checkpoint(str(best), episodes=summary["final_eval_episodes"])
+    assert result.mean == summary["final_eval_return_mean"]
+
+
+def test_readme_shows_the_custom_env_that_the_tests_train():
+    readme = (ROOT / "README.md").read_text()
+    source = (EXAMPLES / "corridor.py").read_text()
+    class_source = source[source.index("class Corridor") :]
+    assert class_source.strip() in readme
+    assert "PYTHONPATH=examples python scripts/train.py env.id=corridor:Corridor" in readme
