@@ -210,3 +210,28 @@ def test_readme_shows_the_custom_env_that_the_tests_train():
     class_source = source[source.index("class Corridor") :]
     assert class_source.strip() in readme
     assert "PYTHONPATH=examples python scripts/train.py env.id=corridor:Corridor" in readme
+
+
+def test_env_targets_script_trains_a_preset_and_tabulates_it(tmp_path):
+    proc = run_script(
+        "env_targets.py",
+        "--envs",
+        "acrobot",
+        "--seeds",
+        "0",
+        "--out",
+        str(tmp_path),
+        "collector.total_frames=1024",
+        "eval.interval_frames=512",
+        "eval.episodes=2",
+        "eval.final_episodes=3",
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((tmp_path / "acrobot" / "dqn-seed0" / "summary.json").read_text())
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("| acrobot |"))
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    assert cells[1:3] == ["Acrobot-v1", ">= -80"]
+    assert float(cells[3]) == round(summary["final_eval_return_mean"], 1)
+    assert cells[5] == ("yes" if summary["final_eval_return_mean"] >= -80 else "no")
+    assert (tmp_path / "acrobot.png").stat().st_size > 0

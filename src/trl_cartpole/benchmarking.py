@@ -23,6 +23,7 @@ from omegaconf import OmegaConf
 from trl_cartpole.config import flat_fields
 
 __all__ = [
+    "ENV_TARGETS",
     "PEERS",
     "group_runs",
     "load_runs",
@@ -40,6 +41,11 @@ TRAIN_SCRIPT = REPOSITORY / "scripts" / "train.py"
 CONFIG_DIR = REPOSITORY / "configs"
 # Every preset of configs/algo/ that is the default plus DQN improvements.
 VARIANT_PRESETS = ("dqn", "double", "dueling", "noisy", "prioritized", "nstep", "c51", "rainbow")
+
+
+# The env presets of configs/env/ with a target (docs/environments.md): the median over seeds of
+# the best policy's final 100-episode greedy return must reach it.
+ENV_TARGETS = {"acrobot": -80.0, "mountaincar": -105.0, "lunarlander": 200.0}
 
 
 PEERS = {  # name -> module run as ``python -m`` (see trl_cartpole.peers)
