@@ -75,8 +75,10 @@ def test_env_presets_compose_and_build(compose, preset, env_id, obs_dim, actions
 def test_env_preset_wins_over_the_algo_defaults_it_sets(compose):
     cfg = to_config(compose("env=lunarlander"))
     assert cfg.loss.gamma == 0.99 and cfg.network.hidden_sizes == [256, 256]
-    cfg = to_config(compose("env=lunarlander", "algo=double"))
-    assert cfg.loss.double_dqn and cfg.loss.gamma == 0.99
+    cfg = to_config(compose("env=lunarlander", "algo=dueling"))  # a variant switch combines
+    assert cfg.network.head == "dueling" and cfg.loss.gamma == 0.99
+    cfg = to_config(compose("env=acrobot", "algo=noisy"))
+    assert cfg.exploration.schedule == "none" and cfg.network.hidden_sizes == [256, 256]
 
 
 def test_custom_env_class_trains_from_the_command_line(tmp_path, examples_on_path, fresh_registry):
