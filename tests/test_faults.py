@@ -59,15 +59,29 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
     raise AssertionError(f"no periodic checkpoint at frame {frames}")
 
 
-@pytest.mark.parametrize("preset", ["dqn", "rainbow"])
-def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, preset):
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["algo=dqn"],
+        ["algo=rainbow"],
+        # The resumed run reads the observation statistics back from the checkpoint.
+        ["env.normalize_observations=true", "env.normalization_frames=300"],
+    ],
+    ids=["dqn", "rainbow", "observation-norm"],
+)
+def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, monkeypatch, overrides):
     whole = tmp_path / "whole"
-    expected = train(compose(*RESUMABLE, f"algo={preset}", f"run_dir={whole}"))
+    expected = train(compose(*RESUMABLE, *overrides, f"run_dir={whole}"))
     resumed_dir = tmp_path / "resumed"
     shutil.copytree(whole, resumed_dir)
     (resumed_dir / "summary.json").unlink()
     checkpoint = _periodic_at(resumed_dir, 400)
     cfg = resume_config(checkpoint, [f"run_dir={resumed_dir}"])
+
+    def estimate_again(*args):
+        raise AssertionError("a resumed run must read its observation statistics back")
+
+    monkeypatch.setattr("trl_cartpole.train.estimate_observation_norm", estimate_again)
     resumed = train(cfg, resume=checkpoint)
     assert _comparable(resumed) == _comparable(expected)
     for name in ("best", "last"):
