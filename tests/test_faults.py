@@ -378,3 +378,17 @@ def test_a_write_that_fails_halfway_leaves_the_previous_file(tmp_path):
         write_atomic(target, crash_after_half)
     assert json.loads(target.read_text()) == {"frames": 1}
     assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]  # no temporary left
+
+
+def test_an_env_pickled_as_constructor_arguments_is_reset_on_resume(compose, tmp_path):
+    # LunarLander is a Gymnasium EzPickle env: unpickled, it is a fresh env never reset, so the
+    # checkpoint records it as missing and the resumed run starts new episodes (it crashed in
+    # LunarLander.step when the unpickled env was taken for the one mid-episode).
+    run_dir = tmp_path / "run"
+    train(compose(*RESUMABLE, "env=lunarlander", f"run_dir={run_dir}", "logger.plots=false"))
+    checkpoint = _periodic_at(run_dir, 400)
+    (run_dir / "summary.json").unlink()
+    cfg = resume_config(checkpoint, [f"run_dir={run_dir}"])
+    with pytest.warns(UserWarning, match="not an exact continuation"):
+        summary = train(cfg, resume=checkpoint)
+    assert summary["frames"] == 600 and summary["final_eval_episodes"] == 4

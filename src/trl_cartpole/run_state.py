@@ -14,8 +14,10 @@ the rest, so that a run resumed from a checkpoint continues exactly as if never 
 - the n-step window the replay buffer's ``MultiStepTransform`` holds back;
 - the hard target update's counter.
 
-An env that cannot be pickled (Box2D's LunarLander) is recorded as missing: the resumed run
-then resets it and says so, the only case where a resume is not exact.
+An env whose state cannot be pickled is recorded as missing: the resumed run then resets it and
+says so, the only case where a resume is not exact. That includes Gymnasium's ``EzPickle`` envs
+(Box2D's LunarLander, MuJoCo): they pickle as their constructor arguments, so unpickling gives a
+fresh env that was never reset, not the one mid-episode.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import warnings
 from dataclasses import asdict
 from typing import Any
 
+from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
@@ -40,9 +43,12 @@ def _pickled_env(env: EnvBase) -> bytes | None:
     between two evaluations its only state is that of its envs.)
     """
     gym_env = env.base_env._env
+    envs = gym_env.envs if isinstance(gym_env, SyncVectorEnv) else gym_env
+    if any(isinstance(e.unwrapped, EzPickle) for e in (envs if isinstance(envs, list) else [envs])):
+        return None  # pickled as constructor arguments: the state would be lost
     try:
-        return pickle.dumps(gym_env.envs if isinstance(gym_env, SyncVectorEnv) else gym_env)
-    except Exception:  # Box2D worlds and other native handles cannot be pickled
+        return pickle.dumps(envs)
+    except Exception:  # native handles and other unpicklable state
         return None
 
 
@@ -126,24 +132,24 @@ class RunState:
         self.stopwatch.elapsed = state["train_seconds"]
         carrier = self.collector._carrier
         for env, key in ((self.env, "env"), (self.eval_env, "eval_env")):
-            if state[key] is not None:
-                _restore_env(env, state[key])
+            if state[key] is None:  # a fresh env: new episodes, and a fresh autoreset memo
+                warnings.warn(
+                    f"the {key.replace('_', ' ')} could not be pickled when the checkpoint was "
+                    "written, so the resumed run is not an exact continuation",
+                    stacklevel=2,
+                )
+                if key == "env":  # start a new episode from the restored RNG
+                    carrier.update(env.reset())
                 continue
-            warnings.warn(
-                f"the {key.replace('_', ' ')} could not be pickled when the checkpoint was "
-                "written, so the resumed run is not an exact continuation",
-                stacklevel=2,
-            )
-            if key == "env":  # start a new episode from the restored RNG
-                carrier.update(env.reset())
-        for env, key in ((self.env, "env_memo"), (self.eval_env, "eval_env_memo")):
+            _restore_env(env, state[key])
             memo = _autoreset_memo(env)
-            if memo is not None and state[key] is not None:
-                memo._memo = pickle.loads(state[key])
+            if memo is not None and state[f"{key}_memo"] is not None:
+                memo._memo = pickle.loads(state[f"{key}_memo"])
+        # The carrier and the n-step window continue the training env's episodes: only with it.
         if state["env"] is not None:
             carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
-        if state["n_step_window"] is not None:
-            window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
-            self.buffer._transform[0]._buffer = window
+            if state["n_step_window"] is not None:
+                window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
+                self.buffer._transform[0]._buffer = window
         if state["hard_update_counter"] is not None:
             self.target_updater.counter = state["hard_update_counter"]
