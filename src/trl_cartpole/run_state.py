@@ -36,16 +36,28 @@ from torchrl.envs.transforms import VecGymEnvTransform
 __all__ = ["RunState"]
 
 
+def _state_is_lost(envs: Any) -> bool:
+    """Whether pickling ``envs`` (a Gymnasium env or a list of them) loses their state.
+
+    Gymnasium's ``EzPickle`` envs (Box2D, MuJoCo) pickle as their constructor arguments:
+    unpickled, they are fresh envs that were never reset.
+    """
+    return any(
+        isinstance(e.unwrapped, EzPickle) for e in (envs if isinstance(envs, list) else [envs])
+    )
+
+
 def _pickled_env(env: EnvBase) -> bytes | None:
     """The Gymnasium env behind ``env`` pickled; for a ``SyncVectorEnv``, its list of envs.
 
     (A vector env made by ``gymnasium.make_vec`` holds local functions and cannot be pickled;
-    between two evaluations its only state is that of its envs.)
+    between two evaluations its only state is that of its envs.) None where pickling would
+    lose the env's state.
     """
     gym_env = env.base_env._env
     envs = gym_env.envs if isinstance(gym_env, SyncVectorEnv) else gym_env
-    if any(isinstance(e.unwrapped, EzPickle) for e in (envs if isinstance(envs, list) else [envs])):
-        return None  # pickled as constructor arguments: the state would be lost
+    if _state_is_lost(envs):
+        return None
     try:
         return pickle.dumps(envs)
     except Exception:  # native handles and other unpicklable state
@@ -70,12 +82,20 @@ def _pickled_memo(env: EnvBase) -> bytes | None:
     return None if memo is None else pickle.dumps(memo._memo)
 
 
-def _restore_env(env: EnvBase, payload: bytes) -> None:
+def _restore_env(env: EnvBase, payload: bytes | None) -> bool:
+    """Put the pickled envs back into ``env``; False if there is no state to put back.
+
+    (Checkpoints written before ``_state_is_lost`` hold ``EzPickle`` envs: those are refused.)
+    """
+    envs = None if payload is None else pickle.loads(payload)
+    if envs is None or _state_is_lost(envs):
+        return False
     gym_env = env.base_env._env
     if isinstance(gym_env, SyncVectorEnv):
-        gym_env.envs = pickle.loads(payload)
+        gym_env.envs = envs
     else:
-        env.base_env._env = pickle.loads(payload)
+        env.base_env._env = envs
+    return True
 
 
 class RunState:
@@ -131,22 +151,23 @@ class RunState:
             getattr(progress.history, name)[:] = values
         self.stopwatch.elapsed = state["train_seconds"]
         carrier = self.collector._carrier
+        restored = {}
         for env, key in ((self.env, "env"), (self.eval_env, "eval_env")):
-            if state[key] is None:  # a fresh env: new episodes, and a fresh autoreset memo
+            restored[key] = _restore_env(env, state[key])
+            if not restored[key]:  # a fresh env: new episodes, and a fresh autoreset memo
                 warnings.warn(
-                    f"the {key.replace('_', ' ')} could not be pickled when the checkpoint was "
-                    "written, so the resumed run is not an exact continuation",
+                    f"the {key.replace('_', ' ')}'s state could not be pickled when the "
+                    "checkpoint was written, so the resumed run is not an exact continuation",
                     stacklevel=2,
                 )
                 if key == "env":  # start a new episode from the restored RNG
                     carrier.update(env.reset())
                 continue
-            _restore_env(env, state[key])
             memo = _autoreset_memo(env)
             if memo is not None and state[f"{key}_memo"] is not None:
                 memo._memo = pickle.loads(state[f"{key}_memo"])
         # The carrier and the n-step window continue the training env's episodes: only with it.
-        if state["env"] is not None:
+        if restored["env"]:
             carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
             if state["n_step_window"] is not None:
                 window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
