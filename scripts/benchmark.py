@@ -18,10 +18,10 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-from pathlib import Path
 
 from trl_cartpole.benchmarking import (
     PEERS,
+    add_sweep_arguments,
     markdown_table,
     run_presets,
     seconds_per_frame,
@@ -52,17 +52,11 @@ def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--algos", nargs="+", default=["dqn"])
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--peers", nargs="*", default=[], choices=sorted(PEERS))
     parser.add_argument("--peer-frames", type=int, default=150_000, help="peers' frame budget")
     parser.add_argument("--eval-interval", type=int, default=1000)
     parser.add_argument("--eval-episodes", type=int, default=20)
-    parser.add_argument("--jobs", type=int, default=1, help="runs at a time")
-    parser.add_argument("--out", type=Path, default=Path("runs/benchmark"))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every preset run")
-    args = parser.parse_args()
-    if args.jobs < 1:
-        parser.error(f"--jobs {args.jobs}: run at least one process at a time (--jobs 1)")
+    args = add_sweep_arguments(parser, seeds=[0, 1, 2, 3, 4], out="runs/benchmark").parse_args()
     if "sb3_dqn" in args.peers and importlib.util.find_spec("stable_baselines3") is None:
         parser.error("--peers sb3_dqn needs Stable-Baselines3: pip install -e '.[bench]'")
     protocol = [f"eval.interval_frames={args.eval_interval}", f"eval.episodes={args.eval_episodes}"]

@@ -17,7 +17,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from trl_cartpole.benchmarking import ENV_TARGETS, run_presets
+from trl_cartpole.benchmarking import ENV_TARGETS, add_sweep_arguments, run_presets
 from trl_cartpole.plotting import plot_comparison
 
 
@@ -56,13 +56,7 @@ def plot(preset: str, runs: list[dict], out: Path) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=list(ENV_TARGETS), choices=list(ENV_TARGETS))
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--jobs", type=int, default=1, help="runs at a time")
-    parser.add_argument("--out", type=Path, default=Path("runs/envs"))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every run")
-    args = parser.parse_args()
-    if args.jobs < 1:
-        parser.error(f"--jobs {args.jobs}: run at least one process at a time (--jobs 1)")
+    args = add_sweep_arguments(parser, seeds=[0, 1, 2], out="runs/envs").parse_args()
     results = {}
     for preset in args.envs:
         out = args.out / preset

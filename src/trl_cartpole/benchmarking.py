@@ -8,6 +8,7 @@ sees the same machine; a run whose ``summary.json`` already exists is read, not 
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import statistics
@@ -25,6 +26,7 @@ from trl_cartpole.config import flat_fields
 __all__ = [
     "ENV_TARGETS",
     "PEERS",
+    "add_sweep_arguments",
     "group_runs",
     "load_runs",
     "markdown_table",
@@ -82,6 +84,26 @@ def run_peer(peer: str, seed: int, out: Path, peer_args: Sequence[str] = ()) -> 
     run_dir = out / f"{peer}-seed{seed}"
     command = [sys.executable, "-m", PEERS[peer], "--seed", str(seed), "--run-dir", str(run_dir)]
     return _run_once([*command, *peer_args], run_dir)
+
+
+def add_sweep_arguments(
+    parser: argparse.ArgumentParser, seeds: Sequence[int], out: str
+) -> argparse.ArgumentParser:
+    """``--seeds``, ``--jobs``, ``--out`` and trailing Hydra overrides, as the sweep scripts
+    (``benchmark.py``, ``env_targets.py``) take them; ``--jobs`` must be >= 1."""
+
+    def jobs(text: str) -> int:
+        if int(text) < 1:
+            raise argparse.ArgumentTypeError(
+                f"--jobs {text}: run at least one process at a time (--jobs 1)"
+            )
+        return int(text)
+
+    parser.add_argument("--seeds", nargs="+", type=int, default=list(seeds))
+    parser.add_argument("--jobs", type=jobs, default=1, help="runs at a time")
+    parser.add_argument("--out", type=Path, default=Path(out))
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every run")
+    return parser
 
 
 def run_presets(
