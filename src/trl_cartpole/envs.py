@@ -44,7 +44,7 @@ OBSERVATION_KEY = "observation"
 # Gymnasium env families whose dependencies come with an extra of this project (pyproject.toml).
 OPTIONAL_EXTRAS = {"gymnasium.envs.box2d": "box2d"}
 # The smallest scale ObservationNorm divides by: a feature that stayed constant during the random
-# rollouts (a leg contact flag) must not be blown up by 1 / std = 1 / 0 once it moves.
+# rollouts (a flag random play never sets) must not be blown up by 1 / std once it moves.
 MIN_OBSERVATION_SCALE = 1e-3
 
 
