@@ -116,6 +116,25 @@ def test_ids_registered_by_an_import_named_in_config(tmp_path, monkeypatch, fres
     assert env.observation_spec["observation"].shape == (5,)
 
 
+def test_env_classes_of_the_same_name_in_two_modules_stay_apart(
+    tmp_path, monkeypatch, fresh_registry
+):
+    for module, length in (("corridor_a", 3), ("corridor_b", 6)):
+        (tmp_path / f"{module}.py").write_text(
+            "from corridor import Corridor as _Base\n"
+            "class Corridor(_Base):\n"
+            f"    def __init__(self):\n        super().__init__(length={length})\n"
+        )
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert resolve_env_id("corridor_a:Corridor") == "corridor_a.Corridor"
+    assert resolve_env_id("corridor_b:Corridor") == "corridor_b.Corridor"
+    shapes = [
+        make_env(f"corridor_{m}:Corridor").observation_spec["observation"].shape for m in "ab"
+    ]
+    assert shapes == [torch.Size([3]), torch.Size([6])]
+
+
 class _ImageEnv(gym.Env):
     observation_space = gym.spaces.Box(0, 255, (8, 8, 3), dtype="uint8")
     action_space = gym.spaces.Discrete(2)

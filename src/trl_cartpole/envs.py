@@ -5,7 +5,7 @@ runs on the TorchRL specs of the built env, so the message names what the env re
 
 Env ids: any id Gymnasium has registered (``CartPole-v1``), ``module:Id`` (the module's import
 registers ``Id``, Gymnasium's own convention), ``module:EnvClass`` (a ``gymnasium.Env``
-subclass, registered here under its class name), or an id registered by a module listed in
+subclass, registered here as ``module.EnvClass``), or an id registered by a module listed in
 ``env.imports``. :func:`resolve_env_id` turns each into a registered id.
 """
 
@@ -69,15 +69,19 @@ def resolve_env_id(env_id: str, imports: Sequence[str] = ()) -> str:
     if ":" in env_id:
         module_name, name = env_id.split(":", 1)
         module = _import_module(module_name, f"env.id={env_id!r}")
-        if name not in gym.registry:  # not registered by the import: an env class?
+        if name in gym.registry:  # registered by the import (Gymnasium's module:Id)
+            env_id = name
+        else:  # an env class, registered under its qualified name so two modules' classes differ
             target = getattr(module, name, None)
             if not (isinstance(target, type) and issubclass(target, gym.Env)):
                 raise ConfigError(
                     f"env.id={env_id!r}: module {module_name!r} neither registers {name!r} nor "
                     "defines a gymnasium.Env subclass of that name"
                 )
-            gym.register(id=name, entry_point=env_id)
-        env_id = name
+            qualified = f"{module_name}.{name}"
+            if qualified not in gym.registry:
+                gym.register(id=qualified, entry_point=env_id)
+            env_id = qualified
     try:
         gym.spec(env_id)
     except gym.error.Error as error:
