@@ -1,35 +1,148 @@
-"""Collector factory: TorchRL's single-process ``Collector``."""
+"""Collector factory: TorchRL's ``Collector``, in this process or spread over workers.
+
+One worker on the local backend is the single-process ``Collector``: it steps the very policy
+being trained. More workers, or the Ray backend, go through the backends of TorchRL's generic
+``Collector(..., backend=..., num_collectors=N, sync=...)``:
+
+- ``local``: ``MultiSyncCollector`` (``sync``: every worker contributes
+  ``frames_per_batch / workers`` frames to each batch) or ``MultiAsyncCollector`` (each batch is
+  one worker's ``frames_per_batch`` frames, whichever is ready first);
+- ``ray``: ``torchrl.collectors.distributed.RayCollector``, one Ray actor per worker, on a
+  running cluster (``ray_address``) or on a Ray instance started here on 127.0.0.1.
+
+The workers hold copies of the policy: call ``collector.update_policy_weights_()`` after each
+round of updates (:func:`needs_weight_sync`) to send them the learner's weights and buffers
+(epsilon, network noise).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from tensordict.nn import TensorDictModuleBase
-from torchrl.collectors import Collector
+from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
 
-__all__ = ["make_collector"]
+from trl_cartpole.config import ConfigError
+
+__all__ = [
+    "BACKENDS",
+    "is_distributed",
+    "make_collector",
+    "needs_weight_sync",
+    "shutdown_collector",
+]
+
+BACKENDS = ("local", "ray")
+# Each Ray collector actor reserves this much of a node (TorchRL's default reserves 2 GiB).
+RAY_ACTOR_OPTIONS = {"num_cpus": 1, "memory": 512 * 1024**2}
+
+
+def is_distributed(workers: int, backend: str) -> bool:
+    """Whether collection runs outside the training process (worker processes or Ray actors)."""
+    return workers > 1 or backend != "local"
+
+
+def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
+    """``ray.init`` arguments: connect to ``address``, or start Ray here on 127.0.0.1.
+
+    A local instance declares at least one CPU per worker (more workers than cores then share
+    the cores rather than wait for a free one) and stays on the loopback interface.
+    """
+    quiet = {"log_to_driver": False, "logging_level": "warning", "include_dashboard": False}
+    if address is not None:
+        return {"address": address, **quiet}
+    return {
+        "address": None,
+        "num_cpus": max(workers, os.cpu_count() or 1),
+        "_node_ip_address": "127.0.0.1",
+        **quiet,
+    }
 
 
 def make_collector(
-    env: EnvBase | Callable[[], EnvBase],
+    create_env: EnvBase | Sequence[Callable[[], EnvBase]],
     policy: TensorDictModuleBase,
     frames_per_batch: int = 1,
     total_frames: int = 100_000,
     init_random_frames: int = 0,
     device: str = "cpu",
-) -> Collector:
-    """Return a ``Collector`` yielding batches of ``frames_per_batch`` transitions.
+    *,
+    sync: bool = True,
+    backend: str = "local",
+    ray_address: str | None = None,
+) -> BaseCollector:
+    """Return a collector yielding batches of ``frames_per_batch`` transitions.
 
-    The first ``init_random_frames`` frames come from the env's uniform random policy. The
-    collector runs ``policy`` under ``ExplorationType.RANDOM``, so epsilon-greedy is active.
+    ``create_env`` is the env itself (one local worker: collection in this process) or one env
+    constructor per worker (picklable, each seeding its own envs). The first
+    ``init_random_frames`` frames come from the env's uniform random policy. The policy runs
+    under ``ExplorationType.RANDOM``, so epsilon-greedy is active. A batch is ``[T]`` or
+    ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single envs) for a
+    synchronous multi-worker batch.
     """
-    return Collector(
-        env,
+    if backend not in BACKENDS:
+        raise ConfigError(f"collector.backend={backend!r} is not one of {list(BACKENDS)}")
+    common = {
+        "frames_per_batch": frames_per_batch,
+        "total_frames": total_frames,
+        "init_random_frames": init_random_frames or None,
+        "device": device,
+    }
+    if isinstance(create_env, EnvBase):
+        if backend != "local":
+            raise ValueError("a Ray collector needs env constructors, not a built env")
+        return Collector(
+            create_env,
+            policy,
+            auto_register_policy_transforms=False,  # the Q-policy needs no env transform
+            **common,
+        )
+    create_env = list(create_env)
+    if backend == "local":
+        return Collector(
+            create_env,
+            policy,
+            backend="process",
+            num_collectors=len(create_env),
+            sync=sync,
+            auto_register_policy_transforms=False,
+            **common,
+        )
+    collector = Collector(
+        create_env,
         policy,
-        frames_per_batch=frames_per_batch,
-        total_frames=total_frames,
-        init_random_frames=init_random_frames or None,
-        device=device,
-        auto_register_policy_transforms=False,  # the Q-policy needs no env transform
+        backend="ray",
+        num_collectors=len(create_env),
+        sync=sync,
+        backend_options={
+            "ray_init_config": ray_init_config(ray_address, len(create_env)),
+            "remote_configs": RAY_ACTOR_OPTIONS,
+            "collector_kwargs": {"auto_register_policy_transforms": False},
+        },
+        **common,
     )
+    collector.update_policy_weights_(policy)  # registers the learner's policy as the source
+    return collector
+
+
+def needs_weight_sync(collector: BaseCollector, policy: TensorDictModuleBase) -> bool:
+    """Whether ``collector`` steps a copy of ``policy`` that must be sent the new weights.
+
+    A single-process ``Collector`` steps ``policy`` itself.
+    """
+    return getattr(collector, "policy", None) is not policy
+
+
+def shutdown_collector(collector: BaseCollector) -> None:
+    """``collector.shutdown()``, then close the weight-sync schemes it leaves open.
+
+    TorchRL 0.14's multi-process shutdown stops the workers but not the shared-memory weight
+    sync scheme; left to its ``__del__`` at interpreter exit, that starts a queue thread and the
+    process hangs after training (seen with ``MultiSyncCollector``).
+    """
+    collector.shutdown()
+    for scheme in (getattr(collector, "_weight_sync_schemes", None) or {}).values():
+        scheme.shutdown()

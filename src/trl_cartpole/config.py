@@ -12,6 +12,7 @@ and how to fix it.
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
@@ -119,6 +120,12 @@ class CollectorConfig:
     init_random_frames: int = 1000  # frames drawn with a uniform random policy first
     updates_per_batch: int = 6  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
+    # Scaling out (docs/scaling.md): collection in worker processes or Ray actors, each with
+    # env.num_envs envs. workers=1 on the local backend collects in the training process.
+    workers: int = 1
+    sync: bool = True  # workers > 1: batches from all workers (true) or the first ready (false)
+    backend: str = "local"  # local (this machine) | ray (TorchRL's RayCollector)
+    ray_address: str | None = None  # ray: a running cluster's host:port; null: start one here
 
 
 @dataclass
@@ -199,6 +206,7 @@ _CHOICES = {
     "loss.target_update": ("soft", "hard"),
     "optim.grad_clip": ("value", "norm", "none"),
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
+    "collector.backend": ("local", "ray"),
 }
 
 
@@ -258,10 +266,12 @@ def validate(cfg: Config) -> Config:
             cfg.env.normalization_frames >= 1,
             f"env.normalization_frames={cfg.env.normalization_frames} must be >= 1",
         ),
+        (cfg.collector.workers >= 1, f"collector.workers={cfg.collector.workers} must be >= 1"),
         (
-            cfg.collector.frames_per_batch % max(cfg.env.num_envs, 1) == 0,
+            cfg.collector.frames_per_batch % _envs_per_batch(cfg) == 0,
             f"collector.frames_per_batch={cfg.collector.frames_per_batch} must be a multiple "
-            f"of env.num_envs={cfg.env.num_envs} (each batch steps every env equally often)",
+            f"of {_envs_per_batch_text(cfg)} (each batch steps every env equally often)"
+            f"{_split_hint(cfg)}",
         ),
         (
             cfg.collector.total_frames >= cfg.collector.frames_per_batch,
@@ -310,8 +320,51 @@ def validate(cfg: Config) -> Config:
     return cfg
 
 
+def _envs_per_batch(cfg: Config) -> int:
+    """How many envs step in one collected batch: every worker's when they are synchronous."""
+    collector = cfg.collector
+    return cfg.env.num_envs * (collector.workers if collector.sync else 1)
+
+
+def _envs_per_batch_text(cfg: Config) -> str:
+    if cfg.collector.sync and cfg.collector.workers > 1:
+        return f"env.num_envs * collector.workers = {_envs_per_batch(cfg)}"
+    return f"env.num_envs={cfg.env.num_envs}"
+
+
+def _split_hint(cfg: Config) -> str:
+    """Suggest spreading the envs over the workers when that makes the batch fit."""
+    workers, frames = cfg.collector.workers, cfg.collector.frames_per_batch
+    if cfg.collector.sync and workers > 1 and frames % workers == 0:
+        per_worker = frames // workers
+        return f"; e.g. env.num_envs={per_worker} ({per_worker} envs on each of {workers} workers)"
+    return ""
+
+
 def _check_combination(cfg: Config) -> None:
     """Refuse switches that the chosen components would ignore, rather than drop them silently."""
+    collector = cfg.collector
+    if collector.ray_address is not None and collector.backend != "ray":
+        raise ConfigError(
+            f"collector.ray_address={collector.ray_address!r} is only read by the Ray backend; "
+            "set collector.backend=ray or drop the address"
+        )
+    if not collector.sync and collector.workers == 1 and collector.backend == "local":
+        raise ConfigError(
+            "collector.sync=false needs collector.workers > 1 (one local worker collects in the "
+            "training process); raise collector.workers"
+        )
+    if collector.backend == "ray" and importlib.util.find_spec("ray") is None:
+        raise ConfigError(
+            "collector.backend=ray needs Ray, which is not installed: "
+            'pip install -e ".[distributed]"'
+        )
+    if not collector.sync and collector.workers > 1 and cfg.buffer.n_steps > 1:
+        raise ConfigError(
+            f"buffer.n_steps={cfg.buffer.n_steps} needs each env's steps in order, but with "
+            "collector.sync=false consecutive batches come from different workers; set "
+            "buffer.n_steps=1 or collector.sync=true"
+        )
     noisy, schedule = cfg.network.noisy, cfg.exploration.schedule
     if noisy and schedule != "none":
         raise ConfigError(

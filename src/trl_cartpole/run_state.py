@@ -17,7 +17,8 @@ the rest, so that a run resumed from a checkpoint continues exactly as if never 
 An env whose state cannot be pickled is recorded as missing: the resumed run then resets it and
 says so, the only case where a resume is not exact. That includes Gymnasium's ``EzPickle`` envs
 (Box2D's LunarLander, MuJoCo): they pickle as their constructor arguments, so unpickling gives a
-fresh env that was never reset, not the one mid-episode.
+fresh env that was never reset, not the one mid-episode. The training envs of worker processes or
+Ray actors (``env=None``) are not saved either: the resumed workers start new episodes.
 """
 
 from __future__ import annotations
@@ -111,6 +112,7 @@ class RunState:
         progress = self.progress
         n_step = getattr(self.buffer, "_transform", None)
         window = getattr(n_step[0], "_buffer", None) if n_step is not None and len(n_step) else None
+        in_process = self.env is not None  # else the training envs live in the workers
         return {
             "frames": progress.frames,
             "updates": progress.updates,
@@ -123,11 +125,11 @@ class RunState:
             "update_seconds": progress.update_seconds,
             "history": asdict(progress.history),
             "train_seconds": self.stopwatch.seconds,
-            "env": _pickled_env(self.env),
+            "env": _pickled_env(self.env) if in_process else None,
             "eval_env": _pickled_env(self.eval_env),
-            "env_memo": _pickled_memo(self.env),
+            "env_memo": _pickled_memo(self.env) if in_process else None,
             "eval_env_memo": _pickled_memo(self.eval_env),
-            "carrier": self.collector._carrier.to_dict(),
+            "carrier": self.collector._carrier.to_dict() if in_process else None,
             "n_step_window": None if window is None else window.to_dict(),
             "n_step_window_size": None if window is None else list(window.batch_size),
             "hard_update_counter": getattr(self.target_updater, "counter", None),
@@ -150,9 +152,16 @@ class RunState:
         for name, values in state["history"].items():
             getattr(progress.history, name)[:] = values
         self.stopwatch.elapsed = state["train_seconds"]
-        carrier = self.collector._carrier
-        restored = {}
+        if self.env is None:
+            warnings.warn(
+                "collection runs in worker processes or Ray actors, whose envs are not saved: "
+                "the resumed run's workers start new episodes (not an exact continuation)",
+                stacklevel=2,
+            )
+        restored = {"env": False}
         for env, key in ((self.env, "env"), (self.eval_env, "eval_env")):
+            if env is None:
+                continue
             restored[key] = _restore_env(env, state[key])
             if not restored[key]:  # a fresh env: new episodes, and a fresh autoreset memo
                 warnings.warn(
@@ -161,13 +170,14 @@ class RunState:
                     stacklevel=2,
                 )
                 if key == "env":  # start a new episode from the restored RNG
-                    carrier.update(env.reset())
+                    self.collector._carrier.update(env.reset())
                 continue
             memo = _autoreset_memo(env)
             if memo is not None and state[f"{key}_memo"] is not None:
                 memo._memo = pickle.loads(state[f"{key}_memo"])
         # The carrier and the n-step window continue the training env's episodes: only with it.
         if restored["env"]:
+            carrier = self.collector._carrier
             carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
             if state["n_step_window"] is not None:
                 window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])

@@ -12,6 +12,7 @@ policy (by periodic evaluation) is evaluated over ``eval.final_episodes`` episod
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import random
 import signal
@@ -43,7 +44,12 @@ from trl_cartpole.checkpoint import (
     save_policy,
     save_training_state,
 )
-from trl_cartpole.collectors import make_collector
+from trl_cartpole.collectors import (
+    is_distributed,
+    make_collector,
+    needs_weight_sync,
+    shutdown_collector,
+)
 from trl_cartpole.config import Config, ConfigError, to_config, validate
 from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, solve_threshold
 from trl_cartpole.evaluation import EvalResult, evaluate
@@ -63,7 +69,13 @@ from trl_cartpole.run_control import StopRequest, TrainingFailed, TrainingInterr
 from trl_cartpole.run_state import RunState
 from trl_cartpole.update import make_optimizer, make_update
 
-__all__ = ["TRANSITION_KEYS", "prepare_run_dir", "seed_everything", "train"]
+__all__ = [
+    "TRANSITION_KEYS",
+    "prepare_run_dir",
+    "seed_everything",
+    "train",
+    "worker_env_constructors",
+]
 
 # What the replay buffer stores of a collected frame; the rest (Q-values, counters) is dropped.
 TRANSITION_KEYS = (
@@ -114,6 +126,29 @@ class _Progress:
     collect_seconds: float = 0.0  # waiting on the collector (env steps + policy)
     update_seconds: float = 0.0  # replay sampling + gradient steps + target updates
     history: History = field(default_factory=History)
+
+
+def worker_env_constructors(cfg: Config, observation_norm=None) -> list:
+    """One picklable env constructor per collector worker, each seeding its own envs.
+
+    Worker ``i`` seeds its ``env.num_envs`` envs from ``seed + i * env.num_envs``, so no two
+    envs of a run share a seed.
+    """
+    return [
+        functools.partial(
+            make_env_from_config,
+            cfg.env,
+            cfg.seed + worker * cfg.env.num_envs,
+            cfg.device,
+            observation_norm=observation_norm,
+        )
+        for worker in range(cfg.collector.workers)
+    ]
+
+
+def _env_rows(batch: TensorDictBase) -> TensorDictBase:
+    """``[workers, envs, T]`` -> ``[workers * envs, T]``: one row per env, steps in time order."""
+    return batch.reshape(-1, batch.shape[-1]) if batch.ndim > 2 else batch
 
 
 def _timed_batches(collector, progress: _Progress):
@@ -188,9 +223,10 @@ def train(
         observation_norm=observation_norm,
     )
     run_dir = prepare_run_dir(cfg.run_dir)
+    frames_done = 0
     if resume is not None:  # rows logged after the checkpoint will be logged again
-        counters = Checkpoint.manifest(resume)["metadata"]["counters"]
-        truncate_csv_metrics(run_dir, counters["frames"])
+        frames_done = Checkpoint.manifest(resume)["metadata"]["counters"]["frames"]
+        truncate_csv_metrics(run_dir, frames_done)
     write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
     actor = make_q_actor_for_env(env, cfg.network, cfg.device)
     exploration = make_exploration(
@@ -230,16 +266,22 @@ def train(
     )
     if cfg.compile:
         update = torch.compile(update)
+    # Workers (processes or Ray actors) build their own envs; their counters are not saved, so
+    # a resumed run gives them only the frames still to collect.
+    distributed = is_distributed(cfg.collector.workers, cfg.collector.backend)
     collector = make_collector(
-        env,
+        worker_env_constructors(cfg, observation_norm) if distributed else env,
         policy,
         cfg.collector.frames_per_batch,
-        cfg.collector.total_frames,
-        cfg.collector.init_random_frames,
+        cfg.collector.total_frames - (frames_done if distributed else 0),
+        max(cfg.collector.init_random_frames - (frames_done if distributed else 0), 0),
         cfg.device,
+        sync=cfg.collector.sync,
+        backend=cfg.collector.backend,
+        ray_address=cfg.collector.ray_address,
     )
     # A single-process collector steps the very policy being trained; only a copy needs syncing.
-    sync_policy_weights = collector.policy is not policy
+    sync_policy_weights = needs_weight_sync(collector, policy)
     logger = make_logger(cfg.logger.backend, run_dir, cfg.logger.project, cfg.logger.wandb_offline)
     title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
     live_plot = LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None
@@ -250,7 +292,7 @@ def train(
     def release() -> None:
         """Close what holds resources before leaving the run early."""
         bar.close()
-        collector.shutdown()
+        shutdown_collector(collector)
         for closable in (env, eval_env):
             closable.close()
         if logger is not None:
@@ -259,14 +301,22 @@ def train(
     progress = _Progress()
     history = progress.history
     train_clock = Stopwatch()
-    run_state = RunState(progress, train_clock, env, eval_env, collector, buffer, target_updater)
+    run_state = RunState(
+        progress,
+        train_clock,
+        None if distributed else env,
+        eval_env,
+        collector,
+        buffer,
+        target_updater,
+    )
     state_components: dict[str, Any] = {
         "policy": actor,
         "loss": loss,
         "optimizer": optimizer,
         **({} if exploration is None else {"exploration": exploration}),
         **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
-        "collector": collector,
+        **({} if distributed else {"collector": collector}),
         "run": run_state,  # loads after "collector": its carrier replaces the fresh one
     }
     if resume is not None:
@@ -340,8 +390,9 @@ def train(
     stop = StopRequest()
     train_clock.start()
     with stop:
-        # batch: [frames_per_batch] (one env) or [num_envs, frames_per_batch / num_envs]
+        # batch: [T] (one env) or [envs, T] (envs of all synchronous workers), T * envs frames
         for batch in _timed_batches(collector, progress):
+            batch = _env_rows(batch)
             progress.frames += batch.numel()
             extend_with_batch(buffer, batch.select(*TRANSITION_KEYS))
             _record_episodes(batch, progress, logger)
@@ -423,7 +474,7 @@ def train(
     bar.close()
     if cfg.checkpoint.save_last:
         save_state(run_dir / "checkpoints" / "last")
-    collector.shutdown()
+    shutdown_collector(collector)
 
     if progress.last_eval_frame != progress.frames:
         run_evaluation()
