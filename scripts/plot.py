@@ -2,7 +2,8 @@
 
     python scripts/plot.py RUN_DIR [RUN_DIR ...] [--out comparison]
 
-Run directories (shell globs welcome: ``runs/ablations/*``) whose configs differ only in seed
+A sweep directory (``python scripts/train.py -m ...``) stands for all its runs. Run
+directories (shell globs welcome: ``runs/ablations/*``) whose configs differ only in seed
 and run directory are one config: drawn as the median over its seeds with an interquartile
 band. Writes ``OUT.png`` (two panels: against training frames and against training seconds,
 evaluation excluded) and ``OUT.md`` (solve rate and medians to solve per config), and prints
@@ -21,7 +22,7 @@ from trl_cartpole.plotting import plot_comparison
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run_dirs", nargs="+", type=Path, help="run directories (globs)")
+    parser.add_argument("run_dirs", nargs="+", type=Path, help="run or sweep directories (globs)")
     parser.add_argument("--out", type=Path, default=Path("comparison"), help="output prefix")
     args = parser.parse_args()
     groups = group_runs(load_runs(args.run_dirs))

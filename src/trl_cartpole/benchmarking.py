@@ -27,6 +27,7 @@ __all__ = [
     "ENV_TARGETS",
     "PEERS",
     "add_sweep_arguments",
+    "expand_sweep_dirs",
     "group_runs",
     "load_runs",
     "markdown_table",
@@ -200,14 +201,28 @@ def speed_ratios(
 PER_RUN_FIELDS = ("seed", "run_dir")
 
 
+def expand_sweep_dirs(run_dirs: Sequence[Path]) -> list[Path]:
+    """Each directory, or for a sweep directory (no ``config.yaml`` of its own) its job folders."""
+    expanded: list[Path] = []
+    for run_dir in run_dirs:
+        if run_dir.is_dir() and not (run_dir / "config.yaml").is_file():
+            jobs = sorted(child for child in run_dir.iterdir() if (child / "config.yaml").is_file())
+            expanded.extend(jobs or [run_dir])
+        else:
+            expanded.append(run_dir)
+    return expanded
+
+
 def load_runs(run_dirs: Sequence[Path]) -> list[dict[str, Any]]:
     """``[{"run_dir", "summary", "config"}]`` for each directory holding a ``summary.json``.
+
+    A sweep directory (``python scripts/train.py -m ...``) stands for its jobs' directories.
 
     Directories without one (a run still going, or one that failed) or whose summary predates
     ``eval_curve`` are skipped with a line on stderr.
     """
     runs = []
-    for run_dir in run_dirs:
+    for run_dir in expand_sweep_dirs(run_dirs):
         summary_path, config_path = run_dir / "summary.json", run_dir / "config.yaml"
         if not summary_path.is_file() or not config_path.is_file():
             print(f"skipped {run_dir}: no summary.json/config.yaml", file=sys.stderr)
