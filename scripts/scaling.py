@@ -4,8 +4,9 @@
         [--out runs/scaling] [--parts collect train solve]
 
 - ``collect``: frames per second of the collector alone, for 1, 2 and 4 envs per worker and
-  1 worker, 2 synchronous and 2 asynchronous workers, plus TorchRL's ``ParallelEnv`` in place of
-  Gymnasium's ``SyncVectorEnv`` (one worker); median over ``--seeds`` repetitions.
+  1 worker, 2 synchronous and 2 asynchronous workers, then the default's 32 envs on 1 worker or
+  split 16 + 16 over 2, plus TorchRL's ``ParallelEnv`` in place of Gymnasium's
+  ``SyncVectorEnv`` (one worker); median over ``--seeds`` repetitions (``--envs`` picks layouts).
 - ``train``: frames per second of whole training runs (``--train-frames`` frames, evaluation
   excluded, ``buffer.n_steps=1`` everywhere so asynchronous workers run the same algorithm) in
   the same layouts, each run its own process, one at a time.
@@ -27,12 +28,19 @@ from trl_cartpole.cli import compose_config
 from trl_cartpole.config import to_config
 from trl_cartpole.scaling import collection_fps
 
-ENVS_PER_WORKER = (1, 2, 4)
 WORKER_LAYOUTS = {  # label -> overrides
     "1 worker": ["collector.workers=1"],
     "2 workers, sync": ["collector.workers=2", "collector.sync=true"],
     "2 workers, async": ["collector.workers=2", "collector.sync=false"],
 }
+# (envs per worker, worker layout): 1, 2 and 4 envs in every layout, then the default's 32 envs
+# in one process or split over two.
+LAYOUTS = [(envs, layout) for envs in (1, 2, 4) for layout in WORKER_LAYOUTS] + [
+    (32, "1 worker"),
+    (16, "2 workers, sync"),
+    (16, "2 workers, async"),
+]
+PARALLEL_ENV_SIZES = (2, 4)  # also timed with TorchRL's ParallelEnv in place of SyncVectorEnv
 TRAIN_OVERRIDES = [
     "buffer.n_steps=1",
     "eval.stop_when_solved=false",
@@ -64,20 +72,22 @@ def _median_row(label: str, values: list[float]) -> str:
     return f"| {label} | {statistics.median(values):,.0f} | {per_seed} |"
 
 
-def collect_table(seeds: list[int], frames: int) -> str:
+def _label(envs: int, layout: str) -> str:
+    return f"{envs} env{'s' if envs > 1 else ''} per worker, {layout}"
+
+
+def collect_table(seeds: list[int], frames: int, env_counts: list[int]) -> str:
     rows = ["| layout | collection frames/s (median) | per repetition |", "| --- | --- | --- |"]
-    for envs in ENVS_PER_WORKER:
-        for layout, overrides in WORKER_LAYOUTS.items():
-            label = f"{envs} env{'s' if envs > 1 else ''} per worker, {layout}"
-            fps = []
-            for seed in seeds:
-                cfg = to_config(
-                    compose_config(CONFIG_DIR, [f"env.num_envs={envs}", f"seed={seed}", *overrides])
-                )
-                fps.append(collection_fps(cfg, frames))
-            rows.append(_median_row(label, fps))
-            print(rows[-1], flush=True)
-        if envs > 1:
+    for envs, layout in LAYOUTS:
+        if envs not in env_counts:
+            continue
+        fps = []
+        for seed in seeds:
+            overrides = [f"env.num_envs={envs}", f"seed={seed}", *WORKER_LAYOUTS[layout]]
+            fps.append(collection_fps(to_config(compose_config(CONFIG_DIR, overrides)), frames))
+        rows.append(_median_row(_label(envs, layout), fps))
+        print(rows[-1], flush=True)
+        if envs in PARALLEL_ENV_SIZES and layout == "1 worker":
             fps = []
             for seed in seeds:
                 cfg = to_config(
@@ -89,30 +99,22 @@ def collect_table(seeds: list[int], frames: int) -> str:
     return "\n".join(rows)
 
 
-def train_table(seeds: list[int], frames: int, out: Path) -> str:
+def train_table(seeds: list[int], frames: int, out: Path, env_counts: list[int]) -> str:
     rows = ["| layout | training frames/s (median) | per seed |", "| --- | --- | --- |"]
-    for envs in ENVS_PER_WORKER:
-        for layout, overrides in WORKER_LAYOUTS.items():
-            name = f"envs{envs}-{layout.replace(', ', '-').replace(' ', '')}"
-            summaries = [
-                run_training(
-                    "dqn",
-                    seed,
-                    out / "train" / name,
-                    [
-                        f"env.num_envs={envs}",
-                        f"collector.total_frames={frames}",
-                        *TRAIN_OVERRIDES,
-                        *overrides,
-                    ],
-                )
-                for seed in seeds
-            ]
-            fps = [summary["frames"] / summary["train_seconds"] for summary in summaries]
-            rows.append(
-                _median_row(f"{envs} env{'s' if envs > 1 else ''} per worker, {layout}", fps)
-            )
-            print(rows[-1], flush=True)
+    for envs, layout in LAYOUTS:
+        if envs not in env_counts:
+            continue
+        name = f"envs{envs}-{layout.replace(', ', '-').replace(' ', '')}"
+        overrides = [
+            f"env.num_envs={envs}",
+            f"collector.total_frames={frames}",
+            *TRAIN_OVERRIDES,
+            *WORKER_LAYOUTS[layout],
+        ]
+        summaries = [run_training("dqn", seed, out / "train" / name, overrides) for seed in seeds]
+        fps = [summary["frames"] / summary["train_seconds"] for summary in summaries]
+        rows.append(_median_row(_label(envs, layout), fps))
+        print(rows[-1], flush=True)
     return "\n".join(rows)
 
 
@@ -136,6 +138,13 @@ def main() -> None:
     parser.add_argument("--train-frames", type=int, default=8_192)
     parser.add_argument("--out", type=Path, default=Path("runs/scaling"))
     parser.add_argument(
+        "--envs",
+        nargs="+",
+        type=int,
+        default=sorted({envs for envs, _ in LAYOUTS}),
+        help="only the layouts with this many envs per worker",
+    )
+    parser.add_argument(
         "--parts",
         nargs="+",
         default=["collect", "train", "solve"],
@@ -145,9 +154,13 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     sections = []
     if "collect" in args.parts:
-        sections.append("## Collection alone\n\n" + collect_table(args.seeds, args.frames))
+        sections.append(
+            "## Collection alone\n\n" + collect_table(args.seeds, args.frames, args.envs)
+        )
     if "train" in args.parts:
-        sections.append("## Training\n\n" + train_table(args.seeds, args.train_frames, args.out))
+        sections.append(
+            "## Training\n\n" + train_table(args.seeds, args.train_frames, args.out, args.envs)
+        )
     if "solve" in args.parts:
         sections.append("## Solving CartPole with workers\n\n" + solve_table(args.seeds, args.out))
     text = "\n\n".join(sections)

@@ -32,6 +32,7 @@ __all__ = [
     "is_distributed",
     "make_collector",
     "needs_weight_sync",
+    "ray_init_config",
     "shutdown_collector",
 ]
 
@@ -111,19 +112,27 @@ def make_collector(
             auto_register_policy_transforms=False,
             **common,
         )
-    collector = Collector(
-        create_env,
-        policy,
-        backend="ray",
-        num_collectors=len(create_env),
-        sync=sync,
-        backend_options={
-            "ray_init_config": ray_init_config(ray_address, len(create_env)),
-            "remote_configs": RAY_ACTOR_OPTIONS,
-            "collector_kwargs": {"auto_register_policy_transforms": False},
-        },
-        **common,
-    )
+    try:
+        collector = Collector(
+            create_env,
+            policy,
+            backend="ray",
+            num_collectors=len(create_env),
+            sync=sync,
+            backend_options={
+                "ray_init_config": ray_init_config(ray_address, len(create_env)),
+                "remote_configs": RAY_ACTOR_OPTIONS,
+                "collector_kwargs": {"auto_register_policy_transforms": False},
+            },
+            **common,
+        )
+    except ConnectionError as error:  # ray.init found no cluster (or was refused by it)
+        reason = str(error).splitlines()[0]
+        raise ConfigError(
+            f"collector.ray_address={ray_address!r}: cannot join a Ray cluster there ({reason}); "
+            "start one with `ray start --head`, fix the address, or set RAY_AUTH_MODE=token "
+            "(and the cluster's token) if the cluster uses token authentication"
+        ) from None
     collector.update_policy_weights_(policy)  # registers the learner's policy as the source
     return collector
 

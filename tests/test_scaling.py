@@ -1,0 +1,262 @@
+"""Scaling out: worker processes, a Ray cluster, Hydra sweeps (docs/scaling.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from tensordict.nn import TensorDictSequential
+
+from tests.conftest import SMOKE_OVERRIDES, run_script
+from trl_cartpole.checkpoint import resume_config
+from trl_cartpole.collectors import make_collector, shutdown_collector
+from trl_cartpole.config import ConfigError, to_config, validate
+from trl_cartpole.envs import make_env_from_config
+from trl_cartpole.exploration import make_exploration
+from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.sweeps import expand_grid
+from trl_cartpole.train import train, worker_env_constructors
+
+# Two workers of 16 envs: the default's 32 envs, split.
+TWO_WORKERS = ["collector.workers=2", "env.num_envs=16"]
+SOLVE_BUDGET = 40_000  # frames, as tests/test_learning.py gives the single-process default
+
+
+def _greedy_mismatch(batch) -> float:
+    """Fraction of the batch's actions that are not the argmax of its Q-values (exploration)."""
+    greedy = batch["action_value"].argmax(-1)
+    return (greedy != batch["action"].argmax(-1)).float().mean().item()
+
+
+@pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])
+def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
+    cfg = to_config(compose("env.num_envs=4", "collector.workers=2", "buffer.n_steps=1"))
+    env = make_env_from_config(cfg.env, 0)
+    actor = make_q_actor_for_env(env, cfg.network, "cpu")
+    exploration = make_exploration(env.action_spec, "linear", 1.0, 1.0, 1000, "cpu")  # eps 1
+    policy = TensorDictSequential(actor, exploration)
+    collector = make_collector(worker_env_constructors(cfg), policy, 32, 32 * 40, sync=sync)
+    mismatches = []
+    try:
+        for index, batch in enumerate(collector):
+            # sync: 2 workers x 4 envs x 4 steps; async: one worker's 4 envs x 8 steps
+            assert batch.shape == ((2, 4, 4) if sync else (4, 8))
+            mismatches.append(_greedy_mismatch(batch))
+            if index == 3:
+                exploration.eps.fill_(0.0)  # the learner turns exploration off
+            collector.update_policy_weights_()
+            if index == 9:
+                break
+    finally:
+        shutdown_collector(collector)
+    assert all(m > 0 for m in mismatches[:4])  # eps = 1: half the actions are random
+    # After the sync every batch is greedy; asynchronous workers may deliver one batch each
+    # that they had started before it.
+    assert mismatches[4 if sync else 6 :] == [0.0] * (6 if sync else 4)
+
+
+def test_each_worker_seeds_its_own_envs(compose):
+    cfg = to_config(compose("env.num_envs=2", "collector.workers=3", "seed=7"))
+    observations = []
+    for create_env in worker_env_constructors(cfg):
+        env = create_env()
+        observations.append(env.reset()["observation"])  # [2, 4]
+        env.close()
+    starts = torch.cat(observations)  # [6, 4]: no two envs of the run start alike
+    assert len({tuple(row.tolist()) for row in starts}) == 6
+    again = worker_env_constructors(cfg)[1]()
+    assert torch.equal(again.reset()["observation"], observations[1])  # seed 7 + 1 * 2
+    again.close()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["collector.workers=2"], "e.g. env.num_envs=16 (16 envs on each of 2 workers)"),
+        (["collector.sync=false"], "collector.sync=false needs collector.workers > 1"),
+        (
+            [*TWO_WORKERS, "collector.sync=false"],
+            "buffer.n_steps=3 needs each env's steps in order",
+        ),
+        (["collector.ray_address=127.0.0.1:6379"], "only read by the Ray backend"),
+        (["collector.workers=0"], "collector.workers=0 must be >= 1"),
+        (["collector.backend=spark"], "collector.backend='spark' is not a known option"),
+    ],
+)
+def test_impossible_scaling_configs_are_refused(compose, overrides, message):
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        validate(to_config(compose(*overrides)))
+
+
+def test_the_ray_backend_without_ray_names_the_extra(compose, monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "ray" else find_spec(name, *a)
+    )
+    with pytest.raises(ConfigError, match=r'pip install -e "\.\[distributed\]"'):
+        validate(to_config(compose("collector.backend=ray")))
+
+
+def test_two_worker_processes_solve_cartpole(compose, tmp_path):
+    summary = train(
+        compose(
+            *TWO_WORKERS,
+            f"collector.total_frames={SOLVE_BUDGET}",
+            f"run_dir={tmp_path}",
+            "logger.progress_bar=false",
+            "logger.plots=false",
+        )
+    )
+    assert summary["solved"], summary
+    assert summary["best_eval_return_mean"] >= 475.0
+    assert summary["final_eval_return_mean"] >= 400.0
+
+
+def test_a_run_with_workers_resumes_with_fresh_worker_episodes(compose, tmp_path):
+    overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("collector.total_frames")]
+    cfg = compose(
+        *overrides,
+        "collector.workers=2",
+        "env.num_envs=2",
+        "collector.total_frames=200",
+        f"run_dir={tmp_path}",
+    )
+    assert train(cfg)["frames"] == 200
+    last = tmp_path / "checkpoints" / "last"
+    with pytest.warns(UserWarning, match="whose envs are not saved"):
+        resumed = train(resume_config(last, ["collector.total_frames=400"]), resume=last)
+    assert resumed["frames"] == 400  # the workers collected only the 200 frames still due
+    assert resumed["updates"] > 0
+
+
+# --- a Ray cluster: a head on this machine, two remote collectors -----------------------------
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def ray_head(tmp_path_factory):
+    """A Ray head started with ``ray start --block`` on 127.0.0.1, token authentication on.
+
+    Stopping the blocking ``ray start`` stops the processes it started and no other Ray.
+    """
+    pytest.importorskip("ray")
+    port = _free_port()
+    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0"}
+    temp_dir = tmp_path_factory.mktemp("ray")
+    head = subprocess.Popen(
+        [
+            str(Path(sys.executable).with_name("ray")),
+            "start",
+            "--head",
+            "--block",
+            "--node-ip-address=127.0.0.1",
+            f"--port={port}",
+            "--num-cpus=2",
+            "--include-dashboard=false",
+            f"--temp-dir={temp_dir}",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:  # the head's GCS accepts connections
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            break
+        except OSError:
+            assert head.poll() is None, "ray start --head exited"
+            time.sleep(0.5)
+    yield {"address": f"127.0.0.1:{port}", "env": env}
+    os.killpg(head.pid, signal.SIGTERM)
+    try:
+        head.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(head.pid, signal.SIGKILL)
+        head.wait()
+
+
+def test_two_ray_actors_on_a_local_head_solve_cartpole(ray_head, tmp_path):
+    proc = run_script(
+        "train.py",
+        "collector.backend=ray",
+        f"collector.ray_address={ray_head['address']}",
+        *TWO_WORKERS,
+        f"collector.total_frames={SOLVE_BUDGET}",
+        f"run_dir={tmp_path}",
+        "logger.progress_bar=false",
+        "logger.plots=false",
+        env=ray_head["env"],
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["solved"], summary
+    assert summary["final_eval_return_mean"] >= 400.0
+
+
+# --- sweeps ---------------------------------------------------------------------------------
+
+
+def test_the_grid_of_a_sweep_is_every_combination():
+    jobs = expand_grid(["seed=0,1", "algo=dqn,double", "optim.lr=1e-3", "hydra.launcher.n_jobs=2"])
+    assert jobs == [
+        ["seed=0", "algo=dqn", "optim.lr=1e-3"],
+        ["seed=0", "algo=double", "optim.lr=1e-3"],
+        ["seed=1", "algo=dqn", "optim.lr=1e-3"],
+        ["seed=1", "algo=double", "optim.lr=1e-3"],
+    ]
+    assert len(expand_grid(["seed=range(3)"])) == 3
+
+
+def test_a_sweep_trains_every_job_in_its_own_directory_and_plot_compares_them(tmp_path):
+    sweep_dir = tmp_path / "sweep"
+    smoke = [o for o in SMOKE_OVERRIDES if not o.startswith("logger.progress_bar")]
+    proc = run_script(
+        "train.py",
+        "-m",
+        "seed=0,1",
+        "algo=dqn,double",
+        *smoke,
+        "logger.plots=false",
+        f"hydra.sweep.dir={sweep_dir}",
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summaries = [json.loads(p.read_text()) for p in sorted(sweep_dir.glob("*/summary.json"))]
+    assert sorted((s["algo"], s["seed"]) for s in summaries) == [
+        ("double", 0),
+        ("double", 1),
+        ("dqn", 0),
+        ("dqn", 1),
+    ]
+    assert len({s["run_dir"] for s in summaries}) == 4
+    assert all(Path(s["run_dir"]).parent == sweep_dir for s in summaries)
+    plotted = run_script("plot.py", str(sweep_dir), "--out", str(tmp_path / "comparison"))
+    assert plotted.returncode == 0, plotted.stderr
+    table = (tmp_path / "comparison.md").read_text()
+    assert "| CartPole-v1 dqn | 0/2 |" in table and "| CartPole-v1 double | 0/2 |" in table
+
+
+def test_a_bad_point_of_a_sweep_stops_it_before_any_training(tmp_path):
+    sweep_dir = tmp_path / "sweep"
+    proc = run_script("train.py", "-m", "seed=0,-1", f"hydra.sweep.dir={sweep_dir}")
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and lines == ["error: seed=-1 must be >= 0"], proc.stderr[-1500:]
+    assert not sweep_dir.exists()
