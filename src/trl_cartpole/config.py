@@ -322,8 +322,8 @@ def validate(cfg: Config) -> Config:
 
 def _envs_per_batch(cfg: Config) -> int:
     """How many envs step in one collected batch: every worker's when they are synchronous."""
-    collector = cfg.collector
-    return cfg.env.num_envs * (collector.workers if collector.sync else 1)
+    collector = cfg.collector  # (>= 1 each: the range checks run after this is computed)
+    return max(cfg.env.num_envs, 1) * (max(collector.workers, 1) if collector.sync else 1)
 
 
 def _envs_per_batch_text(cfg: Config) -> str:

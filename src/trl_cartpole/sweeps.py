@@ -4,7 +4,7 @@ Hydra's sweeper expands the comma lists into their grid; its launcher runs the j
 ``sweeps`` extra installed (``hydra-joblib-launcher``) the launcher is Hydra's joblib launcher:
 the jobs run in parallel processes, one per core (``hydra.launcher.n_jobs=N`` to change); without
 it, Hydra's basic launcher runs them one after another, and the sweep says so. Every job trains in
-its own directory ``runs/sweeps/<time>/<job number>-<its overrides>`` (Hydra's sweep dir, see
+its own directory ``runs/sweeps/<time>/<job>-<env>-<algo>-seed<seed>`` (Hydra's sweep dir, see
 ``configs/config.yaml``), so ``python scripts/plot.py runs/sweeps/<time>`` compares them.
 
 Every point of the grid is composed and validated before the first job starts: a bad value
