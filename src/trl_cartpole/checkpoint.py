@@ -50,6 +50,7 @@ RESUMABLE_FIELDS = (
     "logger.progress_bar",
     "logger.live_plot",
     "logger.plots",
+    "collector.ray_address",  # a restarted cluster may listen elsewhere
 )
 
 
