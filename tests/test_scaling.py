@@ -192,6 +192,21 @@ def ray_head(tmp_path_factory):
         head.wait()
 
 
+def test_a_ray_address_where_nothing_listens_is_one_line_and_exit_2(tmp_path):
+    run_dir = tmp_path / "run"
+    proc = run_script(
+        "train.py",
+        "collector.backend=ray",
+        f"collector.ray_address=127.0.0.1:{_free_port()}",
+        *TWO_WORKERS,
+        f"run_dir={run_dir}",
+    )
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-1500:]
+    assert "nothing answers there" in lines[0] and "ray start --head" in lines[0]
+    assert not run_dir.exists()  # refused before anything is written
+
+
 def test_two_ray_actors_on_a_local_head_solve_cartpole(ray_head, tmp_path):
     proc = run_script(
         "train.py",

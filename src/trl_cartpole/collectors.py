@@ -18,6 +18,7 @@ round of updates (:func:`needs_weight_sync`) to send them the learner's weights 
 from __future__ import annotations
 
 import os
+import socket
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -29,6 +30,7 @@ from trl_cartpole.config import ConfigError
 
 __all__ = [
     "BACKENDS",
+    "check_ray_address",
     "is_distributed",
     "make_collector",
     "needs_weight_sync",
@@ -112,6 +114,8 @@ def make_collector(
             auto_register_policy_transforms=False,
             **common,
         )
+    if ray_address is not None:
+        check_ray_address(ray_address)
     try:
         collector = Collector(
             create_env,
@@ -135,6 +139,24 @@ def make_collector(
         ) from None
     collector.update_policy_weights_(policy)  # registers the learner's policy as the source
     return collector
+
+
+def check_ray_address(address: str, timeout: float = 5.0) -> None:
+    """Raise a one-line ConfigError unless ``host:port`` accepts a TCP connection.
+
+    ``ray.init`` retries an address where nothing listens for minutes before failing; this
+    fails in seconds instead. Other forms (``auto``, ``ray://...``) are left to Ray.
+    """
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or "://" in address:
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as error:
+        raise ConfigError(
+            f"collector.ray_address={address!r}: nothing answers there ({error}); start the "
+            "cluster's head with `ray start --head --port=PORT` or fix the address"
+        ) from None
 
 
 def needs_weight_sync(collector: BaseCollector, policy: TensorDictModuleBase) -> bool:

@@ -45,6 +45,7 @@ from trl_cartpole.checkpoint import (
     save_training_state,
 )
 from trl_cartpole.collectors import (
+    check_ray_address,
     is_distributed,
     make_collector,
     needs_weight_sync,
@@ -222,6 +223,8 @@ def train(
         num_envs=cfg.eval.episodes,
         observation_norm=observation_norm,
     )
+    if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
+        check_ray_address(cfg.collector.ray_address)  # before anything is written
     run_dir = prepare_run_dir(cfg.run_dir)
     frames_done = 0
     if resume is not None:  # rows logged after the checkpoint will be logged again
