@@ -38,6 +38,7 @@ def _greedy_mismatch(batch) -> float:
 
 @pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])
 def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
+    """Parameters and buffers (epsilon) reach the workers with each update_policy_weights_()."""
     cfg = to_config(compose("env.num_envs=4", "collector.workers=2", "buffer.n_steps=1"))
     env = make_env_from_config(cfg.env, 0)
     actor = make_q_actor_for_env(env, cfg.network, "cpu")
@@ -50,6 +51,13 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
             # sync: 2 workers x 4 envs x 4 steps; async: one worker's 4 envs x 8 steps
             assert batch.shape == ((2, 4, 4) if sync else (4, 8))
             mismatches.append(_greedy_mismatch(batch))
+            if sync:  # the workers' Q-values are the learner's, whose weights move every round
+                with torch.no_grad():
+                    learner_q = actor(batch.select("observation").clone())["action_value"]
+                torch.testing.assert_close(batch["action_value"], learner_q)
+            with torch.no_grad():
+                for parameter in actor.parameters():
+                    parameter.add_(0.1 * torch.randn_like(parameter))
             if index == 3:
                 exploration.eps.fill_(0.0)  # the learner turns exploration off
             collector.update_policy_weights_()
