@@ -115,6 +115,7 @@ def test_the_ray_backend_without_ray_names_the_extra(compose, monkeypatch):
         validate(to_config(compose("collector.backend=ray")))
 
 
+@pytest.mark.slow  # 30 s; the recorded runs of docs/scaling.md solve 6/6, the Ray test below
 def test_two_worker_processes_solve_cartpole(compose, tmp_path):
     summary = train(
         compose(
