@@ -8,7 +8,7 @@ being trained. More workers, or the Ray backend, go through the backends of Torc
   ``frames_per_batch / workers`` frames to each batch) or ``MultiAsyncCollector`` (each batch is
   one worker's ``frames_per_batch`` frames, whichever is ready first);
 - ``ray``: ``torchrl.collectors.distributed.RayCollector``, one Ray actor per worker, on a
-  running cluster (``ray_address``) or on a Ray instance started here on 127.0.0.1.
+  running cluster (``ray_address``) or on a Ray instance started on this machine.
 
 The workers hold copies of the policy: call ``collector.update_policy_weights_()`` after each
 round of updates (:func:`needs_weight_sync`) to send them the learner's weights and buffers
@@ -52,7 +52,8 @@ def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
     """``ray.init`` arguments: connect to ``address``, or start Ray here on 127.0.0.1.
 
     A local instance declares at least one CPU per worker (more workers than cores then share
-    the cores rather than wait for a free one) and stays on the loopback interface.
+    the cores rather than wait for a free one) and asks for the loopback address, which Ray
+    may still rewrite to the machine's own (docs/scaling.md).
     """
     quiet = {"log_to_driver": False, "logging_level": "warning", "include_dashboard": False}
     if address is not None:
