@@ -15,15 +15,15 @@ import pytest
 import torch
 from tensordict.nn import TensorDictSequential
 
-from tests.conftest import SMOKE_OVERRIDES, run_script
+from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
 from trl_cartpole.checkpoint import resume_config
-from trl_cartpole.collectors import make_collector, shutdown_collector
+from trl_cartpole.collectors import make_collector, shutdown_collector, worker_env_constructors
 from trl_cartpole.config import ConfigError, to_config, validate
 from trl_cartpole.envs import make_env_from_config
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.sweeps import expand_grid
-from trl_cartpole.train import train, worker_env_constructors
+from trl_cartpole.train import train
 
 # Two workers of 16 envs: the default's 32 envs, split.
 TWO_WORKERS = ["collector.workers=2", "env.num_envs=16"]
@@ -51,6 +51,8 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
             # sync: 2 workers x 4 envs x 4 steps; async: one worker's 4 envs x 8 steps
             assert batch.shape == ((2, 4, 4) if sync else (4, 8))
             mismatches.append(_greedy_mismatch(batch))
+            if sync and index < 4:  # eps = 1: each worker draws its own random actions
+                assert not torch.equal(batch[0]["action"], batch[1]["action"])
             if sync:  # the workers' Q-values are the learner's, whose weights move every round
                 with torch.no_grad():
                     learner_q = actor(batch.select("observation").clone())["action_value"]
@@ -113,6 +115,32 @@ def test_the_ray_backend_without_ray_names_the_extra(compose, monkeypatch):
     )
     with pytest.raises(ConfigError, match=r'pip install -e "\.\[distributed\]"'):
         validate(to_config(compose("collector.backend=ray")))
+
+
+@pytest.mark.parametrize(
+    "backend",
+    ["local", pytest.param("ray", marks=pytest.mark.slow)],  # ray: 2 x 20 s start-up
+)
+def test_a_run_with_synchronous_workers_repeats_itself(compose, tmp_path, backend):
+    """Each worker seeds its envs and its exploration draws, so a seed is one run."""
+    overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("env.num_envs")]
+    summaries = [
+        train(
+            compose(
+                *overrides,
+                "collector.workers=2",
+                "env.num_envs=2",
+                f"collector.backend={backend}",
+                f"run_dir={tmp_path / str(run)}",
+                "logger.plots=false",
+            )
+        )
+        for run in range(2)
+    ]
+    for summary in summaries:
+        del summary["eval_curve"]["seconds"]  # timings
+    first, second = ({k: v for k, v in s.items() if k not in TIMING_KEYS} for s in summaries)
+    assert first == second
 
 
 @pytest.mark.slow  # 30 s; the recorded runs of docs/scaling.md solve 6/6, the Ray test below

@@ -19,28 +19,79 @@ from __future__ import annotations
 
 import os
 import socket
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
 
-from trl_cartpole.config import ConfigError
+from trl_cartpole.config import Config, ConfigError, EnvConfig
+from trl_cartpole.envs import make_env_from_config
 
 __all__ = [
     "BACKENDS",
+    "WorkerEnvFactory",
     "check_ray_address",
     "is_distributed",
     "make_collector",
     "needs_weight_sync",
     "ray_init_config",
     "shutdown_collector",
+    "worker_env_constructors",
 ]
 
 BACKENDS = ("local", "ray")
 # Each Ray collector actor reserves this much of a node (TorchRL's default reserves 2 GiB).
 RAY_ACTOR_OPTIONS = {"num_cpus": 1, "memory": 512 * 1024**2}
+
+
+@dataclass(frozen=True)
+class WorkerEnvFactory:
+    """Builds one worker's envs and seeds that worker's torch RNG (its epsilon-greedy draws).
+
+    A fresh worker process (spawned, or a Ray actor) otherwise starts from a random torch seed,
+    so its exploration could not be repeated. The training process itself keeps its RNG:
+    TorchRL builds the first worker's envs there once to read their specs.
+    """
+
+    env_cfg: EnvConfig
+    env_seed: int  # the worker's envs are seeded env_seed, env_seed + 1, ...
+    rng_seed: int
+    device: str
+    observation_norm: Mapping[str, Sequence[float]] | None
+    parent_pid: int
+
+    def __call__(self) -> EnvBase:
+        if os.getpid() != self.parent_pid:  # in the worker
+            torch.manual_seed(self.rng_seed)
+        return make_env_from_config(
+            self.env_cfg, self.env_seed, self.device, observation_norm=self.observation_norm
+        )
+
+
+def worker_env_constructors(cfg: Config, observation_norm=None) -> list[WorkerEnvFactory]:
+    """One picklable env constructor per collector worker.
+
+    Worker ``i`` seeds its ``env.num_envs`` envs from ``seed + i * env.num_envs`` (no two envs
+    of a run share a seed) and its torch RNG from child ``i`` of ``SeedSequence(seed)``.
+    """
+    workers = cfg.collector.workers
+    rng_seeds = np.random.SeedSequence(cfg.seed).spawn(workers)
+    return [
+        WorkerEnvFactory(
+            cfg.env,
+            cfg.seed + worker * cfg.env.num_envs,
+            int(rng_seeds[worker].generate_state(1)[0]),
+            cfg.device,
+            observation_norm,
+            os.getpid(),
+        )
+        for worker in range(workers)
+    ]
 
 
 def is_distributed(workers: int, backend: str) -> bool:

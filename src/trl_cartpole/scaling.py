@@ -20,6 +20,7 @@ from trl_cartpole.collectors import (
     make_collector,
     needs_weight_sync,
     shutdown_collector,
+    worker_env_constructors,
 )
 from trl_cartpole.config import Config
 from trl_cartpole.envs import make_env, make_env_from_config
@@ -52,8 +53,6 @@ def collection_fps(cfg: Config, frames: int, parallel_env: bool = False) -> floa
     batch_frames = cfg.collector.frames_per_batch
     total = frames + WARMUP_BATCHES * batch_frames
     if is_distributed(cfg.collector.workers, cfg.collector.backend):
-        from trl_cartpole.train import worker_env_constructors
-
         create_env = worker_env_constructors(cfg)
     elif parallel_env:
         create_env = make_parallel_env(cfg.env.id, cfg.env.num_envs, cfg.seed)

@@ -12,7 +12,6 @@ policy (by periodic evaluation) is evaluated over ``eval.final_episodes`` episod
 from __future__ import annotations
 
 import copy
-import functools
 import math
 import random
 import signal
@@ -50,6 +49,7 @@ from trl_cartpole.collectors import (
     make_collector,
     needs_weight_sync,
     shutdown_collector,
+    worker_env_constructors,
 )
 from trl_cartpole.config import Config, ConfigError, to_config, validate
 from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, solve_threshold
@@ -75,7 +75,6 @@ __all__ = [
     "prepare_run_dir",
     "seed_everything",
     "train",
-    "worker_env_constructors",
 ]
 
 # What the replay buffer stores of a collected frame; the rest (Q-values, counters) is dropped.
@@ -127,24 +126,6 @@ class _Progress:
     collect_seconds: float = 0.0  # waiting on the collector (env steps + policy)
     update_seconds: float = 0.0  # replay sampling + gradient steps + target updates
     history: History = field(default_factory=History)
-
-
-def worker_env_constructors(cfg: Config, observation_norm=None) -> list:
-    """One picklable env constructor per collector worker, each seeding its own envs.
-
-    Worker ``i`` seeds its ``env.num_envs`` envs from ``seed + i * env.num_envs``, so no two
-    envs of a run share a seed.
-    """
-    return [
-        functools.partial(
-            make_env_from_config,
-            cfg.env,
-            cfg.seed + worker * cfg.env.num_envs,
-            cfg.device,
-            observation_norm=observation_norm,
-        )
-        for worker in range(cfg.collector.workers)
-    ]
 
 
 def _env_rows(batch: TensorDictBase) -> TensorDictBase:
