@@ -253,12 +253,14 @@ def train(
     # Workers (processes or Ray actors) build their own envs; their counters are not saved, so
     # a resumed run gives them only the frames still to collect.
     distributed = is_distributed(cfg.collector.workers, cfg.collector.backend)
+    # (a single-process collector's own frame counter is restored from the checkpoint instead)
+    frames_not_counted = frames_done if distributed else 0
     collector = make_collector(
         worker_env_constructors(cfg, observation_norm) if distributed else env,
         policy,
         cfg.collector.frames_per_batch,
-        cfg.collector.total_frames - (frames_done if distributed else 0),
-        max(cfg.collector.init_random_frames - (frames_done if distributed else 0), 0),
+        cfg.collector.total_frames - frames_not_counted,
+        max(cfg.collector.init_random_frames - frames_not_counted, 0),
         cfg.device,
         sync=cfg.collector.sync,
         backend=cfg.collector.backend,
