@@ -17,8 +17,8 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from trl_cartpole.cli import run_cli
-from trl_cartpole.config import ConfigError
-from trl_cartpole.evaluation import evaluate_checkpoint
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.files import write_json_atomic
 
 

@@ -18,11 +18,9 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from trl_cartpole.checkpoint import load_policy, read_checkpoint_config, read_observation_norm
 from trl_cartpole.cli import run_cli
-from trl_cartpole.config import ConfigError
-from trl_cartpole.envs import make_env_from_config
-from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.policy_io import load_trained_policy
 from trl_cartpole.video import render_episodes, write_video
 
 
@@ -43,21 +41,15 @@ def main(argv: list[str]) -> None:
     )
     if args.episodes < 1 or args.fps < 1 or not 0 < args.scale <= 4:
         raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
-    cfg = read_checkpoint_config(args.checkpoint)
-    seed = cfg.seed + 2 * cfg.eval.seed_offset if args.seed is None else args.seed
-    observation_norm = read_observation_norm(args.checkpoint)
     if args.human:
         if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
             raise ConfigError("human=true needs a display; write a file instead (output=x.gif)")
-        env = make_env_from_config(
-            cfg.env, seed, num_envs=1, observation_norm=observation_norm, render_mode="human"
-        )
     else:
         os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # no window for rgb_array frames
-        env = make_env_from_config(
-            cfg.env, seed, num_envs=1, observation_norm=observation_norm, render_mode="rgb_array"
-        )
-    actor = load_policy(args.checkpoint, make_q_actor_for_env(env, cfg.network))
+    trained = load_trained_policy(
+        args.checkpoint, seed=args.seed, render_mode="human" if args.human else "rgb_array"
+    )
+    actor, env, cfg = trained.actor, trained.env, trained.cfg
     if args.human:
         for _ in range(args.episodes):
             env.rollout(cfg.eval.max_steps, actor)
@@ -68,7 +60,7 @@ def main(argv: list[str]) -> None:
         frames.extend(episode.frames)
         returns.append(episode.episode_return)
     env.close()
-    output = Path(args.output or Path(args.checkpoint).parent / "video.gif")
+    output = Path(args.output or trained.checkpoint.parent / "video.gif")
     write_video(frames, output, args.fps)
     print(
         f"{cfg.env.id}: {args.episodes} greedy episodes, returns {returns}, "

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterator
+from typing import Any
 
 from tensordict import TensorDictBase
 from torchrl.data import (
@@ -27,7 +28,7 @@ from torchrl.data import (
 from torchrl.data.replay_buffers import RandomSampler
 from torchrl.envs import MultiStepTransform
 
-from trl_cartpole.segment_trees import install_if_missing
+from trl_cartpole.compat import install_segment_trees_if_missing, replay_transform
 
 __all__ = [
     "NStepTransform",
@@ -60,18 +61,25 @@ class NStepTransform(MultiStepTransform):
 
 
 def make_replay_buffer(
-    size: int = 10_000,
-    batch_size: int = 128,
+    max_size: int = 50_000,
+    batch_size: int = 512,
     device: str = "cpu",
     *,
     prioritized: bool = False,
     alpha: float = 0.6,
     beta: float = 0.4,
-    priority_eps: float = 1e-6,
-    n_steps: int = 1,
-    gamma: float = 0.99,
+    eps: float = 1e-6,
+    n_steps: int = 3,
+    gamma: float = 0.995,
+    **buffer_kwargs: Any,
 ) -> TensorDictReplayBuffer:
-    """Return a replay buffer of capacity ``size`` sampling ``batch_size`` transitions.
+    """Return a replay buffer of capacity ``max_size`` sampling ``batch_size`` transitions.
+
+    The defaults are the default config's (``buffer`` section; ``gamma`` is ``loss.gamma``).
+    The names are TorchRL's: ``max_size`` of ``LazyTensorStorage``; ``alpha``, ``beta`` and
+    ``eps`` of ``TensorDictPrioritizedReplayBuffer``; ``n_steps`` and ``gamma`` of
+    ``MultiStepTransform``. ``buffer_kwargs`` go to the buffer's constructor (``prefetch``,
+    ``pin_memory``, ...).
 
     The storage allocates lazily on the first ``extend`` from the collected batch's layout, so
     the same factory serves any env. Uniform sampling is with replacement (``RandomSampler``),
@@ -80,20 +88,25 @@ def make_replay_buffer(
     ``n_steps > 1`` each ``extend`` stores the transitions whose n-step window is complete; the
     last ``n_steps`` frames wait for the next ``extend``.
     """
-    storage = LazyTensorStorage(size, device=device)
+    storage = LazyTensorStorage(max_size, device=device)
     transform = NStepTransform(n_steps, gamma) if n_steps > 1 else None
     if prioritized:
-        install_if_missing()
+        install_segment_trees_if_missing()
         return TensorDictPrioritizedReplayBuffer(
             alpha=alpha,
             beta=beta,
-            eps=priority_eps,
+            eps=eps,
             storage=storage,
             batch_size=batch_size,
             transform=transform,
+            **buffer_kwargs,
         )
     return TensorDictReplayBuffer(
-        storage=storage, sampler=RandomSampler(), batch_size=batch_size, transform=transform
+        storage=storage,
+        sampler=RandomSampler(),
+        batch_size=batch_size,
+        transform=transform,
+        **buffer_kwargs,
     )
 
 
@@ -112,7 +125,7 @@ def extend_with_batch(buffer: TensorDictReplayBuffer, batch: TensorDictBase) -> 
     An n-step buffer's transform needs each env's steps in time order, so it gets the batch
     as collected and flattens its windows itself; any other buffer gets ``[N * T]``.
     """
-    buffer.extend(batch if buffer._transform else batch.reshape(-1))
+    buffer.extend(batch if replay_transform(buffer) is not None else batch.reshape(-1))
 
 
 def sample_minibatches(buffer: TensorDictReplayBuffer, count: int) -> Iterator[TensorDictBase]:

@@ -2,7 +2,8 @@
 
 ``Checkpoint.save`` stages every file under a temporary name and renames the directory into
 place, so an interrupted (or killed) save leaves the previous checkpoint intact. Periodic
-training states rotate through ``CheckpointRotation`` (the newest ``keep_last`` are kept).
+training states rotate through ``CheckpointRotation`` (the newest ``keep_last`` are kept). :class:`Checkpointer` decides when the training loop
+saves: every ``checkpoint.interval_frames`` frames and on a stop signal.
 
 Resuming: :func:`find_resume_checkpoint` turns ``resume=PATH`` (a run directory or a
 training-state checkpoint) into a checkpoint, :func:`resume_config` rebuilds the run's config
@@ -14,7 +15,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+import math
+import signal
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,11 +25,15 @@ from omegaconf import OmegaConf
 from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
 
-from trl_cartpole.config import Config, ConfigError, flat_fields, to_config, validate
+from trl_cartpole.config import Config, flat_fields, to_config
+from trl_cartpole.errors import ConfigError, TrainingInterrupted
 from trl_cartpole.files import write_json_atomic
+from trl_cartpole.progress import Progress
+from trl_cartpole.validation import validate
 
 __all__ = [
     "RESUMABLE_FIELDS",
+    "Checkpointer",
     "find_resume_checkpoint",
     "load_policy",
     "load_training_state",
@@ -253,3 +260,72 @@ def load_policy(path: str | Path, actor: nn.Module) -> nn.Module:
             f"checkpoint={str(path)!r} does not fit this policy ({first_line})"
         ) from None
     return actor
+
+
+class Checkpointer:
+    """Saves the training state: periodically, on a stop signal, and at the end of the run.
+
+    ``components`` maps checkpoint names to objects with ``state_dict``/``load_state_dict``
+    (TorchRL modules, the optimizer, the replay buffer, the collector, the loop's own state);
+    they are saved together with the global RNG states, and loaded in their order.
+    """
+
+    def __init__(
+        self,
+        run_dir: Path,
+        cfg: Config,
+        components: Mapping[str, Any],
+        observation_norm: dict[str, list[float]] | None = None,
+    ) -> None:
+        self.run_dir, self.cfg = run_dir, cfg
+        self.components = dict(components)
+        self.observation_norm = observation_norm
+        self.interval = cfg.checkpoint.interval_frames or math.inf
+        self.last_saved_frame = 0
+
+    def load(self, path: str | Path, progress: Progress) -> None:
+        """Restore every component from the training state at ``path``."""
+        components = dict(self.components)
+        if "replay_buffer" not in Checkpoint.manifest(path)["components"]:
+            components.pop("replay_buffer", None)  # saved while an n-step buffer was empty
+        load_training_state(path, **components)
+        self.last_saved_frame = progress.frames
+
+    def save(self, path: Path, progress: Progress, keep_last: int | None = None) -> Path:
+        counters = {"frames": progress.frames, "updates": progress.updates}
+        buffer = self.components.get("replay_buffer")
+        # An n-step buffer may still be empty (its windows are not complete yet): nothing to save.
+        components = {
+            name: component
+            for name, component in self.components.items()
+            if name != "replay_buffer" or len(buffer) > 0
+        }
+        return save_training_state(
+            path, self.cfg, counters, keep_last, observation_norm=self.observation_norm,
+            **components,
+        )
+
+    def maybe_save(self, progress: Progress, stop: Any) -> None:
+        """Save a periodic state when one is due or a stop signal came (then stop the run).
+
+        ``stop`` is the :class:`~trl_cartpole.run_control.StopRequest` of the loop. After a
+        signal, the state is saved and :class:`TrainingInterrupted` raised.
+        """
+        due = progress.frames - self.last_saved_frame >= self.interval
+        if not (due or stop.requested):
+            return
+        progress.clock.pause()
+        self.save(self.run_dir / "checkpoints" / "periodic", progress, self.cfg.checkpoint.keep_last)
+        self.last_saved_frame = progress.frames
+        if stop.requested:
+            raise TrainingInterrupted(
+                f"stopped by {signal.Signals(stop.signum).name} at frame {progress.frames}; "
+                f"checkpoint written; resume with: python scripts/train.py resume={self.run_dir}",
+                stop.signum,
+            )
+        progress.clock.start()
+
+    def save_last(self, progress: Progress) -> None:
+        """The end-of-run state (``checkpoints/last``), if ``checkpoint.save_last``."""
+        if self.cfg.checkpoint.save_last:
+            self.save(self.run_dir / "checkpoints" / "last", progress)

@@ -20,8 +20,8 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
-from trl_cartpole.config import ConfigError, register_configs
-from trl_cartpole.run_control import TrainingFailed, TrainingInterrupted
+from trl_cartpole.config import register_configs
+from trl_cartpole.errors import ConfigError, TrainingFailed, TrainingInterrupted
 
 __all__ = ["compose_config", "run_cli", "split_resume"]
 

@@ -29,8 +29,10 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
 
-from trl_cartpole.config import Config, ConfigError, EnvConfig
+from trl_cartpole.compat import close_weight_sync_schemes
+from trl_cartpole.config import Config, EnvConfig
 from trl_cartpole.envs import make_env_from_config
+from trl_cartpole.errors import ConfigError
 
 __all__ = [
     "BACKENDS",
@@ -118,25 +120,28 @@ def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
 
 
 def make_collector(
-    create_env: EnvBase | Sequence[Callable[[], EnvBase]],
+    create_env_fn: EnvBase | Sequence[Callable[[], EnvBase]],
     policy: TensorDictModuleBase,
-    frames_per_batch: int = 1,
-    total_frames: int = 100_000,
-    init_random_frames: int = 0,
+    frames_per_batch: int = 32,
+    total_frames: int = 50_000,
+    init_random_frames: int = 1000,
     device: str = "cpu",
     *,
     sync: bool = True,
     backend: str = "local",
     ray_address: str | None = None,
+    **collector_kwargs: Any,
 ) -> BaseCollector:
     """Return a collector yielding batches of ``frames_per_batch`` transitions.
 
-    ``create_env`` is the env itself (one local worker: collection in this process) or one env
-    constructor per worker (picklable, each seeding its own envs). The first
+    ``create_env_fn`` is the env itself (one local worker: collection in this process) or one
+    env constructor per worker (picklable, each seeding its own envs). The first
     ``init_random_frames`` frames come from the env's uniform random policy. The policy runs
     under ``ExplorationType.RANDOM``, so epsilon-greedy is active. A batch is ``[T]`` or
     ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single envs) for a
-    synchronous multi-worker batch.
+    synchronous multi-worker batch. The defaults are the default config's ``collector`` section;
+    ``collector_kwargs`` go to TorchRL's ``Collector`` (``storing_device``, ``compile_policy``,
+    ``split_trajs``, ...).
     """
     if backend not in BACKENDS:
         raise ConfigError(f"collector.backend={backend!r} is not one of {list(BACKENDS)}")
@@ -145,40 +150,38 @@ def make_collector(
         "total_frames": total_frames,
         "init_random_frames": init_random_frames or None,
         "device": device,
+        # the Q-policy needs no env transform registered
+        "auto_register_policy_transforms": False,
+        **collector_kwargs,
     }
-    if isinstance(create_env, EnvBase):
+    if isinstance(create_env_fn, EnvBase):
         if backend != "local":
             raise ValueError("a Ray collector needs env constructors, not a built env")
-        return Collector(
-            create_env,
-            policy,
-            auto_register_policy_transforms=False,  # the Q-policy needs no env transform
-            **common,
-        )
-    create_env = list(create_env)
+        return Collector(create_env_fn, policy, **common)
+    create_env_fn = list(create_env_fn)
     if backend == "local":
         return Collector(
-            create_env,
+            create_env_fn,
             policy,
             backend="process",
-            num_collectors=len(create_env),
+            num_collectors=len(create_env_fn),
             sync=sync,
-            auto_register_policy_transforms=False,
             **common,
         )
     if ray_address is not None:
         check_ray_address(ray_address)
     try:
+        auto_register = common.pop("auto_register_policy_transforms")
         collector = Collector(
-            create_env,
+            create_env_fn,
             policy,
             backend="ray",
-            num_collectors=len(create_env),
+            num_collectors=len(create_env_fn),
             sync=sync,
             backend_options={
-                "ray_init_config": ray_init_config(ray_address, len(create_env)),
+                "ray_init_config": ray_init_config(ray_address, len(create_env_fn)),
                 "remote_configs": RAY_ACTOR_OPTIONS,
-                "collector_kwargs": {"auto_register_policy_transforms": False},
+                "collector_kwargs": {"auto_register_policy_transforms": auto_register},
             },
             **common,
         )
@@ -227,5 +230,4 @@ def shutdown_collector(collector: BaseCollector) -> None:
     process hangs after training (seen with ``MultiSyncCollector``).
     """
     collector.shutdown()
-    for scheme in (getattr(collector, "_weight_sync_schemes", None) or {}).values():
-        scheme.shutdown()
+    close_weight_sync_schemes(collector)

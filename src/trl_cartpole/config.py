@@ -5,14 +5,13 @@ The schema's defaults are the tuned default preset (``configs/algo/dqn.yaml`` re
 
 The dataclasses below are the schema Hydra composes ``configs/`` onto (registered in
 Hydra's ConfigStore as ``base_config``): a misspelt key or a wrong type fails at
-composition time. :func:`validate` then checks what a type cannot express (ranges and
-rules between fields) and raises :class:`ConfigError` with one line naming the field
-and how to fix it.
+composition time. ``trl_cartpole.validation.validate`` then checks what a type cannot
+express (ranges and rules between fields) and raises ``ConfigError`` with one line naming the
+field and how to fix it. This module imports nothing of the package.
 """
 
 from __future__ import annotations
 
-import importlib.util
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
@@ -25,7 +24,6 @@ __all__ = [
     "CheckpointConfig",
     "CollectorConfig",
     "Config",
-    "ConfigError",
     "EnvConfig",
     "EvalConfig",
     "ExplorationConfig",
@@ -36,12 +34,7 @@ __all__ = [
     "flat_fields",
     "register_configs",
     "to_config",
-    "validate",
 ]
-
-
-class ConfigError(ValueError):
-    """A configuration that cannot run; the message is one line saying what to change."""
 
 
 @dataclass
@@ -200,16 +193,6 @@ def to_config(cfg: Config | DictConfig | dict[str, Any]) -> Config:
     return OmegaConf.to_object(merged)
 
 
-_CHOICES = {
-    "exploration.schedule": ("exponential", "linear", "none"),
-    "loss.loss_function": ("smooth_l1", "l2"),
-    "loss.target_update": ("soft", "hard"),
-    "optim.grad_clip": ("value", "norm", "none"),
-    "logger.backend": ("csv", "tensorboard", "wandb", "none"),
-    "collector.backend": ("local", "ray"),
-}
-
-
 def flat_fields(cfg: Config | dict[str, Any], prefix: str = "") -> dict[str, Any]:
     """``{"section.key": value}`` for every leaf of a config (lists become tuples, hashable)."""
     tree = cfg if isinstance(cfg, dict) else OmegaConf.to_container(OmegaConf.structured(cfg))
@@ -220,170 +203,3 @@ def flat_fields(cfg: Config | dict[str, Any], prefix: str = "") -> dict[str, Any
         else:
             flat[f"{prefix}{key}"] = tuple(value) if isinstance(value, list) else value
     return flat
-
-
-def _get(cfg: Config, dotted: str) -> Any:
-    value: Any = cfg
-    for part in dotted.split("."):
-        value = getattr(value, part)
-    return value
-
-
-def validate(cfg: Config) -> Config:
-    """Check ranges and cross-field rules; raise :class:`ConfigError` on the first failure."""
-    for key, options in _CHOICES.items():
-        if _get(cfg, key) not in options:
-            raise ConfigError(
-                f"{key}={_get(cfg, key)!r} is not a known option; choose one of {list(options)}"
-            )
-    checks: list[tuple[bool, str]] = [
-        (0.0 < cfg.loss.gamma <= 1.0, f"loss.gamma={cfg.loss.gamma} must lie in (0, 1]"),
-        (0.0 < cfg.loss.tau <= 1.0, f"loss.tau={cfg.loss.tau} must lie in (0, 1]"),
-        (cfg.loss.hard_update_interval >= 1, "loss.hard_update_interval must be >= 1"),
-        (cfg.buffer.size >= 1, f"buffer.size={cfg.buffer.size} must be >= 1"),
-        (cfg.buffer.batch_size >= 1, f"buffer.batch_size={cfg.buffer.batch_size} must be >= 1"),
-        (
-            cfg.buffer.batch_size <= cfg.buffer.size,
-            f"buffer.batch_size={cfg.buffer.batch_size} is larger than buffer.size="
-            f"{cfg.buffer.size}; lower the batch size or grow the buffer",
-        ),
-        (
-            0.0 <= cfg.exploration.eps_end <= cfg.exploration.eps_start <= 1.0,
-            f"exploration needs 0 <= eps_end <= eps_start <= 1, got eps_start="
-            f"{cfg.exploration.eps_start}, eps_end={cfg.exploration.eps_end}",
-        ),
-        (cfg.exploration.decay_frames >= 1, "exploration.decay_frames must be >= 1"),
-        (cfg.optim.lr > 0, f"optim.lr={cfg.optim.lr} must be > 0"),
-        (cfg.optim.weight_decay >= 0, "optim.weight_decay must be >= 0"),
-        (cfg.optim.max_grad > 0, f"optim.max_grad={cfg.optim.max_grad} must be > 0"),
-        (
-            all(size >= 1 for size in cfg.network.hidden_sizes),
-            f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
-        ),
-        (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
-        (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
-        (
-            cfg.env.normalization_frames >= 1,
-            f"env.normalization_frames={cfg.env.normalization_frames} must be >= 1",
-        ),
-        (cfg.collector.workers >= 1, f"collector.workers={cfg.collector.workers} must be >= 1"),
-        (
-            cfg.collector.frames_per_batch % _envs_per_batch(cfg) == 0,
-            f"collector.frames_per_batch={cfg.collector.frames_per_batch} must be a multiple "
-            f"of {_envs_per_batch_text(cfg)} (each batch steps every env equally often)"
-            f"{_split_hint(cfg)}",
-        ),
-        (
-            cfg.collector.total_frames >= cfg.collector.frames_per_batch,
-            f"collector.total_frames={cfg.collector.total_frames} must be >= "
-            f"collector.frames_per_batch={cfg.collector.frames_per_batch}",
-        ),
-        (cfg.collector.init_random_frames >= 0, "collector.init_random_frames must be >= 0"),
-        (cfg.collector.updates_per_batch >= 0, "collector.updates_per_batch must be >= 0"),
-        (cfg.collector.learning_starts >= 0, "collector.learning_starts must be >= 0"),
-        (cfg.eval.interval_frames >= 1, "eval.interval_frames must be >= 1"),
-        (cfg.eval.episodes >= 1, "eval.episodes must be >= 1"),
-        (cfg.eval.final_episodes >= 1, "eval.final_episodes must be >= 1"),
-        (cfg.eval.max_steps >= 1, "eval.max_steps must be >= 1"),
-        (cfg.network.noisy_std > 0, f"network.noisy_std={cfg.network.noisy_std} must be > 0"),
-        (cfg.network.atoms >= 2, f"network.atoms={cfg.network.atoms} must be >= 2"),
-        (
-            cfg.network.v_min < cfg.network.v_max,
-            f"network.v_min={cfg.network.v_min} must be < network.v_max={cfg.network.v_max}",
-        ),
-        (cfg.buffer.alpha >= 0, f"buffer.alpha={cfg.buffer.alpha} must be >= 0"),
-        (0 <= cfg.buffer.beta <= 1, f"buffer.beta={cfg.buffer.beta} must lie in [0, 1]"),
-        (cfg.buffer.priority_eps > 0, "buffer.priority_eps must be > 0"),
-        (
-            cfg.buffer.beta_anneal_frames is None or cfg.buffer.beta_anneal_frames >= 1,
-            "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
-        ),
-        (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
-        (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
-        (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
-        (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
-        (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
-        (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),
-    ]
-    for ok, message in checks:
-        if not ok:
-            raise ConfigError(message)
-    if cfg.device != "cpu" and not cfg.device.startswith(("cuda", "mps")):
-        raise ConfigError(f"device={cfg.device!r} is not a torch device; use cpu or cuda[:N]")
-    _check_combination(cfg)
-    # Local imports: envs and models import this module.
-    from trl_cartpole.envs import resolve_env_id
-    from trl_cartpole.models import check_network_choices
-
-    check_network_choices(cfg.network.head, cfg.network.activation)
-    resolve_env_id(cfg.env.id, cfg.env.imports)
-    return cfg
-
-
-def _envs_per_batch(cfg: Config) -> int:
-    """How many envs step in one collected batch: every worker's when they are synchronous."""
-    collector = cfg.collector  # (>= 1 each: the range checks run after this is computed)
-    return max(cfg.env.num_envs, 1) * (max(collector.workers, 1) if collector.sync else 1)
-
-
-def _envs_per_batch_text(cfg: Config) -> str:
-    if cfg.collector.sync and cfg.collector.workers > 1:
-        return f"env.num_envs * collector.workers = {_envs_per_batch(cfg)}"
-    return f"env.num_envs={cfg.env.num_envs}"
-
-
-def _split_hint(cfg: Config) -> str:
-    """Suggest spreading the envs over the workers when that makes the batch fit."""
-    workers, frames = cfg.collector.workers, cfg.collector.frames_per_batch
-    if cfg.collector.sync and workers > 1 and frames % workers == 0:
-        per_worker = frames // workers
-        return f"; e.g. env.num_envs={per_worker} ({per_worker} envs on each of {workers} workers)"
-    return ""
-
-
-def _check_combination(cfg: Config) -> None:
-    """Refuse switches that the chosen components would ignore, rather than drop them silently."""
-    collector = cfg.collector
-    if collector.ray_address is not None and collector.backend != "ray":
-        raise ConfigError(
-            f"collector.ray_address={collector.ray_address!r} is only read by the Ray backend; "
-            "set collector.backend=ray or drop the address"
-        )
-    if not collector.sync and collector.workers == 1 and collector.backend == "local":
-        raise ConfigError(
-            "collector.sync=false needs collector.workers > 1 (one local worker collects in the "
-            "training process); raise collector.workers"
-        )
-    if collector.backend == "ray" and importlib.util.find_spec("ray") is None:
-        raise ConfigError(
-            "collector.backend=ray needs Ray, which is not installed: "
-            'pip install -e ".[distributed]"'
-        )
-    if not collector.sync and collector.workers > 1 and cfg.buffer.n_steps > 1:
-        raise ConfigError(
-            f"buffer.n_steps={cfg.buffer.n_steps} needs each env's steps in order, but with "
-            "collector.sync=false consecutive batches come from different workers; set "
-            "buffer.n_steps=1 or collector.sync=true"
-        )
-    noisy, schedule = cfg.network.noisy, cfg.exploration.schedule
-    if noisy and schedule != "none":
-        raise ConfigError(
-            f"network.noisy=true explores through its parameter noise, so exploration.schedule="
-            f"{schedule!r} would add epsilon-greedy on top; set exploration.schedule=none"
-        )
-    if not noisy and schedule == "none":
-        raise ConfigError(
-            "exploration.schedule=none leaves a plain network with no exploration at all; "
-            "set network.noisy=true or choose exploration.schedule=linear|exponential"
-        )
-    if cfg.network.distributional:
-        if not cfg.loss.double_dqn:
-            raise ConfigError(
-                "network.distributional=true always picks the next action with the online "
-                "network (double DQN) and cannot switch it off; set loss.double_dqn=true"
-            )
-        if cfg.loss.loss_function != "smooth_l1":
-            raise ConfigError(
-                f"network.distributional=true trains with the cross-entropy to the projected "
-                f"target, not loss.loss_function={cfg.loss.loss_function!r}; leave it smooth_l1"
-            )

@@ -28,7 +28,8 @@ from torchrl.envs import (
     TransformedEnv,
 )
 
-from trl_cartpole.config import ConfigError, EnvConfig
+from trl_cartpole.config import EnvConfig
+from trl_cartpole.errors import ConfigError
 
 __all__ = [
     "check_env_fits",
@@ -164,9 +165,10 @@ def make_sync_vector_env(env_id: str, num_envs: int, **make_kwargs: Any) -> gym.
 
 
 def make_env(
-    env_id: str = "CartPole-v1",
-    seed: int | None = None,
+    env_name: str = "CartPole-v1",
     device: str | torch.device = "cpu",
+    *,
+    seed: int | None = None,
     max_episode_steps: int | None = None,
     num_envs: int = 1,
     render_mode: str | None = None,
@@ -177,7 +179,9 @@ def make_env(
     The base env is ``GymWrapper(gymnasium.make(env_id))``: the env ``GymEnv(env_id)`` builds,
     made here because ``GymEnv`` first calls the env's constructor with ``frameskip=1``, which a
     custom env class whose ``__init__`` takes no arguments rejects. ``DoubleToFloat`` is added
-    for float64 observations. ``env_id`` is any id :func:`resolve_env_id` accepts. With
+    for float64 observations. ``env_name`` (TorchRL's ``GymEnv`` name for it) is any id
+    :func:`resolve_env_id` accepts; ``make_env(env_name, device)`` is the call of TorchRL's DQN
+    example, the other arguments are keywords. With
     ``observation_norm`` (``{"loc": [...], "scale": [...]}``, from
     :func:`estimate_observation_norm`) a TorchRL ``ObservationNorm`` maps the observation to
     ``(obs - loc) / scale``.
@@ -192,9 +196,9 @@ def make_env(
     bootstrapping there.
 
     ``render_mode`` (``"rgb_array"`` or ``"human"``, single env only) is passed to
-    ``gymnasium.make``; the Gymnasium env is ``env.base_env._env``.
+    ``gymnasium.make``; the Gymnasium env is ``trl_cartpole.compat.gym_env(env)``.
     """
-    env_id = resolve_env_id(env_id)
+    env_id = resolve_env_id(env_name)
     make_kwargs: dict[str, Any] = {}
     if max_episode_steps is not None:
         make_kwargs["max_episode_steps"] = max_episode_steps
@@ -255,9 +259,9 @@ def make_env_from_config(
         raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
     return make_env(
         resolve_env_id(env_cfg.id, env_cfg.imports),
-        seed,
         device,
-        env_cfg.max_episode_steps,
+        seed=seed,
+        max_episode_steps=env_cfg.max_episode_steps,
         num_envs=env_cfg.num_envs if num_envs is None else num_envs,
         render_mode=render_mode,
         observation_norm=observation_norm if env_cfg.normalize_observations else None,
@@ -272,7 +276,9 @@ def estimate_observation_norm(env_cfg: EnvConfig, seed: int) -> dict[str, list[f
     at ``MIN_OBSERVATION_SCALE``. Returns ``{"loc": [...], "scale": [...]}`` (JSON-ready).
     """
     env = make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports), seed, "cpu", env_cfg.max_episode_steps
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        seed=seed,
+        max_episode_steps=env_cfg.max_episode_steps,
     )
     norm = ObservationNorm(in_keys=[OBSERVATION_KEY], standard_normal=True)
     env.append_transform(norm)

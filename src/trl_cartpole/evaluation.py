@@ -1,25 +1,35 @@
-"""Greedy evaluation on a separate env: returns, lengths and initial-state values."""
+"""Greedy evaluation on a separate env, and the evaluator that keeps the best policy.
+
+:func:`evaluate` plays one greedy episode per env of a batched env. :class:`Evaluator` runs it
+every ``eval.interval_frames`` frames with the training clock stopped, keeps the best weights
+(saving them as the ``best`` policy checkpoint) and the point where the run was solved: the
+greedy mean reaching the solve threshold (Gymnasium's ``reward_threshold``, 475 for
+CartPole-v1).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import copy
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 from torchrl.modules import EGreedyModule
 
-from trl_cartpole.checkpoint import load_policy, read_checkpoint_config, read_observation_norm
-from trl_cartpole.envs import make_env_from_config
-from trl_cartpole.models import expected_action_values, make_q_actor_for_env
+from trl_cartpole.models import expected_action_values
+from trl_cartpole.progress import Progress
 
 __all__ = [
     "EpsilonGreedy",
+    "EvalCurve",
     "EvalResult",
+    "Evaluation",
+    "Evaluator",
     "evaluate",
-    "evaluate_checkpoint",
     "first_episode_mask",
 ]
 
@@ -100,23 +110,107 @@ def evaluate(
     )
 
 
-def evaluate_checkpoint(
-    checkpoint: str, episodes: int = 100, seed: int | None = None, epsilon: float = 0.0
-) -> tuple[EvalResult, dict]:
-    """Rebuild the policy a checkpoint was trained with, load it, and evaluate it greedily.
+@dataclass
+class EvalCurve:
+    """The periodic evaluations of a run, one entry each."""
 
-    The env and network come from the config stored in the checkpoint's manifest; ``seed``
-    defaults to the training seed plus twice the eval seed offset (the final evaluation's).
-    Returns the result and the stored config as a dict.
+    frames: list[int] = field(default_factory=list)
+    seconds: list[float] = field(default_factory=list)  # training seconds, evaluation excluded
+    returns: list[float] = field(default_factory=list)  # greedy mean return
+    initial_values: list[float] = field(default_factory=list)  # mean max_a Q(s_0, a)
+
+
+@dataclass
+class Evaluation:
+    """One evaluation's result and what it means for the run."""
+
+    result: EvalResult
+    solved: bool  # the greedy mean reached the solve threshold
+    stop: bool  # solved, and the run stops when solved
+
+
+class Evaluator:
+    """Greedy evaluations every ``interval_frames``; keeps the best weights and the solve point.
+
+    ``report(result, best_return, frames)`` is called after each evaluation (the telemetry);
+    ``save_best(frames, mean)`` after each new best (writes the ``best`` policy checkpoint).
     """
-    cfg = read_checkpoint_config(checkpoint)
-    if seed is None:
-        seed = cfg.seed + 2 * cfg.eval.seed_offset
-    env = make_env_from_config(
-        cfg.env, seed, num_envs=episodes, observation_norm=read_observation_norm(checkpoint)
-    )
-    actor = make_q_actor_for_env(env, cfg.network)
-    load_policy(checkpoint, actor)
-    result = evaluate(actor, env, cfg.eval.max_steps, epsilon)
-    env.close()
-    return result, OmegaConf.to_container(OmegaConf.structured(cfg))
+
+    def __init__(
+        self,
+        actor: TensorDictModuleBase,
+        env: EnvBase,
+        interval_frames: int,
+        max_steps: int,
+        threshold: float | None,
+        stop_when_solved: bool = True,
+        report: Callable[[EvalResult, float, int], None] | None = None,
+        save_best: Callable[[int, float], Any] | None = None,
+        redraw: Callable[[], None] | None = None,
+    ) -> None:
+        self.actor, self.env = actor, env
+        self.interval_frames, self.max_steps = interval_frames, max_steps
+        self.threshold, self.stop_when_solved = threshold, stop_when_solved
+        self.report, self.save_best, self.redraw = report, save_best, redraw
+        self.best_return = -float("inf")
+        self.best_state: dict[str, torch.Tensor] | None = None
+        self.frames_to_solve: int | None = None
+        self.seconds_to_solve: float | None = None
+        self.last_eval_frame = -1
+        self.curve = EvalCurve()
+
+    def due(self, progress: Progress) -> bool:
+        """Whether ``interval_frames`` frames have passed since the last evaluation."""
+        return progress.frames - max(self.last_eval_frame, 0) >= self.interval_frames
+
+    def run(self, progress: Progress, redraw: bool = True) -> Evaluation:
+        """Evaluate greedily with the training clock stopped; keep the weights if the best."""
+        running = progress.clock.running
+        progress.clock.pause()
+        result = evaluate(self.actor, self.env, self.max_steps)
+        frames, seconds = progress.frames, progress.clock.seconds
+        self.last_eval_frame = frames
+        for values, value in zip(
+            (self.curve.frames, self.curve.returns, self.curve.initial_values),
+            (frames, result.mean, result.initial_value),
+            strict=True,
+        ):
+            values.append(value)
+        self.curve.seconds.append(round(seconds, 3))
+        if result.mean > self.best_return:
+            self.best_return = result.mean
+            self.best_state = copy.deepcopy(self.actor.state_dict())
+            if self.save_best is not None:
+                self.save_best(frames, result.mean)
+        solved = self.threshold is not None and result.mean >= self.threshold
+        if solved and self.frames_to_solve is None:
+            self.frames_to_solve, self.seconds_to_solve = frames, seconds
+        if self.report is not None:
+            self.report(result, self.best_return, frames)
+        if redraw and self.redraw is not None:
+            self.redraw()
+        if running:
+            progress.clock.start()
+        return Evaluation(result, solved, solved and self.stop_when_solved)
+
+    def load_best(self) -> None:
+        """Put the best weights seen into the actor."""
+        self.actor.load_state_dict(self.best_state)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "best_return": self.best_return,
+            "best_state": self.best_state,
+            "frames_to_solve": self.frames_to_solve,
+            "seconds_to_solve": self.seconds_to_solve,
+            "last_eval_frame": self.last_eval_frame,
+            "curve": asdict(self.curve),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.best_return, self.best_state = state["best_return"], state["best_state"]
+        self.frames_to_solve = state["frames_to_solve"]
+        self.seconds_to_solve = state["seconds_to_solve"]
+        self.last_eval_frame = state["last_eval_frame"]
+        for name, values in state["curve"].items():
+            getattr(self.curve, name)[:] = values

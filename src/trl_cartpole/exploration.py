@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torchrl.data import TensorSpec
 from torchrl.modules import EGreedyModule
@@ -40,24 +42,41 @@ class ExponentialEGreedyModule(EGreedyModule):
 
 def make_exploration(
     action_spec: TensorSpec,
-    schedule: str = "exponential",
-    eps_start: float = 0.9,
+    schedule: str = "linear",
+    eps_init: float = 1.0,
     eps_end: float = 0.05,
-    decay_frames: int = 1000,
+    annealing_num_steps: int = 3000,
     device: str = "cpu",
+    **egreedy_kwargs: Any,
 ) -> EGreedyModule | None:
     """Return the epsilon-greedy module; the loop must call ``.step(frames)`` after each batch.
+
+    The defaults are the default config's ``exploration`` section (``eps_start`` and
+    ``decay_frames`` there are ``eps_init`` and ``annealing_num_steps`` here, TorchRL's
+    ``EGreedyModule`` names); ``egreedy_kwargs`` go to its constructor (``action_key``,
+    ``action_mask_key``, ...).
 
     ``schedule="none"`` returns None (the policy is the greedy actor itself).
 
     ``schedule="linear"`` is TorchRL's ``EGreedyModule``: eps falls by
-    ``(eps_start - eps_end) / decay_frames`` per frame down to ``eps_end``.
+    ``(eps_init - eps_end) / annealing_num_steps`` per frame down to ``eps_end``.
+    ``schedule="exponential"`` is :class:`ExponentialEGreedyModule`, with
+    ``annealing_num_steps`` its time constant.
     """
     if schedule == "none":
         return None
     spec = action_spec.to(device)
     if schedule == "exponential":
-        return ExponentialEGreedyModule(spec, eps_start, eps_end, decay_frames, device=device)
+        return ExponentialEGreedyModule(
+            spec, eps_init, eps_end, annealing_num_steps, device=device, **egreedy_kwargs
+        )
     if schedule == "linear":
-        return EGreedyModule(spec, float(eps_start), float(eps_end), decay_frames, device=device)
+        return EGreedyModule(
+            spec,
+            float(eps_init),
+            float(eps_end),
+            annealing_num_steps,
+            device=device,
+            **egreedy_kwargs,
+        )
     raise ValueError(f"exploration.schedule={schedule!r}; choose 'exponential', 'linear' or 'none'")

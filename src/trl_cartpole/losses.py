@@ -14,6 +14,8 @@ projected onto the support, and the cross-entropy to it.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs import ExplorationType
@@ -26,11 +28,15 @@ __all__ = ["make_dqn_loss", "make_target_updater", "priority_from_loss"]
 
 def make_dqn_loss(
     actor: QValueActor | DistributionalQValueActor,
-    gamma: float = 0.99,
+    gamma: float = 0.995,
     loss_function: str = "smooth_l1",
     double_dqn: bool = False,
+    **loss_kwargs: Any,
 ) -> DQNLoss | DistributionalDQNLoss:
     """Return the loss for ``actor`` with a delayed (target) copy of it and a TD(0) target.
+
+    The defaults are the default config's ``loss`` section; ``loss_kwargs`` go to the TorchRL
+    loss's constructor (``action_space``, ``reduction``, ...).
 
     A ``DistributionalQValueActor`` gets ``DistributionalDQNLoss``, which has neither
     ``loss_function`` nor ``double_dqn`` (it is always double); ``config.validate`` refuses
@@ -43,13 +49,14 @@ def make_dqn_loss(
     2018, algorithm 1).
     """
     if isinstance(actor, DistributionalQValueActor):
-        loss = DistributionalDQNLoss(actor, gamma=gamma, delay_value=True)
+        loss = DistributionalDQNLoss(actor, gamma=gamma, delay_value=True, **loss_kwargs)
     else:
         loss = DQNLoss(
             actor,
             loss_function=loss_function,
             delay_value=True,
             double_dqn=double_dqn,
+            **loss_kwargs,
         )
         loss.make_value_estimator(gamma=gamma)
     if any(isinstance(module, NoisyLinear) for module in actor.modules()):
@@ -72,11 +79,14 @@ def priority_from_loss(
 
 def make_target_updater(
     loss: DQNLoss | DistributionalDQNLoss,
-    kind: str = "soft",
-    tau: float = 0.005,
-    hard_update_interval: int = 100,
+    kind: str = "hard",
+    tau: float = 0.02,
+    hard_update_interval: int = 50,
 ) -> TargetNetUpdater:
     """Return ``SoftUpdate`` (theta' <- tau theta + (1 - tau) theta') or ``HardUpdate``.
+
+    The defaults are the default config's (``loss.target_update``, ``loss.tau``,
+    ``loss.hard_update_interval``).
 
     Call ``.step()`` once per gradient update. The hard update copies the online weights on
     every ``hard_update_interval``-th call: TorchRL's ``HardUpdate`` copies on call

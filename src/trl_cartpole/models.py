@@ -14,10 +14,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from functools import partial
+from typing import Any
 
 import torch
 from torch import nn
-from torchrl.data import TensorSpec
+from torchrl.data import Categorical, Composite, OneHot, TensorSpec
 from torchrl.envs import EnvBase
 from torchrl.modules import (
     MLP,
@@ -27,7 +28,9 @@ from torchrl.modules import (
     reset_noise,
 )
 
-from trl_cartpole.config import ConfigError, NetworkConfig
+from trl_cartpole.compat import use_first_greedy_action
+from trl_cartpole.config import NetworkConfig
+from trl_cartpole.errors import ConfigError
 
 __all__ = [
     "ACTIVATIONS",
@@ -149,52 +152,62 @@ def make_q_actor(
     noisy: bool = False,
     noisy_std: float = 0.5,
     support: torch.Tensor | None = None,
+    in_keys: Sequence[str] = ("observation",),
+    **actor_kwargs: Any,
 ) -> QValueActor | DistributionalQValueActor:
-    """Return a Q-value actor reading ``"observation"`` and writing the greedy ``"action"``.
+    """Return a Q-value actor reading ``in_keys`` and writing the greedy ``"action"``.
 
-    ``observation_spec`` is the env's full observation spec (a ``Composite``) and
-    ``action_spec`` its action spec. Without ``support`` it is a ``QValueActor`` writing
+    ``observation_spec`` is the env's full observation spec (a ``Composite`` holding the one
+    vector entry ``in_keys`` names) and ``action_spec`` its action spec (one discrete action:
+    ``OneHot`` or ``Categorical``); anything else is refused with a one-line
+    :class:`ConfigError`. The defaults are the default config's ``network`` section;
+    ``actor_kwargs`` go to the TorchRL actor (``action_space``, ``action_value_key``, ...).
+    Without ``support`` it is a ``QValueActor`` writing
     ``action_value`` ``[*B, num_actions]`` and ``chosen_action_value`` ``[*B, 1]``; with a
     ``support`` ``[atoms]`` of returns it is a ``DistributionalQValueActor`` writing
     log-probabilities ``action_value`` ``[*B, atoms, num_actions]`` and acting greedily on
     their expectation.
     """
-    obs_dim = observation_spec["observation"].shape[-1]
-    num_actions = action_spec.space.n
+    obs_dim, num_actions = _input_size(observation_spec, in_keys), _action_count(action_spec)
     atoms = None if support is None else support.numel()
     module = make_q_network(
         obs_dim, num_actions, hidden_sizes, activation, head, noisy, noisy_std, atoms
     ).to(device)
     spec = action_spec.to(device)
+    in_keys = list(in_keys)
     if support is None:
-        return QValueActor(module, in_keys=["observation"], spec=spec)
+        return QValueActor(module, in_keys=in_keys, spec=spec, **actor_kwargs)
     actor = DistributionalQValueActor(
-        module, support=support.to(device), in_keys=["observation"], spec=spec
+        module, support=support.to(device), in_keys=in_keys, spec=spec, **actor_kwargs
     )
-    return _with_single_greedy_action(actor)
+    return use_first_greedy_action(actor)
 
 
-def _with_single_greedy_action(actor: DistributionalQValueActor) -> DistributionalQValueActor:
-    """Make the one-hot greedy action pick the first maximum when expected values tie.
+def _input_size(observation_spec: TensorSpec, in_keys: Sequence[str]) -> int:
+    """The width of the one vector observation ``in_keys`` names in ``observation_spec``."""
+    if len(in_keys) != 1:
+        raise ConfigError(f"in_keys={list(in_keys)}: the Q-network reads one observation entry")
+    key = in_keys[0]
+    keys = list(observation_spec.keys(True, True)) if isinstance(observation_spec, Composite) else []
+    if key not in keys:
+        raise ConfigError(
+            f"observation_spec has no entry {key!r} (it has {keys}); pass the env's "
+            "observation_spec (a Composite) and the key of its vector observation as in_keys"
+        )
+    shape = tuple(observation_spec[key].shape)
+    if not shape:
+        raise ConfigError(f"observation entry {key!r} is a scalar; the Q-network needs a vector")
+    return shape[-1]
 
-    TorchRL's Q-value modules build the one-hot action as ``value == value.max()``, which marks
-    every tied action. C51 distributions that saturate on the support tie exactly, and a
-    two-hot action then breaks ``DistributionalDQNLoss`` (a run crashed on it). The module's
-    own categorical rule (the arg-max of the expected values) is used instead. The plain
-    ``QValueActor`` keeps TorchRL's rule: every measured figure was taken with it, and
-    changing it changed the default run's trajectory (see the README's choices).
-    """
-    for module in actor.modules():
-        rules = getattr(module, "action_func_mapping", None)
-        if rules is not None and "one_hot" in rules:
-            categorical = rules["categorical"]
 
-            def one_hot(value: torch.Tensor, _categorical=categorical) -> torch.Tensor:
-                greedy = _categorical(value)  # [*B]
-                return nn.functional.one_hot(greedy, value.shape[-1]).to(torch.long)
-
-            rules["one_hot"] = one_hot
-    return actor
+def _action_count(action_spec: TensorSpec) -> int:
+    """The number of discrete actions of ``action_spec`` (``OneHot`` or ``Categorical``)."""
+    if not isinstance(action_spec, (OneHot, Categorical)):
+        raise ConfigError(
+            f"action_spec is {type(action_spec).__name__}; a Q-value actor needs one discrete "
+            "action (TorchRL OneHot or Categorical, a Gymnasium Discrete space)"
+        )
+    return action_spec.space.n
 
 
 def make_q_actor_for_env(

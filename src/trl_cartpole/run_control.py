@@ -1,10 +1,9 @@
-"""How a run ends early: an interrupt (SIGINT, SIGTERM) or a numerical fault.
+"""How a run is stopped from outside: SIGINT or SIGTERM become a request the loop honours.
 
 :class:`StopRequest` turns the first SIGINT/SIGTERM into a flag the training loop reads at its
 next safe point (the end of a collected batch), where it writes a checkpoint and raises
 :class:`TrainingInterrupted`; a second signal raises ``KeyboardInterrupt`` at once (checkpoint
-writes are atomic, so that corrupts nothing). A non-finite loss raises :class:`TrainingFailed`
-after the run directory records the failure.
+writes are atomic, so that corrupts nothing). The errors live in :mod:`trl_cartpole.errors`.
 """
 
 from __future__ import annotations
@@ -14,19 +13,7 @@ import sys
 import threading
 from types import FrameType
 
-__all__ = ["StopRequest", "TrainingFailed", "TrainingInterrupted"]
-
-
-class TrainingInterrupted(Exception):
-    """The run stopped on a signal after writing a checkpoint; the message says how to resume."""
-
-    def __init__(self, message: str, signum: int) -> None:
-        super().__init__(message)
-        self.exit_code = 128 + signum  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
-
-
-class TrainingFailed(Exception):
-    """The run stopped on a numerical fault; ``summary.json`` records it."""
+__all__ = ["StopRequest"]
 
 
 class StopRequest:

@@ -27,7 +27,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig
 
 from trl_cartpole.cli import compose_config
-from trl_cartpole.config import register_configs, to_config, validate
+from trl_cartpole.config import register_configs, to_config
+from trl_cartpole.validation import validate
 
 __all__ = ["MULTIRUN_FLAGS", "expand_grid", "is_multirun", "run_sweep", "sweep_job"]
 

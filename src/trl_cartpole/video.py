@@ -18,7 +18,8 @@ from PIL import Image, ImageDraw
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
-from trl_cartpole.config import ConfigError
+from trl_cartpole.compat import gym_env
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_atomic
 
 __all__ = ["EpisodeFrames", "render_episodes", "write_video"]
@@ -55,17 +56,17 @@ def render_episodes(
     Yields each episode's frames: the reset state, then one frame after every step, each
     resized by ``scale`` and captioned with the episode, step and return so far.
     """
-    gym_env = env.base_env._env  # the Gymnasium env behind TorchRL's GymWrapper
+    gymnasium_env = gym_env(env)  # the Gymnasium env behind TorchRL's GymWrapper
     for episode in range(1, episodes + 1):
         td = env.reset()
-        frames = [_captioned(gym_env.render(), f"episode {episode}  step 0  return 0", scale)]
+        frames = [_captioned(gymnasium_env.render(), f"episode {episode}  step 0  return 0", scale)]
         episode_return = 0.0
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             for step in range(1, max_steps + 1):
                 td = env.step(actor(td))
                 episode_return += td["next", "reward"].item()
                 caption = f"episode {episode}  step {step}  return {episode_return:g}"
-                frames.append(_captioned(gym_env.render(), caption, scale))
+                frames.append(_captioned(gymnasium_env.render(), caption, scale))
                 if td["next", "done"].item():
                     break
                 td = td["next"]

@@ -1,0 +1,366 @@
+"""The one place where config sections become factory arguments.
+
+:func:`build_components` turns a validated :class:`~trl_cartpole.config.Config` into the
+:class:`Components` of a run, every one a stock TorchRL object or a small object with one
+concern: the envs (``TransformedEnv``), the Q-actor (``QValueActor``) and its exploration
+(``EGreedyModule``), the replay buffer (``TensorDictReplayBuffer``), the learner (``DQNLoss``,
+``SoftUpdate``/``HardUpdate``, AdamW), the ``Collector``, the evaluator, the checkpointer and
+the telemetry. ``Components`` is a context manager: leaving it, normally or by an exception,
+closes the collector (its worker processes or Ray actors), the envs and the logger.
+
+The ``build_*`` functions build one part each from the config; evaluation, rendering, the
+notebook and the benchmark tools use them too, so every tool builds what training builds.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase, TensorDictSequential
+from torchrl.checkpoint import Checkpoint
+from torchrl.collectors import BaseCollector
+from torchrl.data import TensorDictReplayBuffer
+from torchrl.envs import TransformedEnv
+from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
+
+from trl_cartpole.buffers import annealed_beta, make_replay_buffer
+from trl_cartpole.checkpoint import Checkpointer, read_observation_norm, save_policy
+from trl_cartpole.collectors import (
+    check_ray_address,
+    is_distributed,
+    make_collector,
+    needs_weight_sync,
+    shutdown_collector,
+    worker_env_constructors,
+)
+from trl_cartpole.config import Config
+from trl_cartpole.env_state import EnvState
+from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, solve_threshold
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.evaluation import Evaluator
+from trl_cartpole.exploration import make_exploration
+from trl_cartpole.files import write_text_atomic
+from trl_cartpole.learner import Learner
+from trl_cartpole.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.models import make_q_actor_for_env, reset_network_noise
+from trl_cartpole.plotting import LiveDurationPlot
+from trl_cartpole.progress import Progress
+from trl_cartpole.telemetry import Telemetry, make_logger, truncate_csv_metrics
+from trl_cartpole.update import make_optimizer, make_update
+
+__all__ = [
+    "TRANSITION_KEYS",
+    "Components",
+    "build_actor",
+    "build_components",
+    "build_env",
+    "build_exploration",
+    "build_learner",
+    "build_replay_buffer",
+    "prepare_run_dir",
+    "seed_everything",
+]
+
+# What the replay buffer stores of a collected frame; the rest (Q-values, counters) is dropped.
+TRANSITION_KEYS = (
+    "observation",
+    "action",
+    ("next", "observation"),
+    ("next", "reward"),
+    ("next", "done"),
+    ("next", "terminated"),
+    ("next", "truncated"),
+)
+
+
+def seed_everything(seed: int) -> None:
+    """Seed Python's ``random``, NumPy and torch (the env seeds are set by ``make_env``)."""
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002 (global state that third-party code reads)
+    torch.manual_seed(seed)
+
+
+def prepare_run_dir(run_dir: str | Path) -> Path:
+    """Create ``run_dir`` or raise a one-line ConfigError if it cannot be written."""
+    path = Path(run_dir)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".write-probe"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as error:
+        raise ConfigError(
+            f"run_dir={str(path)!r} is not writable ({error.strerror}); choose another run_dir"
+        ) from None
+    return path
+
+
+# --- one part each ----------------------------------------------------------------------------
+
+
+def build_env(
+    cfg: Config,
+    seed: int,
+    num_envs: int | None = None,
+    observation_norm: dict[str, list[float]] | None = None,
+    render_mode: str | None = None,
+) -> TransformedEnv:
+    """The env of ``cfg.env`` (``num_envs`` overrides its count), seeded ``seed``."""
+    return make_env_from_config(
+        cfg.env, seed, cfg.device, num_envs, observation_norm=observation_norm,
+        render_mode=render_mode,
+    )
+
+
+def build_actor(cfg: Config, env: TransformedEnv) -> QValueActor | DistributionalQValueActor:
+    """The Q-value actor of ``cfg.network``, sized from ``env``'s specs."""
+    return make_q_actor_for_env(env, cfg.network, cfg.device)
+
+
+def build_exploration(cfg: Config, env: TransformedEnv) -> EGreedyModule | None:
+    """The epsilon-greedy module of ``cfg.exploration`` (None for noisy networks)."""
+    explore = cfg.exploration
+    return make_exploration(
+        env.action_spec,
+        explore.schedule,
+        eps_init=explore.eps_start,
+        eps_end=explore.eps_end,
+        annealing_num_steps=explore.decay_frames,
+        device=cfg.device,
+    )
+
+
+def build_replay_buffer(cfg: Config) -> TensorDictReplayBuffer:
+    """The replay buffer of ``cfg.buffer`` (n-step returns discounted by ``cfg.loss.gamma``)."""
+    buffer = cfg.buffer
+    return make_replay_buffer(
+        buffer.size,
+        buffer.batch_size,
+        cfg.device,
+        prioritized=buffer.prioritized,
+        alpha=buffer.alpha,
+        beta=buffer.beta,
+        eps=buffer.priority_eps,
+        n_steps=buffer.n_steps,
+        gamma=cfg.loss.gamma,
+    )
+
+
+def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayBuffer) -> Learner:
+    """``DQNLoss`` (or C51's), its target updater, AdamW and the gradient step of ``cfg``."""
+    loss = make_dqn_loss(actor, cfg.loss.gamma, cfg.loss.loss_function, cfg.loss.double_dqn)
+    target_updater = make_target_updater(
+        loss, cfg.loss.target_update, cfg.loss.tau, cfg.loss.hard_update_interval
+    )
+    optimizer = make_optimizer(
+        actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad, cfg.optim.weight_decay
+    )
+    update = make_update(
+        loss,
+        optimizer,
+        cfg.optim.grad_clip,
+        cfg.optim.max_grad,
+        noisy_network=actor if cfg.network.noisy else None,
+    )
+    if cfg.compile:
+        update = torch.compile(update)
+    return Learner(buffer, loss, target_updater, optimizer, update)
+
+
+# --- a whole run ------------------------------------------------------------------------------
+
+
+@dataclass
+class Components:
+    """Everything a run is made of; a context manager that releases it on every exit."""
+
+    cfg: Config
+    run_dir: Path
+    env: TransformedEnv
+    eval_env: TransformedEnv
+    observation_norm: dict[str, list[float]] | None
+    actor: QValueActor | DistributionalQValueActor
+    exploration: EGreedyModule | None
+    policy: TensorDictModuleBase  # the actor, then epsilon-greedy: what the collector steps
+    buffer: TensorDictReplayBuffer
+    learner: Learner
+    collector: BaseCollector
+    evaluator: Evaluator
+    telemetry: Telemetry
+    checkpointer: Checkpointer = field(init=False)
+    progress: Progress = field(default_factory=Progress)
+    threshold: float | None = None
+    learning_starts: int = 0  # no update before the buffer holds this many transitions
+    sync_policy_weights: bool = False  # the collector steps a copy of the policy
+    wall_start: float = 0.0
+
+    def after_batch(self, batch: TensorDictBase, updates_before: int) -> None:
+        """Step epsilon, resample network noise, anneal beta, send the new weights; report."""
+        cfg, frames = self.cfg, batch.numel()
+        if self.exploration is not None:
+            self.exploration.step(frames)
+        if cfg.network.noisy:
+            reset_network_noise(self.actor)  # fresh noise for the next collected batch too
+        if cfg.buffer.prioritized:
+            anneal_frames = cfg.buffer.beta_anneal_frames or cfg.collector.total_frames
+            self.buffer.sampler.beta = annealed_beta(
+                cfg.buffer.beta, self.progress.frames, anneal_frames
+            )
+        if self.sync_policy_weights:
+            self.collector.update_policy_weights_()
+        self.telemetry.batch(batch, self.progress, self.actor, self.exploration, updates_before)
+
+    def close(self) -> None:
+        """Release the collector (workers, Ray actors), the envs and the logger."""
+        self.telemetry.close_bar()
+        shutdown_collector(self.collector)
+        for env in (self.env, self.eval_env):
+            env.close()
+        self.telemetry.close()
+
+    def __enter__(self) -> Components:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def build_components(cfg: Config, resume: str | Path | None = None) -> Components:
+    """Build every component of a run of ``cfg`` (validated), restored from ``resume`` if given.
+
+    The order is fixed: the envs first (an env that does not fit stops the run before anything
+    is written), then the run directory, the networks (the torch RNG's first draws), the
+    buffer, the learner and the collector. With ``resume`` (a training-state checkpoint) every
+    component is loaded from it and ``cfg`` must be its stored config.
+    """
+    import time
+
+    wall_start = time.perf_counter()
+    torch.set_num_threads(cfg.num_threads)
+    seed_everything(cfg.seed)
+    threshold = solve_threshold(cfg.env.id, cfg.eval.solve_threshold)
+    # Observation statistics are estimated once per run (a resumed run reads them back) and
+    # shared by the training and evaluation envs.
+    observation_norm = None
+    if cfg.env.normalize_observations:
+        observation_norm = (
+            estimate_observation_norm(cfg.env, cfg.seed)
+            if resume is None
+            else read_observation_norm(resume)
+        )
+    env = build_env(cfg, cfg.seed, observation_norm=observation_norm)
+    eval_env = build_env(
+        cfg, cfg.seed + cfg.eval.seed_offset, cfg.eval.episodes, observation_norm
+    )
+    if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
+        check_ray_address(cfg.collector.ray_address)  # before anything is written
+    run_dir = prepare_run_dir(cfg.run_dir)
+    frames_done = 0
+    if resume is not None:  # rows logged after the checkpoint will be logged again
+        frames_done = Checkpoint.manifest(resume)["metadata"]["counters"]["frames"]
+        truncate_csv_metrics(run_dir, frames_done)
+    write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
+
+    actor = build_actor(cfg, env)
+    exploration = build_exploration(cfg, env)
+    policy = actor if exploration is None else TensorDictSequential(actor, exploration)
+    buffer = build_replay_buffer(cfg)
+    learner = build_learner(cfg, actor, buffer)
+    # Workers (processes or Ray actors) build their own envs; their counters are not saved, so
+    # a resumed run gives them only the frames still to collect (a single-process collector's
+    # own frame counter is restored from the checkpoint instead).
+    distributed = is_distributed(cfg.collector.workers, cfg.collector.backend)
+    frames_not_counted = frames_done if distributed else 0
+    collector = make_collector(
+        worker_env_constructors(cfg, observation_norm) if distributed else env,
+        policy,
+        cfg.collector.frames_per_batch,
+        cfg.collector.total_frames - frames_not_counted,
+        max(cfg.collector.init_random_frames - frames_not_counted, 0),
+        cfg.device,
+        sync=cfg.collector.sync,
+        backend=cfg.collector.backend,
+        ray_address=cfg.collector.ray_address,
+    )
+    title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
+    telemetry = Telemetry(
+        make_logger(cfg.logger.backend, run_dir, cfg.logger.project, cfg.logger.wandb_offline),
+        LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None,
+        progress_bar=cfg.logger.progress_bar,
+        description=f"{cfg.env.id} {cfg.algo.name} seed={cfg.seed}",
+        total_frames=cfg.collector.total_frames,
+    )
+
+    def save_best(frames: int, mean: float) -> None:
+        if cfg.checkpoint.save_best:
+            save_policy(
+                run_dir / "checkpoints" / "best",
+                actor,
+                cfg,
+                frames=frames,
+                eval_return_mean=mean,
+                observation_norm=observation_norm,
+            )
+
+    evaluator = Evaluator(
+        actor,
+        eval_env,
+        cfg.eval.interval_frames,
+        cfg.eval.max_steps,
+        threshold,
+        cfg.eval.stop_when_solved,
+        report=telemetry.evaluation,
+        save_best=save_best,
+        redraw=telemetry.redraw_live_plot,
+    )
+    components = Components(
+        cfg,
+        run_dir,
+        env,
+        eval_env,
+        observation_norm,
+        actor,
+        exploration,
+        policy,
+        buffer,
+        learner,
+        collector,
+        evaluator,
+        telemetry,
+        threshold=threshold,
+        learning_starts=max(
+            cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
+        ),
+        sync_policy_weights=needs_weight_sync(collector, policy),
+        wall_start=wall_start,
+    )
+    components.checkpointer = Checkpointer(
+        run_dir,
+        cfg,
+        {
+            "policy": actor,
+            "loss": learner.loss,
+            "optimizer": learner.optimizer,
+            **({} if exploration is None else {"exploration": exploration}),
+            **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
+            **({} if distributed else {"collector": collector}),
+            "progress": components.progress,
+            "learner": learner,
+            "evaluator": evaluator,
+            "telemetry": telemetry,
+            # last: its carrier replaces the one the collector's own state restored
+            "envs": EnvState(None if distributed else env, eval_env, collector, buffer),
+        },
+        observation_norm,
+    )
+    if resume is not None:
+        components.checkpointer.load(resume, components.progress)
+    telemetry.open_bar(components.progress.frames)
+    return components

@@ -1,0 +1,243 @@
+"""Every private TorchRL name this project reads, and every stand-in for a TorchRL part.
+
+TorchRL's private attributes can move between releases without notice. Reading them only here
+means one file to fix when one moves, and ``tests/test_compat.py`` has a test per name that fails
+on a TorchRL version where it moved. Written against torchrl 0.14.1.
+
+Private names read (each through one function below):
+
+- ``Collector._carrier``: the in-process collector's last observation and running counters
+  (the env's mid-episode step), saved for an exact resume;
+- ``VecGymEnvTransform._memo``: the last step of a Gymnasium vector env's same-step autoreset,
+  which decides what the next ``reset()`` returns;
+- ``ReplayBuffer._transform`` and ``MultiStepTransform._buffer``: the n-step window the
+  transform holds back until it is complete;
+- ``GymWrapper._env``: the Gymnasium env behind the wrapper (rendering, pickling its state);
+- ``BaseCollector._weight_sync_schemes``: the shared-memory weight-sync schemes a multi-process
+  collector's ``shutdown()`` leaves open (the process hung at exit);
+- ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action.
+
+Stand-ins for TorchRL parts:
+
+- :class:`TensorSumSegmentTree` / :class:`TensorMinSegmentTree`: pure-torch segment trees for
+  the prioritized sampler where TorchRL's C++ extension does not load (the torchrl 0.14.1
+  wheel's extension does not load against the CPU build of torch 2.13.0, an undefined C++
+  symbol, which leaves ``SumSegmentTreeFp32`` and friends ``None``). They keep the priorities in
+  one flat tensor: a query is a ``sum``/``min`` over a slice and ``scan_lower_bound`` a
+  ``cumsum`` plus ``searchsorted``, O(capacity) instead of O(log capacity), about 0.1 ms for a
+  50 000-entry buffer, small next to one gradient step;
+- :func:`use_first_greedy_action`: a one-hot greedy rule that picks the first maximum on ties.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import nn
+from torchrl.collectors import BaseCollector
+from torchrl.data import ReplayBuffer
+from torchrl.envs import EnvBase
+from torchrl.envs.transforms import VecGymEnvTransform
+
+__all__ = [
+    "TensorMinSegmentTree",
+    "TensorSumSegmentTree",
+    "autoreset_memo",
+    "close_weight_sync_schemes",
+    "collector_carrier",
+    "gym_env",
+    "install_segment_trees_if_missing",
+    "n_step_window",
+    "replay_transform",
+    "set_autoreset_memo",
+    "set_gym_env",
+    "set_n_step_window",
+    "use_first_greedy_action",
+]
+
+
+# --- the in-process collector's carrier ------------------------------------------------------
+
+
+def collector_carrier(collector: BaseCollector) -> TensorDictBase:
+    """The tensordict a single-process ``Collector`` steps from next (updated in place)."""
+    return collector._carrier
+
+
+# --- Gymnasium envs behind TorchRL's GymWrapper ----------------------------------------------
+
+
+def gym_env(env: EnvBase) -> Any:
+    """The Gymnasium env (or vector env) behind ``env``'s ``GymWrapper``."""
+    return env.base_env._env
+
+
+def set_gym_env(env: EnvBase, gymnasium_env: Any) -> None:
+    """Put ``gymnasium_env`` behind ``env``'s ``GymWrapper`` in place of its own."""
+    env.base_env._env = gymnasium_env
+
+
+def _vector_autoreset(env: EnvBase) -> VecGymEnvTransform | None:
+    transform = getattr(env, "transform", None)
+    for candidate in [] if transform is None else list(transform):
+        if isinstance(candidate, VecGymEnvTransform):
+            return candidate
+    return None
+
+
+def autoreset_memo(env: EnvBase) -> Any | None:
+    """The memo of TorchRL's vector-env autoreset bridge (None: ``env`` has no such bridge)."""
+    transform = _vector_autoreset(env)
+    return None if transform is None else transform._memo
+
+
+def set_autoreset_memo(env: EnvBase, memo: Any) -> bool:
+    """Restore the autoreset memo of ``env``; False if ``env`` has no vector-env bridge."""
+    transform = _vector_autoreset(env)
+    if transform is None:
+        return False
+    transform._memo = memo
+    return True
+
+
+# --- the replay buffer's transform and the n-step window -------------------------------------
+
+
+def replay_transform(buffer: ReplayBuffer) -> Any | None:
+    """The buffer's transform (a ``Compose``), or None when it has none."""
+    transform = buffer._transform
+    return transform if transform is not None and len(transform) else None
+
+
+def n_step_window(buffer: ReplayBuffer) -> TensorDictBase | None:
+    """The steps an n-step buffer's ``MultiStepTransform`` holds back (None: nothing held)."""
+    transform = replay_transform(buffer)
+    return None if transform is None else getattr(transform[0], "_buffer", None)
+
+
+def set_n_step_window(buffer: ReplayBuffer, window: TensorDict) -> None:
+    """Give the buffer's ``MultiStepTransform`` the held-back steps ``window``."""
+    replay_transform(buffer)[0]._buffer = window
+
+
+# --- collectors ------------------------------------------------------------------------------
+
+
+def close_weight_sync_schemes(collector: BaseCollector) -> None:
+    """Shut the weight-sync schemes a collector's ``shutdown()`` leaves open.
+
+    TorchRL 0.14's multi-process shutdown stops the workers but not the shared-memory weight
+    sync scheme; left to its ``__del__`` at interpreter exit, that starts a queue thread and the
+    process hangs after training (seen with ``MultiSyncCollector``).
+    """
+    for scheme in (getattr(collector, "_weight_sync_schemes", None) or {}).values():
+        scheme.shutdown()
+
+
+# --- the greedy tie-break --------------------------------------------------------------------
+
+
+def use_first_greedy_action(actor: nn.Module) -> nn.Module:
+    """Make the one-hot greedy action of ``actor`` pick the first maximum when values tie.
+
+    TorchRL's Q-value modules build the one-hot action as ``value == value.max()``, which marks
+    every tied action. C51 distributions that saturate on the support tie exactly, and a
+    two-hot action then breaks ``DistributionalDQNLoss`` (a run crashed on it). The module's
+    own categorical rule (the arg-max of the expected values) is used instead.
+    """
+    for module in actor.modules():
+        rules = getattr(module, "action_func_mapping", None)
+        if rules is not None and "one_hot" in rules:
+            categorical = rules["categorical"]
+
+            def one_hot(value: torch.Tensor, _categorical=categorical) -> torch.Tensor:
+                greedy = _categorical(value)  # [*B]
+                return nn.functional.one_hot(greedy, value.shape[-1]).to(torch.long)
+
+            rules["one_hot"] = one_hot
+    return actor
+
+
+# --- segment trees for the prioritized sampler -----------------------------------------------
+
+
+def _as_index(index: Any) -> torch.Tensor | int:
+    if isinstance(index, int | np.integer):
+        return int(index)
+    return torch.as_tensor(index, dtype=torch.long).reshape(-1)
+
+
+class _TensorSegmentTree:
+    """A flat ``[capacity]`` tensor with the segment trees' item access and ``query``."""
+
+    neutral: float
+
+    def __init__(self, capacity: int, dtype: torch.dtype = torch.float32) -> None:
+        self.capacity = capacity
+        self.dtype = dtype
+        self.values = torch.full((capacity,), self.neutral, dtype=self.dtype)  # [capacity]
+
+    def __len__(self) -> int:
+        return self.capacity
+
+    def __getitem__(self, index: Any) -> torch.Tensor | float:
+        index = _as_index(index)
+        value = self.values[index]
+        return float(value) if isinstance(index, int) else value
+
+    def __setitem__(self, index: Any, value: Any) -> None:
+        index = _as_index(index)
+        self.values[index] = torch.as_tensor(value, dtype=self.dtype).reshape(-1)
+
+    def _slice(self, left: Any, right: Any) -> torch.Tensor:
+        return self.values[int(left) : int(right)]
+
+
+class TensorSumSegmentTree(_TensorSegmentTree):
+    """Sum over index ranges and prefix-sum search, the interface of ``SumSegmentTree``."""
+
+    neutral = 0.0
+
+    def query(self, left: Any, right: Any) -> float:
+        """Sum of the values at ``[left, right)``."""
+        return float(self._slice(left, right).sum())
+
+    def scan_lower_bound(self, mass: Any) -> torch.Tensor:
+        """For each ``mass``, the first index whose prefix sum ``values[:i + 1]`` exceeds it."""
+        prefix = self.values.cumsum(0)  # [capacity]
+        mass = torch.as_tensor(mass, dtype=self.dtype)
+        return torch.searchsorted(prefix, mass, right=True)
+
+
+class TensorMinSegmentTree(_TensorSegmentTree):
+    """Minimum over index ranges, the interface of ``MinSegmentTree``."""
+
+    neutral = float("inf")
+
+    def query(self, left: Any, right: Any) -> float:
+        """Minimum of the values at ``[left, right)`` (``inf`` when empty)."""
+        values = self._slice(left, right)
+        return float(values.min()) if values.numel() else self.neutral
+
+
+def install_segment_trees_if_missing() -> bool:
+    """Give TorchRL's ``PrioritizedSampler`` the trees above if its C++ ones did not load.
+
+    Returns whether the stand-ins were installed (False when the extension works).
+    """
+    from torchrl.data.replay_buffers.samplers import prioritized
+
+    if prioritized.SumSegmentTreeFp32 is not None:
+        return False
+    for precision, dtype in (("Fp32", torch.float32), ("Fp64", torch.float64)):
+        setattr(
+            prioritized, f"SumSegmentTree{precision}", partial(TensorSumSegmentTree, dtype=dtype)
+        )
+        setattr(
+            prioritized, f"MinSegmentTree{precision}", partial(TensorMinSegmentTree, dtype=dtype)
+        )
+    return True

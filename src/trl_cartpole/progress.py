@@ -1,0 +1,89 @@
+"""How far a run is: frames, gradient updates, training seconds and where those seconds went.
+
+``Progress`` is the loop's own counter, saved in every training state. Its clock is paused for
+evaluation and checkpoints, so ``train_seconds`` and ``seconds_to_solve`` count training only.
+``phase(name)`` times a block of the loop under a name the loop gives it (``collect``,
+``update``...); the summary reports those seconds (``phase_seconds``), which is what
+``python -m benchmarks profile`` prints.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from typing import Any, TypeVar
+
+__all__ = ["Progress", "Stopwatch"]
+
+T = TypeVar("T")
+
+
+class Stopwatch:
+    """Wall time with pauses, so evaluation can be left out of the training time."""
+
+    def __init__(self) -> None:
+        self.elapsed = 0.0
+        self._start: float | None = None
+
+    def start(self) -> None:
+        self._start = time.perf_counter()
+
+    def pause(self) -> None:
+        if self._start is not None:
+            self.elapsed += time.perf_counter() - self._start
+            self._start = None
+
+    @property
+    def running(self) -> bool:
+        return self._start is not None
+
+    @property
+    def seconds(self) -> float:
+        running = 0.0 if self._start is None else time.perf_counter() - self._start
+        return self.elapsed + running
+
+
+class Progress:
+    """Frames collected, updates taken, the training clock and the seconds of each phase."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.updates = 0
+        self.clock = Stopwatch()
+        self.phase_seconds: dict[str, float] = defaultdict(float)
+
+    @contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        """Add the time spent in the ``with`` block to ``phase_seconds[name]``."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.phase_seconds[name] += time.perf_counter() - start
+
+    def timed(self, items: Iterable[T], name: str) -> Iterator[T]:
+        """Yield from ``items``, adding the time spent producing each to ``phase_seconds``."""
+        iterator = iter(items)
+        while True:
+            with self.phase(name):
+                try:
+                    item = next(iterator)
+                except StopIteration:
+                    return
+            yield item
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "frames": self.frames,
+            "updates": self.updates,
+            "train_seconds": self.clock.seconds,
+            "phase_seconds": dict(self.phase_seconds),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.frames, self.updates = state["frames"], state["updates"]
+        self.clock.elapsed = state["train_seconds"]
+        self.phase_seconds.clear()
+        self.phase_seconds.update(state["phase_seconds"])
