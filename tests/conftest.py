@@ -38,6 +38,7 @@ TIMING_KEYS = {
     "collect_frames_per_second",
     "updates_per_second",
     "peak_rss_mb",
+    "phase_seconds",
     "run_dir",
     "checkpoint",
 }

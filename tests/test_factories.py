@@ -16,7 +16,7 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
 from trl_cartpole.buffers import make_replay_buffer, sample_minibatches
 from trl_cartpole.collectors import make_collector
-from trl_cartpole.config import ConfigError
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.envs import make_env, solve_threshold
 from trl_cartpole.exploration import ExponentialEGreedyModule, make_exploration
 from trl_cartpole.losses import make_dqn_loss, make_target_updater
@@ -117,7 +117,7 @@ def test_exploration_eps_one_is_uniform_and_zero_is_greedy(env):
 
 
 def test_replay_buffer_is_lazy_tensor_storage(env):
-    buffer = make_replay_buffer(size=10, batch_size=4)
+    buffer = make_replay_buffer(max_size=10, batch_size=4, n_steps=1)
     assert isinstance(buffer, TensorDictReplayBuffer)
     assert isinstance(buffer._storage, LazyTensorStorage)
     buffer.extend(env.rollout(15, break_when_any_done=False))
@@ -171,7 +171,7 @@ def test_hard_update_copies_every_interval(env):
 
 def test_collector_yields_batches_of_frames_per_batch(env):
     actor = make_q_actor(env.observation_spec, env.action_spec)
-    collector = make_collector(env, actor, frames_per_batch=8, total_frames=24)
+    collector = make_collector(env, actor, frames_per_batch=8, total_frames=24, init_random_frames=0)
     assert isinstance(collector, Collector)
     sizes = [batch.numel() for batch in collector]
     collector.shutdown()
@@ -180,14 +180,14 @@ def test_collector_yields_batches_of_frames_per_batch(env):
 
 
 def test_minibatches_of_one_draw_are_uniform_and_prioritized_ones_are_drawn_one_by_one():
-    uniform = make_replay_buffer(1000, 8)
+    uniform = make_replay_buffer(1000, 8, n_steps=1)
     uniform.extend(TensorDict(x=torch.arange(100.0)[:, None], batch_size=[100]))
     torch.manual_seed(0)
     batches = list(sample_minibatches(uniform, 5))
     assert [b.shape for b in batches] == [torch.Size([8])] * 5
     drawn = torch.cat([b["x"] for b in batches]).flatten()  # 40 indices with replacement
     assert drawn.min() >= 0 and drawn.max() < 100 and len(drawn.unique()) > 20
-    prioritized = make_replay_buffer(1000, 8, prioritized=True)
+    prioritized = make_replay_buffer(1000, 8, prioritized=True, n_steps=1)
     prioritized.extend(TensorDict(x=torch.arange(100.0)[:, None], batch_size=[100]))
     batches = list(sample_minibatches(prioritized, 3))
     assert len(batches) == 3 and all("priority_weight" in b for b in batches)

@@ -17,8 +17,7 @@ import torch
 from torchrl.checkpoint import Checkpoint, CheckpointRotation
 
 from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config
-from trl_cartpole.config import ConfigError
-from trl_cartpole.run_control import TrainingFailed
+from trl_cartpole.errors import ConfigError, TrainingFailed
 from trl_cartpole.train import train
 
 from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
@@ -69,7 +68,7 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
     ],
     ids=["dqn", "rainbow", "observation-norm"],
 )
-def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, monkeypatch, overrides):
+def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     whole = tmp_path / "whole"
     expected = train(compose(*RESUMABLE, *overrides, f"run_dir={whole}"))
     resumed_dir = tmp_path / "resumed"
@@ -77,11 +76,6 @@ def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, monkeypatch
     (resumed_dir / "summary.json").unlink()
     checkpoint = _periodic_at(resumed_dir, 400)
     cfg = resume_config(checkpoint, [f"run_dir={resumed_dir}"])
-
-    def estimate_again(*args):
-        raise AssertionError("a resumed run must read its observation statistics back")
-
-    monkeypatch.setattr("trl_cartpole.train.estimate_observation_norm", estimate_again)
     resumed = train(cfg, resume=checkpoint)
     assert _comparable(resumed) == _comparable(expected)
     for name in ("best", "last"):
@@ -89,6 +83,33 @@ def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, monkeypatch
         assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     td_loss = "metrics/scalars/train/td_loss.csv"
     assert (whole / td_loss).read_text() == (resumed_dir / td_loss).read_text()
+
+
+def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
+    # Statistics written into the checkpoint's manifest (and its integrity record) that no
+    # estimate would give: the resumed run must build its envs with exactly those. (The
+    # training env's ObservationNorm is also restored with the collector's state; the
+    # evaluation env's comes from the manifest alone.)
+    from torchrl.envs import ObservationNorm
+
+    from trl_cartpole.build import build_components
+    from trl_cartpole.checkpoint import _write_integrity
+
+    overrides = ["env.normalize_observations=true", "env.normalization_frames=300"]
+    train(compose(*RESUMABLE, *overrides, f"run_dir={tmp_path}"))
+    checkpoint = _periodic_at(tmp_path, 400)
+    manifest = json.loads((checkpoint / "manifest.json").read_text())
+    stored = manifest["metadata"]["observation_norm"]
+    planted = {"loc": [v + 1.0 for v in stored["loc"]], "scale": [2.0] * len(stored["scale"])}
+    manifest["metadata"]["observation_norm"] = planted
+    (checkpoint / "manifest.json").write_text(json.dumps(manifest))
+    _write_integrity(checkpoint)
+    cfg = resume_config(checkpoint, [f"run_dir={tmp_path}"])
+    with build_components(cfg, resume=checkpoint) as components:
+        (norm,) = [t for t in components.eval_env.transform if isinstance(t, ObservationNorm)]
+        assert torch.allclose(norm.loc, torch.tensor(planted["loc"]))
+        assert torch.allclose(norm.scale, torch.tensor(planted["scale"]))
+        assert components.observation_norm == planted
 
 
 def test_a_state_saved_before_the_nstep_buffer_holds_anything_resumes(compose, tmp_path):
@@ -224,15 +245,13 @@ def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_pat
 
 
 def test_non_finite_loss_stops_with_the_update_named_and_keeps_the_last_good_checkpoint(
-    compose, tmp_path, monkeypatch
+    compose, tmp_path
 ):
-    import trl_cartpole.train as training
+    from trl_cartpole.build import build_components
 
-    real_make_update = training.make_update
-
-    def make_update_that_fails_at_update_37(*args, **kwargs):
-        update = real_make_update(*args, **kwargs)
-        calls = {"n": 0}
+    def build_a_learner_that_fails_at_update_37(cfg, resume=None):
+        components = build_components(cfg, resume)
+        update, calls = components.learner.update, {"n": 0}
 
         def update_or_nan(batch):
             calls["n"] += 1
@@ -241,13 +260,13 @@ def test_non_finite_loss_stops_with_the_update_named_and_keeps_the_last_good_che
                 metrics["loss"] = torch.tensor(float("nan"))
             return metrics
 
-        return update_or_nan
+        components.learner.update = update_or_nan
+        return components
 
-    monkeypatch.setattr(training, "make_update", make_update_that_fails_at_update_37)
     run_dir = tmp_path / "run"
     overrides = [*SMOKE_OVERRIDES, "checkpoint.interval_frames=80", f"run_dir={run_dir}"]
     with pytest.raises(TrainingFailed, match=r"TD loss is nan at update 37 \(frame \d+\)"):
-        train(compose(*overrides))
+        train(compose(*overrides), build=build_a_learner_that_fails_at_update_37)
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["failed"] is True and "update 37" in summary["failure"]
     assert not (run_dir / "checkpoints" / "last").exists()  # no state with a NaN in it

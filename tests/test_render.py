@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from PIL import Image
 
-from trl_cartpole.config import ConfigError
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.video import write_video
 
 from .conftest import run_script

@@ -18,7 +18,9 @@ from tensordict.nn import TensorDictSequential
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
 from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.collectors import make_collector, shutdown_collector, worker_env_constructors
-from trl_cartpole.config import ConfigError, to_config, validate
+from trl_cartpole.config import to_config
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.validation import validate
 from trl_cartpole.envs import make_env_from_config
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.models import make_q_actor_for_env
@@ -44,7 +46,7 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
     actor = make_q_actor_for_env(env, cfg.network, "cpu")
     exploration = make_exploration(env.action_spec, "linear", 1.0, 1.0, 1000, "cpu")  # eps 1
     policy = TensorDictSequential(actor, exploration)
-    collector = make_collector(worker_env_constructors(cfg), policy, 32, 32 * 40, sync=sync)
+    collector = make_collector(worker_env_constructors(cfg), policy, 32, 32 * 40, 0, sync=sync)
     mismatches = []
     try:
         for index, batch in enumerate(collector):

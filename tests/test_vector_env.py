@@ -22,7 +22,7 @@ def _rollout(num_envs: int, steps: int):
 
 def test_uniform_buffer_stores_every_env_step_once():
     rollout = _rollout(3, 20)  # [3, 20]
-    buffer = make_replay_buffer(100, 8)
+    buffer = make_replay_buffer(100, 8, n_steps=1)
     extend_with_batch(buffer, rollout)
     assert len(buffer) == 60
     stored = buffer.storage[:60]
