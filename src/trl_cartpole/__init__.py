@@ -1,6 +1,51 @@
 """trl_cartpole: a modular Deep Q-Learning pipeline built from stock TorchRL parts.
 
-One module per concern (``envs``, ``models``, ``exploration``, ``buffers``, ``losses``,
-``collectors``, ``update``, ``evaluation``, ``checkpoint``, ``metrics``, ``plotting``), each
-factory returning a TorchRL object; ``train.train(cfg)`` composes them.
+The factories return TorchRL objects with TorchRL's argument names, and their defaults are the
+default config's, so they can be reused on their own (tests/test_torchrl_example.py ports
+TorchRL's DQN example onto them)::
+
+    from trl_cartpole import make_env, make_q_actor, make_exploration, make_replay_buffer
+
+``train(cfg)`` runs the whole pipeline; ``build_components(cfg)`` builds it without running
+it; docs/architecture.md says which module does what. Names are imported on first use, so
+``import trl_cartpole.config`` stays light.
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "Config": "trl_cartpole.config",
+    "ConfigError": "trl_cartpole.errors",
+    "TrainingFailed": "trl_cartpole.errors",
+    "TrainingInterrupted": "trl_cartpole.errors",
+    "validate": "trl_cartpole.validation",
+    "make_env": "trl_cartpole.envs",
+    "make_q_actor": "trl_cartpole.models",
+    "make_q_network": "trl_cartpole.models",
+    "make_exploration": "trl_cartpole.exploration",
+    "make_replay_buffer": "trl_cartpole.buffers",
+    "make_dqn_loss": "trl_cartpole.losses",
+    "make_target_updater": "trl_cartpole.losses",
+    "make_optimizer": "trl_cartpole.update",
+    "make_update": "trl_cartpole.update",
+    "make_collector": "trl_cartpole.collectors",
+    "evaluate": "trl_cartpole.evaluation",
+    "build_components": "trl_cartpole.build",
+    "load_trained_policy": "trl_cartpole.policy_io",
+    "train": "trl_cartpole.train",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'trl_cartpole' has no attribute {name!r}")
+    return getattr(importlib.import_module(_EXPORTS[name]), name)
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_EXPORTS])

@@ -21,7 +21,8 @@ import numpy as np
 
 from trl_cartpole.envs import make_sync_vector_env, solve_threshold
 from trl_cartpole.files import write_json_atomic
-from trl_cartpole.metrics import Stopwatch, peak_rss_mb
+from trl_cartpole.progress import Stopwatch
+from trl_cartpole.telemetry import peak_rss_mb
 
 __all__ = ["GreedyEvaluation", "PeerRun", "parse_peer_args"]
 

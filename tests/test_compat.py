@@ -1,0 +1,127 @@
+"""Every private TorchRL name ``trl_cartpole.compat`` reads: each test fails where it moved.
+
+These tests build the real TorchRL objects and check that the private attribute is where the
+compatibility module reads it, and that reading and writing it does what the callers rely on.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.modules import DistributionalQValueActor
+
+from trl_cartpole import compat
+from trl_cartpole.buffers import extend_with_batch, make_replay_buffer
+from trl_cartpole.collectors import make_collector
+from trl_cartpole.envs import make_env
+from trl_cartpole.models import make_q_actor
+
+
+def test_collector_carrier_is_the_next_step_of_the_in_process_collector():
+    env = make_env("CartPole-v1", seed=0)
+    collector = make_collector(env, None, 8, 16, init_random_frames=0)
+    assert isinstance(collector, Collector)
+    batch = next(iter(collector))
+    carrier = compat.collector_carrier(collector)
+    assert "observation" in carrier.keys()
+    # the carrier holds the observation the next batch starts from
+    torch.testing.assert_close(carrier["observation"], batch["next", "observation"][-1])
+    collector.shutdown()
+
+
+def test_gym_env_is_the_gymnasium_env_behind_the_wrapper_and_can_be_replaced():
+    env = make_env("CartPole-v1", seed=0)
+    inner = compat.gym_env(env)
+    assert isinstance(inner, gym.Env) and inner.spec.id == "CartPole-v1"
+    other = gym.make("CartPole-v1")
+    compat.set_gym_env(env, other)
+    assert compat.gym_env(env) is other
+
+
+def test_autoreset_memo_of_a_vector_env_reads_and_writes():
+    env = make_env("CartPole-v1", seed=0, num_envs=2)
+    env.rollout(3)
+    memo = compat.autoreset_memo(env)
+    assert memo is not None
+    assert compat.set_autoreset_memo(env, memo)
+    assert compat.autoreset_memo(env) is memo
+    single = make_env("CartPole-v1", seed=0)
+    assert compat.autoreset_memo(single) is None and not compat.set_autoreset_memo(single, {})
+
+
+def _steps(envs: int, steps: int) -> TensorDict:
+    """``[envs, steps]`` transitions with no episode end."""
+    shape = (envs, steps)
+    flag = torch.zeros(*shape, 1, dtype=torch.bool)
+    return TensorDict(
+        {
+            "observation": torch.randn(*shape, 4),
+            "action": torch.zeros(*shape, 2, dtype=torch.long),
+            "next": {
+                "observation": torch.randn(*shape, 4),
+                "reward": torch.ones(*shape, 1),
+                "done": flag,
+                "terminated": flag.clone(),
+                "truncated": flag.clone(),
+            },
+        },
+        batch_size=shape,
+    )
+
+
+def test_n_step_window_is_what_the_multistep_transform_holds_back():
+    uniform = make_replay_buffer(100, 4, n_steps=1)
+    assert compat.replay_transform(uniform) is None and compat.n_step_window(uniform) is None
+    buffer = make_replay_buffer(100, 4, n_steps=3, gamma=0.9)
+    extend_with_batch(buffer, _steps(envs=2, steps=5))
+    assert len(buffer) == 2 * (5 - 3)  # windows complete for the first 2 steps of each env
+    window = compat.n_step_window(buffer)
+    assert window is not None and window.batch_size[0] == 2  # one row per env
+    held = window.clone()
+    compat.set_n_step_window(buffer, held)
+    assert compat.n_step_window(buffer) is held
+
+
+def test_weight_sync_schemes_attribute_exists_and_closing_them_is_safe():
+    env = make_env("CartPole-v1", seed=0)
+    collector = make_collector(env, None, 8, 16, init_random_frames=0)
+    assert hasattr(collector, "_weight_sync_schemes")
+    collector.shutdown()
+    compat.close_weight_sync_schemes(collector)
+
+
+def test_first_greedy_action_breaks_ties_with_a_single_one_hot():
+    env = make_env("CartPole-v1", seed=0)
+    actor = make_q_actor(
+        env.observation_spec, env.action_spec, support=torch.linspace(0.0, 1.0, 5)
+    )
+    assert isinstance(actor, DistributionalQValueActor)
+    rules = [m.action_func_mapping for m in actor.modules() if hasattr(m, "action_func_mapping")]
+    assert rules and "one_hot" in rules[0]
+    tied = torch.zeros(3, 5, 2)  # [B, atoms, actions]: equal log-probabilities, equal values
+    one_hot = rules[0]["one_hot"](tied)
+    assert one_hot.shape == (3, 2) and torch.equal(one_hot.sum(-1), torch.ones(3, dtype=torch.long))
+
+
+def test_prioritized_sampler_names_the_segment_trees_it_uses():
+    from torchrl.data.replay_buffers.samplers import prioritized
+
+    for name in ("SumSegmentTreeFp32", "MinSegmentTreeFp32", "SumSegmentTreeFp64"):
+        assert hasattr(prioritized, name)
+    compat.install_segment_trees_if_missing()
+    assert prioritized.SumSegmentTreeFp32 is not None
+
+
+@pytest.mark.parametrize("tree", [compat.TensorSumSegmentTree, compat.TensorMinSegmentTree])
+def test_segment_tree_stand_ins_answer_queries(tree):
+    values = tree(4)
+    values[torch.tensor([0, 1, 2, 3])] = torch.tensor([1.0, 4.0, 2.0, 3.0])
+    if tree is compat.TensorSumSegmentTree:
+        assert values.query(0, 4) == 10.0 and values.query(1, 3) == 6.0
+        # prefix sums 1, 5, 7, 10: mass 4.5 falls in index 1, mass 7.5 in index 3
+        assert values.scan_lower_bound(torch.tensor([4.5, 7.5])).tolist() == [1, 3]
+    else:
+        assert values.query(0, 4) == 1.0 and values.query(1, 3) == 2.0

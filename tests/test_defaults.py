@@ -1,0 +1,116 @@
+"""One set of defaults: every factory called with its defaults builds what the default config does.
+
+The config's schema (``trl_cartpole.config``) holds the defaults of ``python scripts/train.py``;
+each factory's keyword defaults must equal the schema field it is built from (the mapping below
+is the one ``trl_cartpole.build`` uses), so reusing a factory on its own gives the same agent.
+"""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+import torch
+
+from trl_cartpole.build import build_actor, build_env, build_exploration, build_replay_buffer
+from trl_cartpole.buffers import make_replay_buffer
+from trl_cartpole.collectors import make_collector
+from trl_cartpole.config import Config
+from trl_cartpole.envs import make_env
+from trl_cartpole.exploration import make_exploration
+from trl_cartpole.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.models import make_q_actor
+from trl_cartpole.update import make_optimizer, make_update
+
+# factory -> {argument: config field}
+FACTORY_FIELDS = {
+    make_env: {"env_name": "env.id", "max_episode_steps": "env.max_episode_steps"},
+    make_q_actor: {
+        "hidden_sizes": "network.hidden_sizes",
+        "activation": "network.activation",
+        "head": "network.head",
+        "noisy": "network.noisy",
+        "noisy_std": "network.noisy_std",
+        "device": "device",
+    },
+    make_exploration: {
+        "schedule": "exploration.schedule",
+        "eps_init": "exploration.eps_start",
+        "eps_end": "exploration.eps_end",
+        "annealing_num_steps": "exploration.decay_frames",
+    },
+    make_replay_buffer: {
+        "max_size": "buffer.size",
+        "batch_size": "buffer.batch_size",
+        "prioritized": "buffer.prioritized",
+        "alpha": "buffer.alpha",
+        "beta": "buffer.beta",
+        "eps": "buffer.priority_eps",
+        "n_steps": "buffer.n_steps",
+        "gamma": "loss.gamma",
+    },
+    make_dqn_loss: {
+        "gamma": "loss.gamma",
+        "loss_function": "loss.loss_function",
+        "double_dqn": "loss.double_dqn",
+    },
+    make_target_updater: {
+        "kind": "loss.target_update",
+        "tau": "loss.tau",
+        "hard_update_interval": "loss.hard_update_interval",
+    },
+    make_optimizer: {
+        "lr": "optim.lr",
+        "amsgrad": "optim.amsgrad",
+        "weight_decay": "optim.weight_decay",
+    },
+    make_update: {"grad_clip": "optim.grad_clip", "max_grad": "optim.max_grad"},
+    make_collector: {
+        "frames_per_batch": "collector.frames_per_batch",
+        "total_frames": "collector.total_frames",
+        "init_random_frames": "collector.init_random_frames",
+        "sync": "collector.sync",
+        "backend": "collector.backend",
+        "ray_address": "collector.ray_address",
+    },
+}
+
+
+def _schema_default(dotted: str):
+    value = Config()
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return tuple(value) if isinstance(value, list) else value
+
+
+@pytest.mark.parametrize("factory", list(FACTORY_FIELDS), ids=lambda f: f.__name__)
+def test_factory_defaults_equal_the_default_config(factory):
+    parameters = inspect.signature(factory).parameters
+    for argument, field in FACTORY_FIELDS[factory].items():
+        default = parameters[argument].default
+        default = tuple(default) if isinstance(default, list) else default
+        assert default == _schema_default(field), f"{factory.__name__}({argument}) vs {field}"
+
+
+def test_default_factories_build_the_default_configs_actor_exploration_and_buffer():
+    cfg = Config()
+    env = build_env(cfg, seed=0, num_envs=1)
+    torch.manual_seed(0)
+    from_config = build_actor(cfg, env)
+    torch.manual_seed(0)
+    from_defaults = make_q_actor(env.observation_spec, env.action_spec)
+    a, b = from_config.state_dict(), from_defaults.state_dict()
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+    configured, default = build_exploration(cfg, env), make_exploration(env.action_spec)
+    assert type(configured) is type(default)
+    assert (configured.eps_init, configured.eps_end, configured.annealing_num_steps) == (
+        default.eps_init,
+        default.eps_end,
+        default.annealing_num_steps,
+    )
+    configured, default = build_replay_buffer(cfg), make_replay_buffer()
+    assert type(configured) is type(default)
+    assert configured._storage.max_size == default._storage.max_size == cfg.buffer.size
+    assert configured.batch_size == default.batch_size == cfg.buffer.batch_size
+    assert len(configured._transform) == len(default._transform) == 1  # the 3-step transform
