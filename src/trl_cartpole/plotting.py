@@ -96,7 +96,7 @@ NON_INTERACTIVE_BACKENDS = {"agg", "cairo", "pdf", "pgf", "ps", "svg", "template
 
 
 class LiveDurationPlot:
-    """The seeds' live duration plot, redrawn at every :meth:`update`.
+    """The PyTorch DQN tutorial's live duration plot, redrawn at every :meth:`update`.
 
     In a notebook the cell output is replaced by the new figure (``IPython.display``), with a
     display a matplotlib window is redrawn, and headless the PNG at ``path`` is rewritten.
@@ -140,7 +140,7 @@ def plot_dashboard(
     path: str | Path,
     smoothing: int = 100,
 ) -> Path:
-    """The Practical RL seed's 4 panels: eval mean return, TD loss, initial-state V, grad norm.
+    """The Practical RL DQN assignment's 4 panels: eval mean return, TD loss, initial-state V, grad norm.
 
     TD loss and grad norm are smoothed with a moving average over ``smoothing`` updates.
     """
