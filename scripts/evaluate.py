@@ -18,8 +18,8 @@ from omegaconf import OmegaConf
 
 from trl_cartpole.cli import run_cli
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.files import write_json_atomic
+from trl_cartpole.policy_io import evaluate_checkpoint
 
 
 @dataclass

@@ -26,7 +26,7 @@ def test_collector_carrier_is_the_next_step_of_the_in_process_collector():
     assert isinstance(collector, Collector)
     batch = next(iter(collector))
     carrier = compat.collector_carrier(collector)
-    assert "observation" in carrier.keys()
+    assert "observation" in carrier.keys()  # noqa: SIM118 (a TensorDict)
     # the carrier holds the observation the next batch starts from
     torch.testing.assert_close(carrier["observation"], batch["next", "observation"][-1])
     collector.shutdown()
@@ -95,9 +95,7 @@ def test_weight_sync_schemes_attribute_exists_and_closing_them_is_safe():
 
 def test_first_greedy_action_breaks_ties_with_a_single_one_hot():
     env = make_env("CartPole-v1", seed=0)
-    actor = make_q_actor(
-        env.observation_spec, env.action_spec, support=torch.linspace(0.0, 1.0, 5)
-    )
+    actor = make_q_actor(env.observation_spec, env.action_spec, support=torch.linspace(0.0, 1.0, 5))
     assert isinstance(actor, DistributionalQValueActor)
     rules = [m.action_func_mapping for m in actor.modules() if hasattr(m, "action_func_mapping")]
     assert rules and "one_hot" in rules[0]

@@ -12,8 +12,8 @@ import inspect
 import pytest
 import torch
 
-from trl_cartpole.build import build_actor, build_env, build_exploration, build_replay_buffer
 from trl_cartpole.buffers import make_replay_buffer
+from trl_cartpole.build import build_actor, build_env, build_exploration, build_replay_buffer
 from trl_cartpole.collectors import make_collector
 from trl_cartpole.config import Config
 from trl_cartpole.envs import make_env

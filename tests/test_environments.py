@@ -13,7 +13,6 @@ import torch
 
 from trl_cartpole.checkpoint import read_observation_norm
 from trl_cartpole.config import EnvConfig, NetworkConfig, to_config
-from trl_cartpole.errors import ConfigError
 from trl_cartpole.envs import (
     MIN_OBSERVATION_SCALE,
     estimate_observation_norm,
@@ -22,6 +21,7 @@ from trl_cartpole.envs import (
     resolve_env_id,
     solve_threshold,
 )
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.evaluation import evaluate
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.policy_io import evaluate_checkpoint

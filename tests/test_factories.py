@@ -171,7 +171,9 @@ def test_hard_update_copies_every_interval(env):
 
 def test_collector_yields_batches_of_frames_per_batch(env):
     actor = make_q_actor(env.observation_spec, env.action_spec)
-    collector = make_collector(env, actor, frames_per_batch=8, total_frames=24, init_random_frames=0)
+    collector = make_collector(
+        env, actor, frames_per_batch=8, total_frames=24, init_random_frames=0
+    )
     assert isinstance(collector, Collector)
     sizes = [batch.numel() for batch in collector]
     collector.shutdown()

@@ -95,7 +95,9 @@ def test_update_trains_through_the_noise_and_resamples_it_after_each_step():
 def test_collector_acts_with_the_current_noise():
     env = make_env("CartPole-v1", seed=0)
     actor = _noisy_actor(env)
-    collector = make_collector(env, actor, frames_per_batch=8, total_frames=16, init_random_frames=0)
+    collector = make_collector(
+        env, actor, frames_per_batch=8, total_frames=16, init_random_frames=0
+    )
     batches = iter(collector)
     for _ in range(2):
         batch = next(batches)  # [8]

@@ -19,13 +19,13 @@ from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
 from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.collectors import make_collector, shutdown_collector, worker_env_constructors
 from trl_cartpole.config import to_config
-from trl_cartpole.errors import ConfigError
-from trl_cartpole.validation import validate
 from trl_cartpole.envs import make_env_from_config
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.sweeps import expand_grid
 from trl_cartpole.train import train
+from trl_cartpole.validation import validate
 
 # Two workers of 16 envs: the default's 32 envs, split.
 TWO_WORKERS = ["collector.workers=2", "env.num_envs=16"]

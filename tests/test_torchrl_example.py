@@ -94,4 +94,4 @@ def test_the_torchrl_dqn_example_trains_on_our_factories():
     # two optimizer steps since moved the online net away from it.
     online = loss_module.value_network_params.flatten_keys()
     target = loss_module.target_value_network_params.flatten_keys()
-    assert any(not torch.equal(online[k], target[k]) for k in online.keys())
+    assert any(not torch.equal(online[k], target[k]) for k in online.keys())  # noqa: SIM118

@@ -17,7 +17,6 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -114,7 +113,11 @@ def build_env(
 ) -> TransformedEnv:
     """The env of ``cfg.env`` (``num_envs`` overrides its count), seeded ``seed``."""
     return make_env_from_config(
-        cfg.env, seed, cfg.device, num_envs, observation_norm=observation_norm,
+        cfg.env,
+        seed,
+        cfg.device,
+        num_envs,
+        observation_norm=observation_norm,
         render_mode=render_mode,
     )
 
@@ -256,9 +259,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
             else read_observation_norm(resume)
         )
     env = build_env(cfg, cfg.seed, observation_norm=observation_norm)
-    eval_env = build_env(
-        cfg, cfg.seed + cfg.eval.seed_offset, cfg.eval.episodes, observation_norm
-    )
+    eval_env = build_env(cfg, cfg.seed + cfg.eval.seed_offset, cfg.eval.episodes, observation_norm)
     if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
         check_ray_address(cfg.collector.ray_address)  # before anything is written
     run_dir = prepare_run_dir(cfg.run_dir)

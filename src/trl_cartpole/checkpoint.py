@@ -2,8 +2,9 @@
 
 ``Checkpoint.save`` stages every file under a temporary name and renames the directory into
 place, so an interrupted (or killed) save leaves the previous checkpoint intact. Periodic
-training states rotate through ``CheckpointRotation`` (the newest ``keep_last`` are kept). :class:`Checkpointer` decides when the training loop
-saves: every ``checkpoint.interval_frames`` frames and on a stop signal.
+training states rotate through ``CheckpointRotation`` (the newest ``keep_last`` are kept).
+:class:`Checkpointer` decides when the training loop saves: every
+``checkpoint.interval_frames`` frames and on a stop signal.
 
 Resuming: :func:`find_resume_checkpoint` turns ``resume=PATH`` (a run directory or a
 training-state checkpoint) into a checkpoint, :func:`resume_config` rebuilds the run's config
@@ -301,7 +302,11 @@ class Checkpointer:
             if name != "replay_buffer" or len(buffer) > 0
         }
         return save_training_state(
-            path, self.cfg, counters, keep_last, observation_norm=self.observation_norm,
+            path,
+            self.cfg,
+            counters,
+            keep_last,
+            observation_norm=self.observation_norm,
             **components,
         )
 
@@ -315,7 +320,9 @@ class Checkpointer:
         if not (due or stop.requested):
             return
         progress.clock.pause()
-        self.save(self.run_dir / "checkpoints" / "periodic", progress, self.cfg.checkpoint.keep_last)
+        self.save(
+            self.run_dir / "checkpoints" / "periodic", progress, self.cfg.checkpoint.keep_last
+        )
         self.last_saved_frame = progress.frames
         if stop.requested:
             raise TrainingInterrupted(

@@ -188,7 +188,9 @@ def _input_size(observation_spec: TensorSpec, in_keys: Sequence[str]) -> int:
     if len(in_keys) != 1:
         raise ConfigError(f"in_keys={list(in_keys)}: the Q-network reads one observation entry")
     key = in_keys[0]
-    keys = list(observation_spec.keys(True, True)) if isinstance(observation_spec, Composite) else []
+    keys = (
+        list(observation_spec.keys(True, True)) if isinstance(observation_spec, Composite) else []
+    )
     if key not in keys:
         raise ConfigError(
             f"observation_spec has no entry {key!r} (it has {keys}); pass the env's "

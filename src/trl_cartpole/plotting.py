@@ -140,7 +140,7 @@ def plot_dashboard(
     path: str | Path,
     smoothing: int = 100,
 ) -> Path:
-    """The Practical RL DQN assignment's 4 panels: eval mean return, TD loss, initial-state V, grad norm.
+    """The Practical RL DQN assignment's 4 panels: eval return, TD loss, initial V, grad norm.
 
     TD loss and grad norm are smoothed with a moving average over ``smoothing`` updates.
     """

@@ -1,7 +1,7 @@
 """Stable-Baselines3 DQN with rl-zoo3's tuned CartPole-v1 settings, under the benchmark protocol.
 
     pip install -e ".[bench]"
-    python -m trl_cartpole.peers.sb3_dqn --seed 0 --run-dir runs/peers/sb3_dqn-seed0
+    python -m benchmarks.peers.sb3_dqn --seed 0 --run-dir runs/peers/sb3_dqn-seed0
 
 rl-zoo3's ``hyperparams/dqn.yml`` for CartPole-v1: lr 2.3e-3, batch 64, buffer 100 000,
 learning_starts 1 000, gamma 0.99, target_update_interval 10 (env steps), train_freq 256,
@@ -19,7 +19,7 @@ import copy
 import numpy as np
 import torch
 
-from trl_cartpole.peers.protocol import PeerRun, parse_peer_args
+from benchmarks.peers.protocol import PeerRun, parse_peer_args
 
 ZOO_TIMESTEPS = 50_000
 ZOO_SETTINGS = {

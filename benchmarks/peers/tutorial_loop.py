@@ -1,6 +1,6 @@
 """The seeds' PyTorch DQN tutorial loop, in plain PyTorch, under the benchmark protocol.
 
-    python -m trl_cartpole.peers.tutorial_loop --seed 0 --run-dir runs/peers/tutorial_loop-seed0
+    python -m benchmarks.peers.tutorial_loop --seed 0 --run-dir runs/peers/tutorial_loop-seed0
 
 The training code is the tutorial's (``../shared/seeds/001_*.txt``), kept as written there:
 ``deque`` replay memory of ``Transition`` tuples, ``random.sample``, ``torch.cat`` batching, a
@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn, optim
 
-from trl_cartpole.peers.protocol import PeerRun, parse_peer_args
+from benchmarks.peers.protocol import PeerRun, parse_peer_args
 
 BATCH_SIZE = 128
 GAMMA = 0.99

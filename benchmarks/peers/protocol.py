@@ -135,7 +135,7 @@ class PeerRun:
 
 
 def parse_peer_args(description: str) -> argparse.Namespace:
-    """The command line every peer shares (``python -m trl_cartpole.peers.<peer> ...``)."""
+    """The command line every peer shares (``python -m benchmarks.peers.<peer> ...``)."""
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--run-dir", type=Path, required=True)

@@ -1,9 +1,9 @@
-"""Run presets over seeds in separate processes and summarise them: the engine of the scripts.
+"""Run presets over seeds in separate processes and summarise them: the engine of the benchmarks.
 
-``scripts/benchmark.py`` and ``scripts/ablate.py`` are thin command lines over these functions.
 Each (preset, seed) is one ``scripts/train.py`` process, each (peer, seed) one
-``python -m trl_cartpole.peers.<peer>`` process, run one after another by default so every run
-sees the same machine; a run whose ``summary.json`` already exists is read, not repeated.
+``python -m benchmarks.peers.<peer>`` process (run from the repository root), one after another
+by default so every run sees the same machine; a run whose ``summary.json`` already exists is
+read, not repeated. The ``python -m benchmarks`` subcommands are command lines over these.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import subprocess
 import sys
@@ -26,7 +27,7 @@ from trl_cartpole.config import flat_fields
 __all__ = [
     "ENV_TARGETS",
     "PEERS",
-    "add_sweep_arguments",
+    "sweep_arguments",
     "expand_sweep_dirs",
     "group_runs",
     "load_runs",
@@ -39,7 +40,7 @@ __all__ = [
     "speed_ratios",
 ]
 
-REPOSITORY = Path(__file__).resolve().parents[2]  # an editable install's checkout
+REPOSITORY = Path(__file__).resolve().parents[1]  # the checkout: benchmarks/ is not installed
 TRAIN_SCRIPT = REPOSITORY / "scripts" / "train.py"
 CONFIG_DIR = REPOSITORY / "configs"
 # Every preset of configs/algo/ that is the default plus DQN improvements.
@@ -51,23 +52,36 @@ VARIANT_PRESETS = ("dqn", "double", "dueling", "noisy", "prioritized", "nstep", 
 ENV_TARGETS = {"acrobot": -80.0, "mountaincar": -105.0, "lunarlander": 200.0}
 
 
-PEERS = {  # name -> module run as ``python -m`` (see trl_cartpole.peers)
-    "tutorial_loop": "trl_cartpole.peers.tutorial_loop",
-    "sb3_dqn": "trl_cartpole.peers.sb3_dqn",
+PEERS = {  # name -> module run as ``python -m`` (see benchmarks.peers)
+    "tutorial_loop": "benchmarks.peers.tutorial_loop",
+    "sb3_dqn": "benchmarks.peers.sb3_dqn",
 }
 
 
+def _subprocess_env() -> dict[str, str]:
+    """This environment with the repository root on ``PYTHONPATH``, so ``benchmarks`` imports."""
+    paths = [str(REPOSITORY), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(paths)}
+
+
 def _run_once(command: list[str], run_dir: Path) -> dict[str, Any]:
-    """Run ``command`` unless ``run_dir/summary.json`` exists; return that summary."""
+    """Run ``command`` in the repository root unless ``run_dir/summary.json`` exists; return
+    that summary."""
     summary_path = run_dir / "summary.json"
     if not summary_path.exists():
-        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            command,
+            check=True,
+            stdout=subprocess.DEVNULL,
+            cwd=REPOSITORY,
+            env=_subprocess_env(),
+        )
     return json.loads(summary_path.read_text())
 
 
 def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
     """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary."""
-    run_dir = out / f"{algo}-seed{seed}"
+    run_dir = (out / f"{algo}-seed{seed}").resolve()  # the process runs in the repository root
     command = [
         sys.executable,
         str(TRAIN_SCRIPT),
@@ -82,28 +96,27 @@ def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ())
 
 def run_peer(peer: str, seed: int, out: Path, peer_args: Sequence[str] = ()) -> dict[str, Any]:
     """Run the peer ``peer`` (a key of ``PEERS``) with ``seed`` into ``out/<peer>-seed<seed>``."""
-    run_dir = out / f"{peer}-seed{seed}"
+    run_dir = (out / f"{peer}-seed{seed}").resolve()
     command = [sys.executable, "-m", PEERS[peer], "--seed", str(seed), "--run-dir", str(run_dir)]
     return _run_once([*command, *peer_args], run_dir)
 
 
-def add_sweep_arguments(
-    parser: argparse.ArgumentParser, seeds: Sequence[int], out: str
-) -> argparse.ArgumentParser:
-    """``--seeds``, ``--jobs``, ``--out`` and trailing Hydra overrides, as the sweep scripts
-    (``benchmark.py``, ``env_targets.py``) take them; ``--jobs`` must be >= 1."""
+def _job_count(text: str) -> int:
+    if int(text) < 1:
+        raise argparse.ArgumentTypeError(
+            f"--jobs {text}: run at least one process at a time (--jobs 1)"
+        )
+    return int(text)
 
-    def jobs(text: str) -> int:
-        if int(text) < 1:
-            raise argparse.ArgumentTypeError(
-                f"--jobs {text}: run at least one process at a time (--jobs 1)"
-            )
-        return int(text)
 
+def sweep_arguments(seeds: Sequence[int], out: str) -> argparse.ArgumentParser:
+    """The arguments every subcommand shares, as a parent parser with these defaults:
+    ``--seeds``, ``--jobs`` (>= 1), ``--out`` and trailing Hydra overrides."""
+    parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--seeds", nargs="+", type=int, default=list(seeds))
-    parser.add_argument("--jobs", type=jobs, default=1, help="runs at a time")
-    parser.add_argument("--out", type=Path, default=Path(out))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every run")
+    parser.add_argument("--jobs", type=_job_count, default=1, help="runs at a time")
+    parser.add_argument("--out", type=Path, default=Path(out), help="output directory")
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides (key=value) for every run")
     return parser
 
 
