@@ -9,7 +9,7 @@ from .conftest import ROOT
 
 PACKAGE = ROOT / "src" / "trl_cartpole"
 PRIVATE_TORCHRL_NAMES = re.compile(
-    r"\._carrier|\._memo\b|base_env\._env|\._transform\b|\._buffer\b|[."]_weight_sync_schemes"
+    r"\._carrier|\._memo\b|base_env\._env|\._transform\b|\._buffer\b|[.'\"]_weight_sync_schemes"
     r"|action_func_mapping|prioritized\.(Sum|Min)SegmentTree"
 )
 
