@@ -1,9 +1,9 @@
 """Every DQN variant preset on CartPole-v1 over seeds: the table and plot of docs/ablations.md.
 
-    python scripts/ablate.py [--algos dqn double ...] [--seeds 0 1 2 3 4] \
+    python -m benchmarks ablate [--algos dqn double ...] [--seeds 0 1 2 3 4]
         [--out runs/ablations] [--doc docs/ablations.md] [key=value ...]
 
-Runs each preset once per seed (``scripts/train.py`` in its own process, one after another;
+Runs each preset once per seed (``scripts/train.py`` in its own process, ``--jobs`` at a time;
 finished runs are reused), then writes ``OUT/results.json``, the plot of greedy evaluation
 return against frames (median and interquartile band over seeds, one panel per preset) to
 ``docs/images/ablations.png`` and the table between the ``ablation`` markers of ``--doc``.
@@ -15,9 +15,10 @@ import argparse
 import json
 from pathlib import Path
 
-from trl_cartpole.benchmarking import VARIANT_PRESETS, markdown_table, run_presets
+from benchmarks.harness import VARIANT_PRESETS, markdown_table, run_presets
 from trl_cartpole.plotting import plot_seed_groups
 
+SEEDS, OUT = [0, 1, 2, 3, 4], "runs/ablations"
 BEGIN, END = "<!-- ablation:begin -->", "<!-- ablation:end -->"
 
 
@@ -32,16 +33,13 @@ def write_between_markers(doc: Path, block: str) -> None:
     doc.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algos", nargs="+", default=list(VARIANT_PRESETS))
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
-    parser.add_argument("--out", type=Path, default=Path("runs/ablations"))
     parser.add_argument("--doc", type=Path, default=Path("docs/ablations.md"))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides passed to every run")
-    args = parser.parse_args()
 
-    results = run_presets(args.algos, args.seeds, args.out, args.overrides)
+
+def main(args: argparse.Namespace) -> None:
+    results = run_presets(args.algos, args.seeds, args.out, args.overrides, jobs=args.jobs)
     (args.out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
     curves = {
         algo: [(r["eval_curve"]["frames"], r["eval_curve"]["returns"]) for r in runs]
@@ -55,12 +53,8 @@ def main() -> None:
     print(table)
     seeds = " ".join(str(seed) for seed in args.seeds)
     block = (
-        f"Seeds {seeds}; command: `python scripts/ablate.py --seeds {seeds}"
-        f"{''.join(' ' + o for o in args.overrides)}`.\n\n{table}\n\n"
+        f"Seeds {seeds}; command: `python -m benchmarks ablate"
+        f"{''.join(' ' + o for o in args.overrides)} --seeds {seeds}`.\n\n{table}\n\n"
         f"![eval return against frames per preset]({image.relative_to(args.doc.parent)})"
     )
     write_between_markers(args.doc, block)
-
-
-if __name__ == "__main__":
-    main()

@@ -1,6 +1,6 @@
 """Train the env presets over seeds and check them against their targets (docs/environments.md).
 
-    python scripts/env_targets.py [--envs acrobot mountaincar lunarlander] [--seeds 0 1 2]
+    python -m benchmarks envs [--envs acrobot mountaincar lunarlander] [--seeds 0 1 2]
         [--jobs 2] [--out runs/envs] [key=value ...]
 
 Each (env preset, seed) is one ``scripts/train.py env=<preset> seed=<seed>`` run in its own
@@ -17,8 +17,10 @@ import argparse
 import statistics
 from pathlib import Path
 
-from trl_cartpole.benchmarking import ENV_TARGETS, add_sweep_arguments, run_presets
+from benchmarks.harness import ENV_TARGETS, run_presets
 from trl_cartpole.plotting import plot_comparison
+
+SEEDS, OUT = [0, 1, 2], "runs/envs"
 
 
 def table(results: dict[str, list[dict]]) -> str:
@@ -53,10 +55,11 @@ def plot(preset: str, runs: list[dict], out: Path) -> Path:
     return plot_comparison(panels, out / f"{preset}.png", threshold=ENV_TARGETS[preset])
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--envs", nargs="+", default=list(ENV_TARGETS), choices=list(ENV_TARGETS))
-    args = add_sweep_arguments(parser, seeds=[0, 1, 2], out="runs/envs").parse_args()
+
+
+def main(args: argparse.Namespace) -> None:
     results = {}
     for preset in args.envs:
         out = args.out / preset
@@ -67,7 +70,3 @@ def main() -> None:
     text = table(results)
     print(text)
     (args.out / "results.md").write_text(text + "\n")
-
-
-if __name__ == "__main__":
-    main()

@@ -1,13 +1,13 @@
 """Median frames and seconds to solve over seeds, per preset, optionally against peer DQNs.
 
-    python scripts/benchmark.py --algos dqn tutorial --seeds 0 1 2 3 4 \
+    python -m benchmarks run --algos dqn tutorial --seeds 0 1 2 3 4
         [--peers tutorial_loop sb3_dqn] [--jobs 1] [--out runs/benchmark] [key=value ...]
 
 Each (preset, seed) is one ``scripts/train.py`` run, each (peer, seed) one
-``python -m trl_cartpole.peers.<peer>`` run, in their own processes (``--jobs`` at a time;
+``python -m benchmarks.peers.<peer>`` run, in their own processes (``--jobs`` at a time;
 1, the default, keeps the machine's noise the same for all). Every run evaluates greedily over
 ``--eval-episodes`` episodes every ``--eval-interval`` frames with the training clock stopped
-(``trl_cartpole.peers.protocol``). The table of medians (solve rate, frames and seconds to
+(``benchmarks.peers.protocol``). The table of medians (solve rate, frames and seconds to
 solve, collection frames/s, updates/s, peak RSS) is printed and written to ``OUT/results.md``
 and ``OUT/results.json``, followed by the ratios: each peer's median seconds_to_solve over the
 first preset's, and seconds per frame of ``tutorial`` against ``tutorial_loop``.
@@ -19,14 +19,15 @@ import argparse
 import importlib.util
 import json
 
-from trl_cartpole.benchmarking import (
+from benchmarks.harness import (
     PEERS,
-    add_sweep_arguments,
     markdown_table,
     run_presets,
     seconds_per_frame,
     speed_ratios,
 )
+
+SEEDS, OUT = [0, 1, 2, 3, 4], "runs/benchmark"
 
 
 def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
@@ -49,16 +50,19 @@ def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
     return lines
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algos", nargs="+", default=["dqn"])
     parser.add_argument("--peers", nargs="*", default=[], choices=sorted(PEERS))
     parser.add_argument("--peer-frames", type=int, default=150_000, help="peers' frame budget")
     parser.add_argument("--eval-interval", type=int, default=1000)
     parser.add_argument("--eval-episodes", type=int, default=20)
-    args = add_sweep_arguments(parser, seeds=[0, 1, 2, 3, 4], out="runs/benchmark").parse_args()
+
+
+def main(args: argparse.Namespace) -> None:
     if "sb3_dqn" in args.peers and importlib.util.find_spec("stable_baselines3") is None:
-        parser.error("--peers sb3_dqn needs Stable-Baselines3: pip install -e '.[bench]'")
+        raise SystemExit(
+            "error: --peers sb3_dqn needs Stable-Baselines3: pip install -e '.[bench]'"
+        )
     protocol = [f"eval.interval_frames={args.eval_interval}", f"eval.episodes={args.eval_episodes}"]
     peer_args = [
         f"--total-frames={args.peer_frames}",
@@ -78,7 +82,3 @@ def main() -> None:
     print(text)
     (args.out / "results.md").write_text(text + "\n")
     (args.out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
-
-
-if __name__ == "__main__":
-    main()

@@ -1,20 +1,41 @@
-"""Throughput of the collection layouts (``scripts/scaling.py``, docs/scaling.md).
+"""How collection and training scale with envs and workers on this machine (docs/scaling.md).
+
+    python -m benchmarks scaling [--seeds 0 1 2] [--frames 16384] [--train-frames 8192]
+        [--out runs/scaling] [--parts collect train solve] [key=value ...]
 
 A layout is how many envs each worker steps (``env.num_envs``), how many workers collect
-(``collector.workers``) and whether they are synchronous; :func:`collection_fps` times the
-collector of a layout alone, with the untrained epsilon-greedy policy and a weight sync after
-every batch, as the training loop does.
+(``collector.workers``) and whether they are synchronous; the overrides apply to every layout.
+
+- ``collect``: frames per second of the collector alone (:func:`collection_fps`), for 1, 2 and
+  4 envs per worker and 1 worker, 2 synchronous and 2 asynchronous workers, then the default's
+  32 envs on 1 worker or split 16 + 16 over 2, plus TorchRL's ``ParallelEnv`` in place of
+  Gymnasium's ``SyncVectorEnv`` (one worker); median over ``--seeds`` repetitions (``--envs``
+  picks layouts).
+- ``train``: frames per second of whole training runs (``--train-frames`` frames, evaluation
+  excluded, ``buffer.n_steps=1`` everywhere so asynchronous workers run the same algorithm) in
+  the same layouts, each run its own process, ``--jobs`` at a time.
+- ``solve``: the default config with its 32 envs on 1 worker, on 2 synchronous and 2
+  asynchronous worker processes, and on 2 Ray actors (a local Ray instance): solve rate,
+  median frames and seconds to solve over ``--seeds``.
+
+Prints the tables and writes them to ``OUT/results.md``. Run it on an idle machine.
 """
 
 from __future__ import annotations
 
+import argparse
 import functools
+import statistics
 import time
+from pathlib import Path
 
 import torch
 from tensordict.nn import TensorDictSequential
-from torchrl.envs import ParallelEnv
+from torchrl.envs import EnvBase, ParallelEnv
 
+from benchmarks.harness import CONFIG_DIR, markdown_table, run_presets
+from trl_cartpole.build import build_actor, build_env, build_exploration
+from trl_cartpole.cli import compose_config
 from trl_cartpole.collectors import (
     is_distributed,
     make_collector,
@@ -22,48 +43,83 @@ from trl_cartpole.collectors import (
     shutdown_collector,
     worker_env_constructors,
 )
-from trl_cartpole.config import Config
-from trl_cartpole.envs import make_env, make_env_from_config
-from trl_cartpole.exploration import make_exploration
-from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.config import Config, to_config
 
-__all__ = ["WARMUP_BATCHES", "collection_fps", "make_parallel_env"]
-
+SEEDS, OUT = [0, 1, 2], "runs/scaling"
 WARMUP_BATCHES = 5  # batches left out of the timing: worker start-up, first allocations
 
+WORKER_LAYOUTS = {  # label -> overrides
+    "1 worker": ["collector.workers=1"],
+    "2 workers, sync": ["collector.workers=2", "collector.sync=true"],
+    "2 workers, async": ["collector.workers=2", "collector.sync=false"],
+}
+# (envs per worker, worker layout): 1, 2 and 4 envs in every layout, then the default's 32 envs
+# in one process or split over two.
+LAYOUTS = [(envs, layout) for envs in (1, 2, 4) for layout in WORKER_LAYOUTS] + [
+    (32, "1 worker"),
+    (16, "2 workers, sync"),
+    (16, "2 workers, async"),
+]
+PARALLEL_ENV_SIZES = (2, 4)  # also timed with TorchRL's ParallelEnv in place of SyncVectorEnv
+TRAIN_OVERRIDES = [
+    "buffer.n_steps=1",
+    "eval.stop_when_solved=false",
+    "eval.interval_frames=1000000000",  # no periodic evaluation: the final one only
+    "eval.final_episodes=10",
+    "checkpoint.interval_frames=0",
+    "logger.plots=false",
+    "logger.live_plot=false",
+]
+SOLVE_LAYOUTS = {  # label -> overrides of the default config (32 envs in all)
+    "1 worker, 32 envs": [],
+    "2 workers, sync, 16 envs each": ["collector.workers=2", "env.num_envs=16"],
+    "2 workers, async, 16 envs each": [
+        "collector.workers=2",
+        "env.num_envs=16",
+        "collector.sync=false",
+        "buffer.n_steps=1",
+    ],
+    "2 Ray actors, sync, 16 envs each": [
+        "collector.backend=ray",
+        "collector.workers=2",
+        "env.num_envs=16",
+    ],
+}
 
-def make_parallel_env(env_id: str, num_envs: int, seed: int) -> ParallelEnv:
-    """``num_envs`` single envs of :func:`make_env`, each in its own process (TorchRL)."""
-    env = ParallelEnv(num_envs, functools.partial(make_env, env_id))
-    env.set_seed(seed)
+
+def make_parallel_env(cfg: Config) -> ParallelEnv:
+    """``cfg.env.num_envs`` single envs of ``cfg``, each in its own process (TorchRL)."""
+    env = ParallelEnv(cfg.env.num_envs, functools.partial(build_env, cfg, cfg.seed, 1))
+    env.set_seed(cfg.seed)
     return env
 
 
 def collection_fps(cfg: Config, frames: int, parallel_env: bool = False) -> float:
     """Frames per second of collecting ``frames`` frames in the layout of ``cfg``, alone.
 
-    ``parallel_env`` replaces the Gymnasium ``SyncVectorEnv`` of one worker by TorchRL's
-    ``ParallelEnv`` (one process per env). The first ``WARMUP_BATCHES`` batches are not timed.
+    The collector steps the untrained actor and its exploration as built for training, with a
+    weight sync after every batch where training has one. ``parallel_env`` replaces the
+    Gymnasium ``SyncVectorEnv`` of one worker by TorchRL's ``ParallelEnv`` (one process per
+    env). The first ``WARMUP_BATCHES`` batches are not timed.
     """
     torch.set_num_threads(cfg.num_threads)
-    env = make_env_from_config(cfg.env, cfg.seed, cfg.device)
-    actor = make_q_actor_for_env(env, cfg.network, cfg.device)
-    exploration = make_exploration(env.action_spec, "linear", 1.0, 0.05, frames, cfg.device)
-    policy = TensorDictSequential(actor, exploration)
+    env = build_env(cfg, cfg.seed)
+    actor = build_actor(cfg, env)
+    exploration = build_exploration(cfg, env)
+    policy = actor if exploration is None else TensorDictSequential(actor, exploration)
     batch_frames = cfg.collector.frames_per_batch
-    total = frames + WARMUP_BATCHES * batch_frames
+    create_env_fn: EnvBase | list = env
     if is_distributed(cfg.collector.workers, cfg.collector.backend):
-        create_env = worker_env_constructors(cfg)
+        create_env_fn = worker_env_constructors(cfg)
     elif parallel_env:
-        create_env = make_parallel_env(cfg.env.id, cfg.env.num_envs, cfg.seed)
-    else:
-        create_env = env
+        create_env_fn = make_parallel_env(cfg)
     collector = make_collector(
-        create_env,
+        create_env_fn,
         policy,
         batch_frames,
-        total,
-        device=cfg.device,
+        frames + WARMUP_BATCHES * batch_frames,
+        0,  # the policy from the first frame: random frames would time the env alone
+        cfg.device,
         sync=cfg.collector.sync,
         backend=cfg.collector.backend,
         ray_address=cfg.collector.ray_address,
@@ -75,10 +131,124 @@ def collection_fps(cfg: Config, frames: int, parallel_env: bool = False) -> floa
             start = time.perf_counter()
         if start is not None:
             collected += batch.numel()
-        exploration.step(batch.numel())
+        if exploration is not None:
+            exploration.step(batch.numel())
         if sync_weights:
             collector.update_policy_weights_()
     seconds = time.perf_counter() - start
     shutdown_collector(collector)
-    env.close()  # (the collector closed the ParallelEnv when it reached its total)
+    env.close()  # (the collector closed a ParallelEnv when it reached its total)
     return collected / seconds
+
+
+def _median_row(label: str, values: list[float]) -> str:
+    per_seed = ", ".join(f"{value:,.0f}" for value in values)
+    return f"| {label} | {statistics.median(values):,.0f} | {per_seed} |"
+
+
+def _label(envs: int, layout: str) -> str:
+    return f"{envs} env{'s' if envs > 1 else ''} per worker, {layout}"
+
+
+def _layout_fps(
+    seeds: list[int], frames: int, overrides: list[str], parallel_env: bool = False
+) -> list[float]:
+    """:func:`collection_fps` of the config of ``overrides``, once per seed."""
+    return [
+        collection_fps(
+            to_config(compose_config(CONFIG_DIR, [*overrides, f"seed={seed}"])),
+            frames,
+            parallel_env,
+        )
+        for seed in seeds
+    ]
+
+
+def collect_table(
+    seeds: list[int], frames: int, env_counts: list[int], overrides: list[str]
+) -> str:
+    rows = ["| layout | collection frames/s (median) | per repetition |", "| --- | --- | --- |"]
+    for envs, layout in LAYOUTS:
+        if envs not in env_counts:
+            continue
+        layout_overrides = [*overrides, f"env.num_envs={envs}", *WORKER_LAYOUTS[layout]]
+        rows.append(_median_row(_label(envs, layout), _layout_fps(seeds, frames, layout_overrides)))
+        print(rows[-1], flush=True)
+        if envs in PARALLEL_ENV_SIZES and layout == "1 worker":
+            fps = _layout_fps(seeds, frames, layout_overrides, parallel_env=True)
+            rows.append(_median_row(f"{envs} envs, 1 worker, TorchRL ParallelEnv", fps))
+            print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+def train_table(
+    seeds: list[int], frames: int, out: Path, env_counts: list[int], overrides: list[str], jobs: int
+) -> str:
+    rows = ["| layout | training frames/s (median) | per seed |", "| --- | --- | --- |"]
+    for envs, layout in LAYOUTS:
+        if envs not in env_counts:
+            continue
+        name = f"envs{envs}-{layout.replace(', ', '-').replace(' ', '')}"
+        layout_overrides = [
+            *overrides,
+            f"env.num_envs={envs}",
+            f"collector.total_frames={frames}",
+            *TRAIN_OVERRIDES,
+            *WORKER_LAYOUTS[layout],
+        ]
+        summaries = run_presets(["dqn"], seeds, out / "train" / name, layout_overrides, jobs=jobs)
+        summaries = summaries["dqn"]
+        fps = [summary["frames"] / summary["train_seconds"] for summary in summaries]
+        rows.append(_median_row(_label(envs, layout), fps))
+        print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+def solve_table(seeds: list[int], out: Path, overrides: list[str], jobs: int) -> str:
+    results = {}
+    for label, layout_overrides in SOLVE_LAYOUTS.items():
+        name = label.replace(", ", "-").replace(" ", "")
+        results[label] = run_presets(
+            ["dqn"], seeds, out / "solve" / name, [*overrides, *layout_overrides], jobs=jobs
+        )["dqn"]
+        print(
+            f"{label}: {sum(s['solved'] for s in results[label])}/{len(seeds)} solved", flush=True
+        )
+    return markdown_table(results, label="layout")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frames", type=int, default=16_384, help="frames timed per layout")
+    parser.add_argument("--train-frames", type=int, default=8_192)
+    parser.add_argument(
+        "--envs",
+        nargs="+",
+        type=int,
+        default=sorted({envs for envs, _ in LAYOUTS}),
+        help="only the layouts with this many envs per worker",
+    )
+    parser.add_argument(
+        "--parts",
+        nargs="+",
+        default=["collect", "train", "solve"],
+        choices=["collect", "train", "solve"],
+    )
+
+
+def main(args: argparse.Namespace) -> None:
+    args.out.mkdir(parents=True, exist_ok=True)
+    sections = []
+    if "collect" in args.parts:
+        table = collect_table(args.seeds, args.frames, args.envs, args.overrides)
+        sections.append("## Collection alone\n\n" + table)
+    if "train" in args.parts:
+        table = train_table(
+            args.seeds, args.train_frames, args.out, args.envs, args.overrides, args.jobs
+        )
+        sections.append("## Training\n\n" + table)
+    if "solve" in args.parts:
+        table = solve_table(args.seeds, args.out, args.overrides, args.jobs)
+        sections.append("## Solving CartPole with workers\n\n" + table)
+    text = "\n\n".join(sections)
+    print(text)
+    (args.out / "results.md").write_text(text + "\n")

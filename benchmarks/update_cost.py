@@ -1,84 +1,108 @@
 """Milliseconds per replay sample, gradient update and priority write-back, per preset.
 
-    python scripts/update_cost.py [--algos dqn rainbow ...] [--updates 300] [key=value ...]
+    python -m benchmarks update-cost [--algos dqn rainbow ...] [--updates 300] [--seeds 0]
+        [key=value ...]
 
-Builds each preset's components exactly as ``train()`` does, fills the replay buffer with
-3 000 random CartPole frames, warms up for 20 updates, then times ``--updates`` updates and
-prints the medians of the three phases (one thread, as in training; "update" includes the
-target network's update).
+Builds each preset's env, Q-actor, replay buffer and learner with ``trl_cartpole.build``, as
+training does (its optimizer, sampling, thread count and ``compile`` flag), fills the buffer
+with 3 000 random frames, warms up for 20 updates or more, then times ``--updates`` updates
+in batches of ``collector.updates_per_batch`` (one ``Learner.step``, phase by phase) and
+prints the medians per update of the three phases over batches and seeds ("update" includes
+the target network's step). Runs in this process, one preset at a time, so ``--jobs`` must
+be 1.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import time
+from itertools import chain
 
 import torch
 
-from trl_cartpole.benchmarking import CONFIG_DIR, VARIANT_PRESETS
-from trl_cartpole.buffers import make_replay_buffer
+from benchmarks.harness import CONFIG_DIR, VARIANT_PRESETS
+from trl_cartpole.buffers import extend_with_batch, sample_minibatches
+from trl_cartpole.build import (
+    TRANSITION_KEYS,
+    build_actor,
+    build_env,
+    build_learner,
+    build_replay_buffer,
+    seed_everything,
+)
 from trl_cartpole.cli import compose_config
 from trl_cartpole.config import to_config
-from trl_cartpole.envs import make_env
-from trl_cartpole.losses import make_dqn_loss, make_target_updater, priority_from_loss
-from trl_cartpole.models import make_q_actor_for_env
-from trl_cartpole.train import TRANSITION_KEYS
-from trl_cartpole.update import make_optimizer, make_update
+from trl_cartpole.losses import priority_from_loss
+from trl_cartpole.validation import validate
+
+SEEDS, OUT = [0], "runs/update_cost"
+RANDOM_FRAMES, WARMUP_UPDATES = 3000, 20
+
+Timing = tuple[float, float, float]  # seconds per update: sample, update, priority
 
 
-def time_preset(algo: str, updates: int, overrides: list[str]) -> tuple[float, float, float]:
-    """Median (sample, update, priority) milliseconds for ``algo``."""
-    cfg = to_config(compose_config(CONFIG_DIR, [f"algo={algo}", *overrides]))
-    torch.manual_seed(0)
-    env = make_env(cfg.env.id, 0, "cpu", cfg.env.max_episode_steps)
-    actor = make_q_actor_for_env(env, cfg.network)
-    loss = make_dqn_loss(actor, cfg.loss.gamma, cfg.loss.loss_function, cfg.loss.double_dqn)
-    buffer = make_replay_buffer(
-        cfg.buffer.size,
-        cfg.buffer.batch_size,
-        prioritized=cfg.buffer.prioritized,
-        n_steps=cfg.buffer.n_steps,
-        gamma=cfg.loss.gamma,
+def time_learner(algo: str, seed: int, updates: int, overrides: list[str]) -> list[Timing]:
+    """Per-update (sample, update, priority) seconds of each timed ``Learner.step``."""
+    cfg = validate(
+        to_config(compose_config(CONFIG_DIR, [f"algo={algo}", f"seed={seed}", *overrides]))
     )
-    buffer.extend(env.rollout(3000, break_when_any_done=False).select(*TRANSITION_KEYS))
-    target = make_target_updater(
-        loss, cfg.loss.target_update, cfg.loss.tau, cfg.loss.hard_update_interval
-    )
-    optimizer = make_optimizer(actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad)
-    noisy = actor if cfg.network.noisy else None
-    update = make_update(loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad, noisy)
-    timings: list[tuple[float, float, float]] = []
-    for step in range(20 + updates):
-        start = time.perf_counter()
-        sample = buffer.sample()
-        sampled = time.perf_counter()
-        update(sample)
-        target.step()
-        updated = time.perf_counter()
-        if cfg.buffer.prioritized:
-            buffer.update_priority(sample["index"], priority_from_loss(loss, sample))
-        done = time.perf_counter()
-        if step >= 20:
-            timings.append((sampled - start, updated - sampled, done - updated))
+    torch.set_num_threads(cfg.num_threads)
+    seed_everything(seed)
+    env = build_env(cfg, seed)
+    learner = build_learner(cfg, build_actor(cfg, env), build_replay_buffer(cfg))
+    steps = math.ceil(RANDOM_FRAMES / env.batch_size.numel())
+    rollout = env.rollout(steps, break_when_any_done=False)  # [envs, T] or [T]: random actions
+    extend_with_batch(learner.buffer, rollout.select(*TRANSITION_KEYS))
     env.close()
-    return tuple(1e3 * statistics.median(phase) for phase in zip(*timings, strict=True))
+    count = cfg.collector.updates_per_batch
+    timings: list[Timing] = []
+    warmup_steps = math.ceil(WARMUP_UPDATES / count)
+    for step in range(warmup_steps + math.ceil(updates / count)):
+        sample_s = update_s = priority_s = 0.0
+        minibatches = sample_minibatches(learner.buffer, count)
+        for _ in range(count):
+            start = time.perf_counter()
+            sample = next(minibatches)
+            sampled = time.perf_counter()
+            learner.update(sample)
+            learner.target_updater.step()
+            updated = time.perf_counter()
+            if learner.prioritized:
+                priority = priority_from_loss(learner.loss, sample)
+                learner.buffer.update_priority(sample["index"], priority)
+            done = time.perf_counter()
+            sample_s += sampled - start
+            update_s += updated - sampled
+            priority_s += done - updated
+        if step >= warmup_steps:
+            timings.append((sample_s / count, update_s / count, priority_s / count))
+    return timings
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algos", nargs="+", default=list(VARIANT_PRESETS))
-    parser.add_argument("--updates", type=int, default=300)
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides applied to every preset")
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    print("| preset | sample ms | update ms | priority ms | total ms |")
-    print("| --- | --- | --- | --- | --- |")
+    parser.add_argument("--updates", type=int, default=300, help="updates timed per seed")
+
+
+def main(args: argparse.Namespace) -> None:
+    if args.jobs != 1:
+        raise SystemExit("error: update-cost times its updates in this process; use --jobs 1")
+    lines = [
+        "| preset | sample ms | update ms | priority ms | total ms |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    print("\n".join(lines), flush=True)
     for algo in args.algos:
-        sample, update, priority = time_preset(algo, args.updates, args.overrides)
+        timings = chain.from_iterable(
+            time_learner(algo, seed, args.updates, args.overrides) for seed in args.seeds
+        )
+        sample, update, priority = (
+            1e3 * statistics.median(phase) for phase in zip(*timings, strict=True)
+        )
         total = sample + update + priority
-        print(f"| {algo} | {sample:.2f} | {update:.2f} | {priority:.2f} | {total:.2f} |")
-
-
-if __name__ == "__main__":
-    main()
+        lines.append(f"| {algo} | {sample:.2f} | {update:.2f} | {priority:.2f} | {total:.2f} |")
+        print(lines[-1], flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "results.md").write_text("\n".join(lines) + "\n")

@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from trl_cartpole.benchmarking import group_runs, load_runs, markdown_table
+from trl_cartpole.comparison import group_runs, load_runs, markdown_table
 from trl_cartpole.plotting import plot_comparison
 
 

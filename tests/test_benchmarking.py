@@ -1,18 +1,19 @@
-"""The helpers behind scripts/benchmark.py and scripts/ablate.py."""
+"""The benchmark harness and the ``python -m benchmarks`` subcommands."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
+import subprocess
 
 import numpy as np
-import pytest
 
-from trl_cartpole.benchmarking import markdown_table, median_to_solve, speed_ratios
+from benchmarks.ablate import BEGIN, write_between_markers
+from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
+from benchmarks.profile import phase_table
 from trl_cartpole.plotting import hold_last, plot_seed_groups
 
-from .conftest import SCRIPTS
+from .conftest import ROOT, SCRIPTS
 
 
 def test_median_to_solve_counts_unsolved_seeds_as_infinitely_slow():
@@ -72,33 +73,73 @@ def test_seed_group_plot_and_doc_markers(tmp_path):
     curves = {"x": [([1000, 2000], [10.0, 480.0]), ([1000, 2000, 3000], [9.0, 100.0, 490.0])]}
     image = plot_seed_groups(curves, tmp_path / "plot.png", threshold=475)
     assert image.stat().st_size > 1000
-    spec = importlib.util.spec_from_file_location("ablate", SCRIPTS / "ablate.py")
-    ablate = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(ablate)
     doc = tmp_path / "doc.md"
     doc.write_text("# Title\n\nprose\n")
-    ablate.write_between_markers(doc, "table 1")
-    ablate.write_between_markers(doc, "table 2")  # replaces, keeps the prose
+    write_between_markers(doc, "table 1")
+    write_between_markers(doc, "table 2")  # replaces, keeps the prose
     text = doc.read_text()
-    assert text.startswith("# Title\n\nprose\n") and text.count(ablate.BEGIN) == 1
+    assert text.startswith("# Title\n\nprose\n") and text.count(BEGIN) == 1
     assert "table 2" in text and "table 1" not in text
 
 
-@pytest.mark.parametrize("name", ["benchmark.py", "ablate.py"])
-def test_scripts_show_help(python, name):
-    import subprocess
+def _benchmarks(python, *args, **kwargs) -> subprocess.CompletedProcess:
+    """``python -m benchmarks ARGS`` from the repository root."""
+    return subprocess.run(
+        [python, "-m", "benchmarks", *args], capture_output=True, text=True, cwd=ROOT, **kwargs
+    )
 
-    proc = subprocess.run([python, str(SCRIPTS / name), "--help"], capture_output=True, text=True)
-    assert proc.returncode == 0 and "--seeds" in proc.stdout
+
+def test_every_subcommand_shows_help_with_the_shared_arguments(python):
+    proc = _benchmarks(python, "--help")
+    assert proc.returncode == 0, proc.stderr
+    subcommands = ["run", "ablate", "envs", "scaling", "update-cost", "profile"]
+    assert all(name in proc.stdout for name in subcommands)
+    for name in subcommands:
+        proc = _benchmarks(python, name, "--help")
+        assert proc.returncode == 0, proc.stderr
+        assert all(arg in proc.stdout for arg in ("--seeds", "--jobs", "--out", "overrides"))
 
 
-def test_update_cost_script_prints_a_row_per_preset(python):
-    import subprocess
+def test_phase_table_gives_medians_over_seeds_and_shares_of_training_time():
+    summaries = [
+        {
+            "train_seconds": 10.0,
+            "wall_seconds": 13.0,
+            "phase_seconds": {"collect": 2.0, "update": 6.0},
+        },
+        {
+            "train_seconds": 20.0,
+            "wall_seconds": 22.0,
+            "phase_seconds": {"collect": 4.0, "update": 15.0},
+        },
+        {
+            "train_seconds": 12.0,
+            "wall_seconds": 16.0,
+            "phase_seconds": {"collect": 3.0, "update": 8.0},
+        },
+    ]
+    # medians: train 12, collect 3 (25 %), update 8 (66.7 %); not in a phase: 2, 1, 1 -> 1
+    # (8.3 %); outside training: 3, 2, 4 -> 3
+    assert phase_table(summaries).splitlines()[2:] == [
+        "| collect | 3.00 | 25.0 % |",
+        "| update | 8.00 | 66.7 % |",
+        "| not in a phase | 1.00 | 8.3 % |",
+        "| **training** | 12.00 | 100 % |",
+        "| evaluation, checkpoints, start-up (not training) | 3.00 | - |",
+    ]
 
-    proc = subprocess.run(
-        [python, str(SCRIPTS / "update_cost.py"), "--algos", "dqn", "rainbow", "--updates", "3"],
-        capture_output=True,
-        text=True,
+
+def test_update_cost_prints_a_row_per_preset(python, tmp_path):
+    proc = _benchmarks(
+        python,
+        "update-cost",
+        "--algos",
+        "dqn",
+        "rainbow",
+        "--updates",
+        "3",
+        "--out",
+        str(tmp_path),
         timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
@@ -134,8 +175,6 @@ def _fake_run(root, name, seed, lr, frames_to_solve):
 
 
 def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
-    import subprocess
-
     for seed in (0, 1, 2):
         _fake_run(tmp_path, f"a{seed}", seed, 1e-3, 1000 * (seed + 1))
     for seed in (0, 1):
@@ -163,10 +202,7 @@ def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
 
 
 def test_benchmark_refuses_a_bad_job_count_before_running_anything(python, tmp_path):
-    import subprocess
-
-    command = [python, str(SCRIPTS / "benchmark.py"), "--jobs", "0", "--out", str(tmp_path)]
-    proc = subprocess.run(command, capture_output=True, text=True)
+    proc = _benchmarks(python, "run", "--jobs", "0", "--out", str(tmp_path))
     assert proc.returncode == 2
     assert "--jobs 0: run at least one process at a time" in proc.stderr
     assert not any(tmp_path.iterdir())  # no run started

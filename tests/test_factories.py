@@ -16,8 +16,8 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
 from trl_cartpole.buffers import make_replay_buffer, sample_minibatches
 from trl_cartpole.collectors import make_collector
-from trl_cartpole.errors import ConfigError
 from trl_cartpole.envs import make_env, solve_threshold
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.exploration import ExponentialEGreedyModule, make_exploration
 from trl_cartpole.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.models import make_q_actor

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.telemetry import make_logger
 from trl_cartpole.plotting import LiveDurationPlot, live_plot_target
+from trl_cartpole.telemetry import make_logger
 from trl_cartpole.train import train
 
 from .conftest import SMOKE_OVERRIDES

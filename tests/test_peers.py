@@ -1,4 +1,4 @@
-"""The peers of scripts/benchmark.py: the shared evaluation protocol and short real runs."""
+"""The peers of ``python -m benchmarks run``: the shared evaluation protocol and short runs."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from trl_cartpole.benchmarking import run_peer
-from trl_cartpole.peers.protocol import GreedyEvaluation
+from benchmarks.harness import run_peer
+from benchmarks.peers.protocol import GreedyEvaluation
 
 
 def _always_left(obs: np.ndarray) -> np.ndarray:

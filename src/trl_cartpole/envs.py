@@ -153,7 +153,7 @@ def make_sync_vector_env(env_id: str, num_envs: int, **make_kwargs: Any) -> gym.
     """``num_envs`` copies of ``env_id`` stepped in one process, with same-step autoreset.
 
     The Gymnasium env under a batched :func:`make_env`, and the evaluation envs of the
-    benchmark's peers (``trl_cartpole.peers.protocol``), so both evaluate on the same envs.
+    benchmark's peers (``benchmarks.peers.protocol``), so both evaluate on the same envs.
     """
     return gym.make_vec(
         env_id,

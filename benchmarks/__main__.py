@@ -1,0 +1,55 @@
+"""``python -m benchmarks <subcommand>``: the benchmark command lines, run from the repository root.
+
+Every subcommand takes ``--seeds``, ``--jobs``, ``--out`` and trailing Hydra ``key=value``
+overrides (``benchmarks.harness.sweep_arguments``); ``python -m benchmarks <subcommand> --help``
+shows its own options and defaults. Put the overrides before an option that takes a list
+(``--seeds 0 1``), or after ``--``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from benchmarks import ablate, envs, profile, run, scaling, update_cost
+from benchmarks.harness import sweep_arguments
+
+SUBCOMMANDS = {
+    "run": run,
+    "ablate": ablate,
+    "envs": envs,
+    "scaling": scaling,
+    "update-cost": update_cost,
+    "profile": profile,
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    subparsers = parser.add_subparsers(dest="subcommand", required=True, metavar="SUBCOMMAND")
+    for name, module in SUBCOMMANDS.items():
+        subparser = subparsers.add_parser(
+            name,
+            parents=[sweep_arguments(module.SEEDS, module.OUT)],
+            help=module.__doc__.splitlines()[0],
+            description=module.__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        module.add_arguments(subparser)
+        subparser.set_defaults(main=module.main)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    args.main(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,137 @@
+"""Compare finished runs: load their summaries, group them by config, tabulate them.
+
+``scripts/plot.py`` and the benchmark tools (``python -m benchmarks``) read runs through these
+functions: runs whose configs differ only in seed and run directory form one group, reported
+by solve rate and medians over its seeds.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+from trl_cartpole.config import flat_fields
+
+__all__ = ["expand_sweep_dirs", "group_runs", "load_runs", "markdown_table", "median_to_solve"]
+
+
+def median_to_solve(values: Sequence[float | None]) -> float:
+    """Median over seeds with an unsolved seed counted as infinitely slow.
+
+    The result is finite when more than half of the seeds solved; ``inf`` otherwise.
+    """
+    return statistics.median(math.inf if value is None else value for value in values)
+
+
+def _format(value: float, digits: int) -> str:
+    return "not solved" if math.isinf(value) else f"{value:.{digits}f}"
+
+
+def _median_of(runs: Sequence[dict[str, Any]], key: str, digits: int) -> str:
+    values = [r[key] for r in runs if r.get(key) is not None]
+    return f"{statistics.median(values):.{digits}f}" if values else "-"
+
+
+def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "preset") -> str:
+    """One row per preset: solve rate, medians to solve, final greedy return, per-seed frames,
+    and the medians of throughput (collection frames/s, updates/s) and peak memory."""
+    lines = [
+        f"| {label} | solved | median frames_to_solve | median seconds_to_solve | "
+        "median final 100-ep greedy return | frames_to_solve per seed | seconds per seed | "
+        "median wall seconds | collect frames/s | updates/s | peak RSS MiB |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for algo, runs in results.items():
+        frames = [r["frames_to_solve"] for r in runs]
+        seconds = [r["seconds_to_solve"] for r in runs]
+        final = statistics.median(r["final_eval_return_mean"] for r in runs)
+        lines.append(
+            f"| {algo} | {sum(r['solved'] for r in runs)}/{len(runs)} | "
+            f"{_format(median_to_solve(frames), 0)} | {_format(median_to_solve(seconds), 1)} | "
+            f"{final:.1f} | {', '.join('-' if f is None else str(f) for f in frames)} | "
+            f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} | "
+            f"{statistics.median(r['wall_seconds'] for r in runs):.1f} | "
+            f"{_median_of(runs, 'collect_frames_per_second', 0)} | "
+            f"{_median_of(runs, 'updates_per_second', 0)} | {_median_of(runs, 'peak_rss_mb', 0)} |"
+        )
+    return "\n".join(lines)
+
+
+# Fields that differ between seeds of one config, not between configs.
+PER_RUN_FIELDS = ("seed", "run_dir")
+
+
+def expand_sweep_dirs(run_dirs: Sequence[Path]) -> list[Path]:
+    """Each directory, or for a sweep directory (no ``config.yaml`` of its own) its job folders."""
+    expanded: list[Path] = []
+    for run_dir in run_dirs:
+        if run_dir.is_dir() and not (run_dir / "config.yaml").is_file():
+            jobs = sorted(child for child in run_dir.iterdir() if (child / "config.yaml").is_file())
+            expanded.extend(jobs or [run_dir])
+        else:
+            expanded.append(run_dir)
+    return expanded
+
+
+def load_runs(run_dirs: Sequence[Path]) -> list[dict[str, Any]]:
+    """``[{"run_dir", "summary", "config"}]`` for each directory holding a ``summary.json``.
+
+    A sweep directory (``python scripts/train.py -m ...``) stands for its jobs' directories.
+
+    Directories without one (a run still going, or one that failed) or whose summary predates
+    ``eval_curve`` are skipped with a line on stderr.
+    """
+    runs = []
+    for run_dir in expand_sweep_dirs(run_dirs):
+        summary_path, config_path = run_dir / "summary.json", run_dir / "config.yaml"
+        if not summary_path.is_file() or not config_path.is_file():
+            print(f"skipped {run_dir}: no summary.json/config.yaml", file=sys.stderr)
+            continue
+        summary = json.loads(summary_path.read_text())
+        if "eval_curve" not in summary:
+            print(f"skipped {run_dir}: summary.json has no eval_curve (older run)", file=sys.stderr)
+            continue
+        runs.append(
+            {
+                "run_dir": run_dir,
+                "summary": summary,
+                "config": OmegaConf.to_container(OmegaConf.load(config_path)),
+            }
+        )
+    return runs
+
+
+def group_runs(runs: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    """Group runs whose configs are equal but for the seed and run directory.
+
+    A group is labelled by its env and ``algo.name``; when several groups share that label,
+    the fields that tell them apart are appended (``CartPole-v1 dqn optim.lr=0.0005``).
+    """
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    flats: dict[tuple, dict[str, Any]] = {}
+    for run in runs:
+        flat = {k: v for k, v in flat_fields(run["config"]).items() if k not in PER_RUN_FIELDS}
+        key = tuple(sorted(flat.items(), key=lambda item: item[0]))
+        groups.setdefault(key, []).append(run)
+        flats[key] = flat
+    base_labels = {key: f"{flat['env.id']} {flat['algo.name']}" for key, flat in flats.items()}
+    labelled = {}
+    for key, members in groups.items():
+        label = base_labels[key]
+        clashes = [other for other in groups if other != key and base_labels[other] == label]
+        if clashes:
+            differing = sorted(
+                field
+                for field, value in flats[key].items()
+                if any(flats[other].get(field) != value for other in clashes)
+            )
+            label += " " + " ".join(f"{field}={flats[key][field]}" for field in differing)
+        labelled[label] = members
+    return labelled
