@@ -15,6 +15,8 @@ notebook and the benchmark tools use them too, so every tool builds what trainin
 from __future__ import annotations
 
 import random
+import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -203,6 +205,7 @@ class Components:
     learning_starts: int = 0  # no update before the buffer holds this many transitions
     sync_policy_weights: bool = False  # the collector steps a copy of the policy
     wall_start: float = 0.0
+    _collector_released: bool = field(default=False, init=False, repr=False)
 
     def after_batch(self, batch: TensorDictBase, updates_before: int) -> None:
         """Step epsilon, resample network noise, anneal beta, send the new weights; report."""
@@ -220,10 +223,16 @@ class Components:
             self.collector.update_policy_weights_()
         self.telemetry.batch(batch, self.progress, self.actor, self.exploration, updates_before)
 
+    def release_collector(self) -> None:
+        """Shut the collector down (its worker processes, Ray actors) once."""
+        if not self._collector_released:
+            self._collector_released = True
+            shutdown_collector(self.collector)
+
     def close(self) -> None:
         """Release the collector (workers, Ray actors), the envs and the logger."""
         self.telemetry.close_bar()
-        shutdown_collector(self.collector)
+        self.release_collector()
         for env in (self.env, self.eval_env):
             env.close()
         self.telemetry.close()
@@ -243,8 +252,6 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     buffer, the learner and the collector. With ``resume`` (a training-state checkpoint) every
     component is loaded from it and ``cfg`` must be its stored config.
     """
-    import time
-
     wall_start = time.perf_counter()
     torch.set_num_threads(cfg.num_threads)
     seed_everything(cfg.seed)
@@ -260,6 +267,24 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         )
     env = build_env(cfg, cfg.seed, observation_norm=observation_norm)
     eval_env = build_env(cfg, cfg.seed + cfg.eval.seed_offset, cfg.eval.episodes, observation_norm)
+    with ExitStack() as on_error:  # an error while building the rest closes the envs
+        on_error.callback(eval_env.close)
+        on_error.callback(env.close)
+        components = _assemble(cfg, resume, env, eval_env, observation_norm, threshold)
+        on_error.pop_all()
+    components.wall_start = wall_start
+    return components
+
+
+def _assemble(
+    cfg: Config,
+    resume: str | Path | None,
+    env: TransformedEnv,
+    eval_env: TransformedEnv,
+    observation_norm: dict[str, list[float]] | None,
+    threshold: float | None,
+) -> Components:
+    """Everything after the envs: run directory, networks, buffer, learner, collector..."""
     if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
         check_ray_address(cfg.collector.ray_address)  # before anything is written
     run_dir = prepare_run_dir(cfg.run_dir)
@@ -340,7 +365,6 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
             cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
         ),
         sync_policy_weights=needs_weight_sync(collector, policy),
-        wall_start=wall_start,
     )
     components.checkpointer = Checkpointer(
         run_dir,
@@ -362,6 +386,10 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         observation_norm,
     )
     if resume is not None:
-        components.checkpointer.load(resume, components.progress)
+        try:
+            components.checkpointer.load(resume, components.progress)
+        except BaseException:
+            components.close()  # the collector may hold worker processes already
+            raise
     telemetry.open_bar(components.progress.frames)
     return components

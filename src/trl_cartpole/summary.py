@@ -18,7 +18,6 @@ import torch
 import torchrl
 
 from trl_cartpole.build import Components, build_env
-from trl_cartpole.collectors import shutdown_collector
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.files import write_json_atomic
@@ -34,7 +33,7 @@ def finish(c: Components) -> dict[str, Any]:
     progress.clock.pause()
     c.telemetry.close_bar()
     c.checkpointer.save_last(progress)
-    shutdown_collector(c.collector)
+    c.release_collector()
     if evaluator.last_eval_frame != progress.frames:
         evaluator.run(progress, redraw=False)
     evaluator.load_best()
