@@ -19,7 +19,7 @@ from omegaconf import OmegaConf
 from trl_cartpole.cli import run_cli
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_json_atomic
-from trl_cartpole.policy_io import evaluate_checkpoint
+from trl_cartpole.policy_io import evaluate_checkpoint, policy_checkpoint
 
 
 @dataclass
@@ -53,7 +53,8 @@ def main(argv: list[str]) -> None:
         "returns": returns,
         "lengths": result.lengths,
     }
-    output = Path(args.output) if args.output else Path(args.checkpoint).parent / "evaluation.json"
+    checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
+    output = Path(args.output) if args.output else checkpoint.parent / "evaluation.json"
     write_json_atomic(output, report)
     print(
         f"{report['env_id']}: {'greedy' if not args.epsilon else f'epsilon={args.epsilon}'} "
