@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import subprocess
 import sys
 
 import gymnasium as gym
@@ -235,20 +236,29 @@ def test_readme_shows_the_custom_env_that_the_tests_train():
     assert "PYTHONPATH=examples python scripts/train.py env.id=corridor:Corridor" in readme
 
 
-def test_env_targets_script_trains_a_preset_and_tabulates_it(tmp_path):
-    proc = run_script(
-        "env_targets.py",
-        "--envs",
-        "acrobot",
-        "--seeds",
-        "0",
-        "--out",
-        str(tmp_path),
-        "collector.total_frames=1024",
-        "eval.interval_frames=512",
-        "eval.episodes=2",
-        "eval.final_episodes=3",
+def test_benchmark_envs_trains_a_preset_and_tabulates_it(tmp_path):
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "benchmarks",
+            "envs",
+            "--envs",
+            "acrobot",
+            "--seeds",
+            "0",
+            "--out",
+            str(tmp_path),
+            "--",
+            "collector.total_frames=1024",
+            "eval.interval_frames=512",
+            "eval.episodes=2",
+            "eval.final_episodes=3",
+        ],
+        capture_output=True,
+        text=True,
         timeout=300,
+        cwd=ROOT,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     summary = json.loads((tmp_path / "acrobot" / "dqn-seed0" / "summary.json").read_text())
