@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -195,7 +196,13 @@ def ray_head(tmp_path_factory):
     """
     pytest.importorskip("ray")
     port = _free_port()
-    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0"}
+    # The cluster's token is made here (not read from ~/.ray, which a fresh machine lacks).
+    env = {
+        **os.environ,
+        "RAY_AUTH_MODE": "token",
+        "RAY_AUTH_TOKEN": secrets.token_hex(32),
+        "RAY_USAGE_STATS_ENABLED": "0",
+    }
     temp_dir = tmp_path_factory.mktemp("ray")
     head = subprocess.Popen(
         [
