@@ -20,12 +20,12 @@ from trl_cartpole.envs import make_env
 from trl_cartpole.models import make_q_actor
 
 
-def test_collector_carrier_is_the_next_step_of_the_in_process_collector():
+def test_carrier_of_is_the_next_step_of_the_in_process_collector():
     env = make_env("CartPole-v1", seed=0)
     collector = make_collector(env, None, 8, 16, init_random_frames=0)
     assert isinstance(collector, Collector)
     batch = next(iter(collector))
-    carrier = compat.collector_carrier(collector)
+    carrier = compat.carrier_of(collector)
     assert "observation" in carrier.keys()  # noqa: SIM118 (a TensorDict)
     # the carrier holds the observation the next batch starts from
     torch.testing.assert_close(carrier["observation"], batch["next", "observation"][-1])
@@ -41,15 +41,15 @@ def test_gym_env_is_the_gymnasium_env_behind_the_wrapper_and_can_be_replaced():
     assert compat.gym_env(env) is other
 
 
-def test_autoreset_memo_of_a_vector_env_reads_and_writes():
+def test_autoreset_state_of_a_vector_env_reads_and_writes():
     env = make_env("CartPole-v1", seed=0, num_envs=2)
     env.rollout(3)
-    memo = compat.autoreset_memo(env)
+    memo = compat.autoreset_state(env)
     assert memo is not None
-    assert compat.set_autoreset_memo(env, memo)
-    assert compat.autoreset_memo(env) is memo
+    assert compat.set_autoreset_state(env, memo)
+    assert compat.autoreset_state(env) is memo
     single = make_env("CartPole-v1", seed=0)
-    assert compat.autoreset_memo(single) is None and not compat.set_autoreset_memo(single, {})
+    assert compat.autoreset_state(single) is None and not compat.set_autoreset_state(single, {})
 
 
 def _steps(envs: int, steps: int) -> TensorDict:

@@ -78,8 +78,8 @@ def make_replay_buffer(
     The defaults are the default config's (``buffer`` section; ``gamma`` is ``loss.gamma``).
     The names are TorchRL's: ``max_size`` of ``LazyTensorStorage``; ``alpha``, ``beta`` and
     ``eps`` of ``TensorDictPrioritizedReplayBuffer``; ``n_steps`` and ``gamma`` of
-    ``MultiStepTransform``. ``buffer_kwargs`` go to the buffer's constructor (``prefetch``,
-    ``pin_memory``, ...).
+    ``MultiStepTransform``. ``buffer_kwargs`` go to the buffer's constructor
+    (``prefetch``, ...).
 
     The storage allocates lazily on the first ``extend`` from the collected batch's layout, so
     the same factory serves any env. Uniform sampling is with replacement (``RandomSampler``),

@@ -46,14 +46,14 @@ from torchrl.envs.transforms import VecGymEnvTransform
 __all__ = [
     "TensorMinSegmentTree",
     "TensorSumSegmentTree",
-    "autoreset_memo",
+    "autoreset_state",
+    "carrier_of",
     "close_weight_sync_schemes",
-    "collector_carrier",
     "gym_env",
     "install_segment_trees_if_missing",
     "n_step_window",
     "replay_transform",
-    "set_autoreset_memo",
+    "set_autoreset_state",
     "set_gym_env",
     "set_n_step_window",
     "use_first_greedy_action",
@@ -63,7 +63,7 @@ __all__ = [
 # --- the in-process collector's carrier ------------------------------------------------------
 
 
-def collector_carrier(collector: BaseCollector) -> TensorDictBase:
+def carrier_of(collector: BaseCollector) -> TensorDictBase:
     """The tensordict a single-process ``Collector`` steps from next (updated in place)."""
     return collector._carrier
 
@@ -89,13 +89,13 @@ def _vector_autoreset(env: EnvBase) -> VecGymEnvTransform | None:
     return None
 
 
-def autoreset_memo(env: EnvBase) -> Any | None:
+def autoreset_state(env: EnvBase) -> Any | None:
     """The memo of TorchRL's vector-env autoreset bridge (None: ``env`` has no such bridge)."""
     transform = _vector_autoreset(env)
     return None if transform is None else transform._memo
 
 
-def set_autoreset_memo(env: EnvBase, memo: Any) -> bool:
+def set_autoreset_state(env: EnvBase, memo: Any) -> bool:
     """Restore the autoreset memo of ``env``; False if ``env`` has no vector-env bridge."""
     transform = _vector_autoreset(env)
     if transform is None:

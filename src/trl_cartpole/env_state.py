@@ -33,11 +33,11 @@ from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
 from trl_cartpole.compat import (
-    autoreset_memo,
-    collector_carrier,
+    autoreset_state,
+    carrier_of,
     gym_env,
     n_step_window,
-    set_autoreset_memo,
+    set_autoreset_state,
     set_gym_env,
     set_n_step_window,
 )
@@ -73,8 +73,8 @@ def _pickled_env(env: EnvBase) -> bytes | None:
         return None
 
 
-def _pickled_memo(env: EnvBase) -> bytes | None:
-    memo = autoreset_memo(env)
+def _pickled_autoreset_state(env: EnvBase) -> bytes | None:
+    memo = autoreset_state(env)
     return None if memo is None else pickle.dumps(memo)
 
 
@@ -107,9 +107,9 @@ class EnvState:
         return {
             "env": _pickled_env(self.env) if in_process else None,
             "eval_env": _pickled_env(self.eval_env),
-            "env_memo": _pickled_memo(self.env) if in_process else None,
-            "eval_env_memo": _pickled_memo(self.eval_env),
-            "carrier": collector_carrier(self.collector).to_dict() if in_process else None,
+            "env_autoreset": _pickled_autoreset_state(self.env) if in_process else None,
+            "eval_env_autoreset": _pickled_autoreset_state(self.eval_env),
+            "carrier": carrier_of(self.collector).to_dict() if in_process else None,
             "n_step_window": None if window is None else window.to_dict(),
             "n_step_window_size": None if window is None else list(window.batch_size),
         }
@@ -133,13 +133,13 @@ class EnvState:
                     stacklevel=2,
                 )
                 if key == "env":  # start a new episode from the restored RNG
-                    collector_carrier(self.collector).update(env.reset())
+                    carrier_of(self.collector).update(env.reset())
                 continue
-            if state[f"{key}_memo"] is not None:
-                set_autoreset_memo(env, pickle.loads(state[f"{key}_memo"]))
+            if state[f"{key}_autoreset"] is not None:
+                set_autoreset_state(env, pickle.loads(state[f"{key}_autoreset"]))
         # The carrier and the n-step window continue the training env's episodes: only with it.
         if restored["env"]:
-            carrier = collector_carrier(self.collector)
+            carrier = carrier_of(self.collector)
             carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
             if state["n_step_window"] is not None:
                 window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
