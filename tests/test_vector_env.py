@@ -7,8 +7,9 @@ import json
 import torch
 
 from trl_cartpole.buffers import NStepTransform, extend_with_batch, make_replay_buffer
+from trl_cartpole.build import TRANSITION_KEYS
 from trl_cartpole.envs import make_env
-from trl_cartpole.train import TRANSITION_KEYS, train
+from trl_cartpole.train import train
 
 from .conftest import SMOKE_OVERRIDES
 

@@ -66,6 +66,7 @@ __all__ = [
     "build_learner",
     "build_replay_buffer",
     "prepare_run_dir",
+    "run_title",
     "seed_everything",
 ]
 
@@ -86,6 +87,11 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)  # noqa: NPY002 (global state that third-party code reads)
     torch.manual_seed(seed)
+
+
+def run_title(cfg: Config) -> str:
+    """``CartPole-v1 dqn seed 0``: the title of a run's plots."""
+    return f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
 
 
 def prepare_run_dir(run_dir: str | Path) -> Path:
@@ -315,7 +321,7 @@ def _assemble(
         backend=cfg.collector.backend,
         ray_address=cfg.collector.ray_address,
     )
-    title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
+    title = run_title(cfg)
     telemetry = Telemetry(
         make_logger(cfg.logger.backend, run_dir, cfg.logger.project, cfg.logger.wandb_offline),
         LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None,

@@ -170,13 +170,10 @@ class Evaluator:
         result = evaluate(self.actor, self.env, self.max_steps)
         frames, seconds = progress.frames, progress.clock.seconds
         self.last_eval_frame = frames
-        for values, value in zip(
-            (self.curve.frames, self.curve.returns, self.curve.initial_values),
-            (frames, result.mean, result.initial_value),
-            strict=True,
-        ):
-            values.append(value)
+        self.curve.frames.append(frames)
         self.curve.seconds.append(round(seconds, 3))
+        self.curve.returns.append(result.mean)
+        self.curve.initial_values.append(result.initial_value)
         if result.mean > self.best_return:
             self.best_return = result.mean
             self.best_state = copy.deepcopy(self.actor.state_dict())

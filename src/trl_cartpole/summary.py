@@ -17,7 +17,7 @@ import tensordict
 import torch
 import torchrl
 
-from trl_cartpole.build import Components, build_env
+from trl_cartpole.build import Components, build_env, run_title
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.evaluation import EvalResult, evaluate
 from trl_cartpole.files import write_json_atomic
@@ -46,7 +46,7 @@ def finish(c: Components) -> dict[str, Any]:
     c.telemetry.close()
     if cfg.logger.plots:
         history, curve = c.telemetry.history, evaluator.curve
-        title = f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
+        title = run_title(cfg)
         plot_durations(history.episode_lengths, c.run_dir / "durations.png", title)
         plot_dashboard(
             curve.frames,
