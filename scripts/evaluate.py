@@ -1,11 +1,10 @@
-"""Greedy evaluation of a checkpoint.
+"""Evaluate a trained policy greedily over many episodes.
 
-    python scripts/evaluate.py checkpoint=runs/.../checkpoints/best episodes=100 \
-        [seed=N] [epsilon=0.05] [output=FILE]
+    python scripts/evaluate.py checkpoint=RUN_DIR [episodes=100] [seed=N] [epsilon=0.05]
 
-Prints mean, std, min and max of the per-episode returns and writes them all as JSON
-(default: ``evaluation.json`` beside the checkpoint directory). ``epsilon`` (default 0, greedy)
-replaces each action by a random one with that probability.
+RUN_DIR is the directory training printed (its best policy is evaluated) or one checkpoint
+in it (runs/.../checkpoints/last). Prints mean, std, min and max of the episode returns and
+writes them all as JSON beside the checkpoint (checkpoints/evaluation-best.json for best).
 """
 
 from __future__ import annotations
@@ -14,9 +13,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from omegaconf import OmegaConf
-
 from trl_cartpole.cli import run_cli
+from trl_cartpole.cli_help import parse_args
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_json_atomic
 from trl_cartpole.policy_io import evaluate_checkpoint, policy_checkpoint
@@ -24,17 +22,15 @@ from trl_cartpole.policy_io import evaluate_checkpoint, policy_checkpoint
 
 @dataclass
 class EvaluateArgs:
-    checkpoint: str = "???"
-    episodes: int = 100
-    seed: int | None = None
-    output: str | None = None
-    epsilon: float = 0.0
+    checkpoint: str = "???"  # a run directory (its checkpoints/best) or a checkpoint directory
+    episodes: int = 100  # greedy episodes, stepped together
+    seed: int | None = None  # null: the seeds of the run's own final evaluation
+    output: str | None = None  # JSON file; null: evaluation-<checkpoint>.json beside it
+    epsilon: float = 0.0  # probability of a random action instead of the greedy one
 
 
 def main(argv: list[str]) -> None:
-    args = OmegaConf.to_object(
-        OmegaConf.merge(OmegaConf.structured(EvaluateArgs), OmegaConf.from_dotlist(argv))
-    )
+    args = parse_args(EvaluateArgs, argv, __doc__)
     if args.episodes < 1:
         raise ConfigError(f"episodes={args.episodes} must be >= 1")
     if not 0.0 <= args.epsilon <= 1.0:
@@ -54,7 +50,7 @@ def main(argv: list[str]) -> None:
         "lengths": result.lengths,
     }
     checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
-    output = Path(args.output) if args.output else checkpoint.parent / "evaluation.json"
+    output = Path(args.output or checkpoint.parent / f"evaluation-{checkpoint.name}.json")
     write_json_atomic(output, report)
     print(
         f"{report['env_id']}: {'greedy' if not args.epsilon else f'epsilon={args.epsilon}'} "

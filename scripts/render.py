@@ -1,12 +1,10 @@
 """Watch a trained agent: greedy episodes as a GIF/MP4, or live in a window.
 
-    python scripts/render.py checkpoint=runs/.../checkpoints/best [episodes=3] \
-        [output=FILE.gif|FILE.mp4] [fps=50] [scale=0.5] [seed=N] [human=false]
+    python scripts/render.py checkpoint=RUN_DIR [episodes=3] [output=agent.gif] [human=true]
 
-Rebuilds the policy from the checkpoint's config, plays ``episodes`` greedy episodes and writes
-every frame, captioned with the episode, step and return so far, to ``output`` (default:
-``video.gif`` beside the checkpoint directory), scaled by ``scale``. ``human=true`` opens
-Gymnasium's window instead (needs a display).
+RUN_DIR is the directory training printed (its best policy plays) or one checkpoint in it.
+Every frame is captioned with the episode, step and return so far and written to ``output``
+(default: checkpoints/video.gif in the run). ``human=true`` opens Gymnasium's window instead.
 """
 
 from __future__ import annotations
@@ -16,9 +14,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from omegaconf import OmegaConf
-
 from trl_cartpole.cli import run_cli
+from trl_cartpole.cli_help import parse_args
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.policy_io import load_trained_policy
 from trl_cartpole.video import render_episodes, write_video
@@ -26,19 +23,17 @@ from trl_cartpole.video import render_episodes, write_video
 
 @dataclass
 class RenderArgs:
-    checkpoint: str = "???"
-    episodes: int = 3
-    output: str | None = None
-    fps: int = 50
-    scale: float = 0.5
-    seed: int | None = None
-    human: bool = False
+    checkpoint: str = "???"  # a run directory (its checkpoints/best) or a checkpoint directory
+    episodes: int = 3  # greedy episodes, one after the other
+    output: str | None = None  # .gif or .mp4 (mp4 needs the video extra); null: video.gif beside it
+    fps: int = 50  # frames per second of the file
+    scale: float = 0.5  # frame size relative to the env's render (0, 4]
+    seed: int | None = None  # null: the seeds of the run's own final evaluation
+    human: bool = False  # open Gymnasium's window instead of writing a file (needs a display)
 
 
 def main(argv: list[str]) -> None:
-    args = OmegaConf.to_object(
-        OmegaConf.merge(OmegaConf.structured(RenderArgs), OmegaConf.from_dotlist(argv))
-    )
+    args = parse_args(RenderArgs, argv, __doc__)
     if args.episodes < 1 or args.fps < 1 or not 0 < args.scale <= 4:
         raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
     if args.human:

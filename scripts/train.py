@@ -1,9 +1,15 @@
-"""Train DQN: ``python scripts/train.py [key=value ...]`` (Hydra overrides, see configs/).
+"""Train a DQN agent until it solves its env (CartPole-v1 by default).
 
-``python scripts/train.py resume=RUN_DIR [collector.total_frames=N ...]`` continues a stopped
-run from its newest checkpoint, with the config it was started with.
-``python scripts/train.py -m seed=0,1,2,3 algo=dqn,double`` runs the grid as a Hydra sweep
-(``trl_cartpole.sweeps``), each job in its own directory.
+usage: python scripts/train.py [key=value ...]
+
+examples:
+  python scripts/train.py                                  # CartPole-v1, the tuned default
+  python scripts/train.py seed=3 optim.lr=1e-3             # change any field below
+  python scripts/train.py algo=double network.head=dueling # a variant preset, plus a switch
+  python scripts/train.py env=acrobot                      # an env preset (configs/env/)
+  python scripts/train.py env.id=MountainCar-v0 env.num_envs=8  # any Gymnasium env id
+  python scripts/train.py resume=RUN_DIR                   # continue a stopped run
+  python scripts/train.py -m seed=0,1,2 algo=dqn,double    # a sweep, one run per combination
 """
 
 from __future__ import annotations
@@ -13,32 +19,26 @@ from pathlib import Path
 
 from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
 from trl_cartpole.cli import compose_config, run_cli, split_resume
+from trl_cartpole.cli_help import print_train_help, wants_help
+from trl_cartpole.config import Config
+from trl_cartpole.console import ending, python_command, shown_path, verdict
 from trl_cartpole.sweeps import is_multirun, run_sweep
 from trl_cartpole.train import train
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
 
-def _report(summary: dict) -> str:
-    solved = (
-        f"solved at {summary['frames_to_solve']} frames, {summary['seconds_to_solve']:.1f} s"
-        if summary["solved"]
-        else "not solved"
-    )
-    return (
-        f"{summary['env_id']} [{summary['algo']}, seed {summary['seed']}]: {solved}; "
-        f"best policy greedy return over {summary['final_eval_episodes']} episodes: "
-        f"{summary['final_eval_return_mean']:.1f} +/- {summary['final_eval_return_std']:.1f}"
-    )
-
-
 def main(argv: list[str]) -> None:
+    if wants_help(argv):
+        print_train_help(__doc__, CONFIG_DIR, Config)
+        return
     if is_multirun(argv):
         summaries = run_sweep(CONFIG_DIR, argv)
         for summary in summaries:
-            print(f"{_report(summary)}\n  run directory: {summary['run_dir']}")
-        sweep_dir = Path(summaries[0]["run_dir"]).parent
-        print(f"compare them: python scripts/plot.py {sweep_dir} --out {sweep_dir}/comparison")
+            print(f"{verdict(summary)}\n  run directory: {shown_path(summary['run_dir'])}")
+        sweep_dir = shown_path(Path(summaries[0]["run_dir"]).parent)
+        scripts = shown_path(Path(__file__).parent)
+        print(f"compare them: {python_command()} {scripts}/plot.py {sweep_dir}")
         return
     resume, overrides = split_resume(argv)
     if resume is None:
@@ -49,7 +49,7 @@ def main(argv: list[str]) -> None:
             overrides = [f"run_dir={run_dir_of(checkpoint)}", *overrides]
         print(f"resuming from {checkpoint}", flush=True)
         summary = train(resume_config(checkpoint, overrides), resume=checkpoint)
-    print(f"{_report(summary)}\nrun directory: {summary['run_dir']}")
+    print(ending(summary, Path(__file__).parent))
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.plotting import LiveDurationPlot, live_plot_target
+from trl_cartpole.plotting import LearningCurves, LiveDurationPlot, live_plot_target
 from trl_cartpole.telemetry import make_logger
 from trl_cartpole.train import train
 
@@ -62,8 +62,8 @@ def test_wandb_without_the_package_is_a_clear_error(tmp_path):
 def test_headless_live_plot_rewrites_the_png_at_each_evaluation(compose, tmp_path):
     assert live_plot_target() == "file"  # the test machine has no display
     plot = LiveDurationPlot(tmp_path / "durations.png")
-    plot.update([10, 20, 30])
+    plot.update(LearningCurves([32, 64, 96], [10, 20, 30], [64], [12.5], 475.0))
     first = (tmp_path / "durations.png").stat().st_mtime_ns
-    plot.update([10, 20, 30, 40] * 30)
+    plot.update(LearningCurves(list(range(32, 3872, 32)), [10, 20, 30, 40] * 30, [], [], None))
     assert (tmp_path / "durations.png").stat().st_mtime_ns >= first
     assert not list(tmp_path.glob(".*.tmp"))  # written atomically

@@ -39,6 +39,7 @@ from trl_cartpole.collectors import (
     make_collector,
     needs_weight_sync,
     shutdown_collector,
+    whole_batches,
     worker_env_constructors,
 )
 from trl_cartpole.config import Config
@@ -326,8 +327,9 @@ def _assemble(
         make_logger(cfg.logger.backend, run_dir, cfg.logger.project, cfg.logger.wandb_offline),
         LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None,
         progress_bar=cfg.logger.progress_bar,
-        description=f"{cfg.env.id} {cfg.algo.name} seed={cfg.seed}",
-        total_frames=cfg.collector.total_frames,
+        description=cfg.env.id,
+        total_frames=whole_batches(cfg.collector.total_frames, cfg.collector.frames_per_batch),
+        threshold=threshold,
     )
 
     def save_best(frames: int, mean: float) -> None:

@@ -27,6 +27,7 @@ from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
 
 from trl_cartpole.config import Config, flat_fields, to_config
+from trl_cartpole.console import python_command, shown_path
 from trl_cartpole.errors import ConfigError, TrainingInterrupted
 from trl_cartpole.files import write_json_atomic
 from trl_cartpole.progress import Progress
@@ -56,6 +57,7 @@ RESUMABLE_FIELDS = (
     "run_dir",
     "checkpoint.keep_last",
     "logger.progress_bar",
+    "logger.verbose",
     "logger.live_plot",
     "logger.plots",
     "collector.ray_address",  # a restarted cluster may listen elsewhere
@@ -327,7 +329,8 @@ class Checkpointer:
         if stop.requested:
             raise TrainingInterrupted(
                 f"stopped by {signal.Signals(stop.signum).name} at frame {progress.frames}; "
-                f"checkpoint written; resume with: python scripts/train.py resume={self.run_dir}",
+                f"checkpoint written; resume with: {python_command()} scripts/train.py "
+                f"resume={shown_path(self.run_dir)}",
                 stop.signum,
             )
         progress.clock.start()

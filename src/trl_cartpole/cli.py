@@ -21,6 +21,7 @@ from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
 from trl_cartpole.config import register_configs
+from trl_cartpole.console import python_command, quiet_libraries
 from trl_cartpole.errors import ConfigError, TrainingFailed, TrainingInterrupted
 
 __all__ = ["compose_config", "run_cli", "split_resume"]
@@ -73,7 +74,8 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     """Run ``main(argv)``; report bad input, interrupts and faults in one line with its code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        main(argv)
+        with quiet_libraries():
+            main(argv)
     except (ConfigError, HydraException, OmegaConfBaseException) as error:
         if os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
@@ -88,7 +90,7 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     except KeyboardInterrupt:
         print(
             "interrupted outside a safe point (or twice): exited at once; the newest complete "
-            "checkpoint is intact (python scripts/train.py resume=RUN_DIR)",
+            f"checkpoint is intact ({python_command()} scripts/train.py resume=RUN_DIR)",
             file=sys.stderr,
         )
         return EXIT_KEYBOARD_INTERRUPT

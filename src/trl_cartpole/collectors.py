@@ -43,6 +43,7 @@ __all__ = [
     "needs_weight_sync",
     "ray_init_config",
     "shutdown_collector",
+    "whole_batches",
     "worker_env_constructors",
 ]
 
@@ -119,6 +120,11 @@ def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
     }
 
 
+def whole_batches(frames: int, frames_per_batch: int) -> int:
+    """``frames`` rounded up to a whole number of batches: what the collector really collects."""
+    return -(-frames // frames_per_batch) * frames_per_batch if frames > 0 else frames
+
+
 def make_collector(
     create_env_fn: EnvBase | Sequence[Callable[[], EnvBase]],
     policy: TensorDictModuleBase,
@@ -141,14 +147,15 @@ def make_collector(
     ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single envs) for a
     synchronous multi-worker batch. The defaults are the default config's ``collector`` section;
     ``collector_kwargs`` go to TorchRL's ``Collector`` (``storing_device``, ``compile_policy``,
-    ``split_trajs``, ...).
+    ``split_trajs``, ...). ``total_frames`` and ``init_random_frames`` are rounded up to whole
+    batches (:func:`whole_batches`), as TorchRL would do with a warning.
     """
     if backend not in BACKENDS:
         raise ConfigError(f"collector.backend={backend!r} is not one of {list(BACKENDS)}")
     common = {
         "frames_per_batch": frames_per_batch,
-        "total_frames": total_frames,
-        "init_random_frames": init_random_frames or None,
+        "total_frames": whole_batches(total_frames, frames_per_batch),
+        "init_random_frames": whole_batches(init_random_frames, frames_per_batch) or None,
         "device": device,
         # the Q-policy needs no env transform registered
         "auto_register_policy_transforms": False,

@@ -41,7 +41,7 @@ __all__ = [
 class EnvConfig:
     # Any Gymnasium id with a vector observation and discrete actions: a registered id, or
     # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.envs.
-    id: str = "CartPole-v1"
+    id: str = "CartPole-v1"  # a Gymnasium id (vector observation, discrete actions), or module:Id
     imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
     max_episode_steps: int | None = None  # None: Gymnasium's registered TimeLimit
     num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
@@ -56,8 +56,8 @@ class AlgoConfig:
 
 @dataclass
 class NetworkConfig:
-    head: str = "plain"  # see trl_cartpole.models.HEADS
-    hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])
+    head: str = "plain"  # plain | dueling (Wang et al. 2016), see trl_cartpole.models.HEADS
+    hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])  # MLP torso widths
     activation: str = "relu"  # relu | tanh | elu | gelu
     noisy: bool = False  # NoisyLinear layers (Fortunato et al. 2018); needs exploration=none
     noisy_std: float = 0.5  # sigma_0 of the factorised noise (the paper's 0.5)
@@ -70,37 +70,37 @@ class NetworkConfig:
 @dataclass
 class ExplorationConfig:
     schedule: str = "linear"  # linear (TorchRL) | exponential (PyTorch tutorial) | none (noisy)
-    eps_start: float = 1.0
-    eps_end: float = 0.05
+    eps_start: float = 1.0  # probability of a random action at the start
+    eps_end: float = 0.05  # ... after decay_frames (linear) and the floor (exponential)
     decay_frames: int = 3000  # linear: frames to reach eps_end; exponential: time constant
 
 
 @dataclass
 class BufferConfig:
-    size: int = 50_000
-    batch_size: int = 512
+    size: int = 50_000  # transitions kept (LazyTensorStorage; the oldest are overwritten)
+    batch_size: int = 512  # transitions per gradient step
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
     alpha: float = 0.6  # P(i) ~ (|delta_i| + priority_eps) ** alpha
     beta: float = 0.4  # importance-sampling exponent at the start, annealed linearly to 1
     beta_anneal_frames: int | None = None  # frames to reach beta = 1; None: collector.total_frames
-    priority_eps: float = 1e-6
+    priority_eps: float = 1e-6  # added to |delta| so that no transition has priority 0
     n_steps: int = 3  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
 
 
 @dataclass
 class LossConfig:
-    gamma: float = 0.995
+    gamma: float = 0.995  # discount factor
     loss_function: str = "smooth_l1"  # smooth_l1 (Huber, as the tutorial) | l2
-    double_dqn: bool = False
+    double_dqn: bool = False  # double DQN target (van Hasselt et al. 2016)
     target_update: str = "hard"  # hard (copy every N updates) | soft (Polyak, tau)
-    tau: float = 0.02
+    tau: float = 0.02  # soft: target <- (1 - tau) target + tau online, after each update
     hard_update_interval: int = 50  # gradient updates between hard copies
 
 
 @dataclass
 class OptimConfig:
-    lr: float = 4e-3
-    amsgrad: bool = True
+    lr: float = 4e-3  # AdamW learning rate
+    amsgrad: bool = True  # AdamW's AMSGrad variant, as the tutorial
     weight_decay: float = 0.0  # the tutorial keeps AdamW's default 0.01
     grad_clip: str = "norm"  # norm | value | none
     max_grad: float = 10.0  # the max norm, or the clip value per element
@@ -108,14 +108,14 @@ class OptimConfig:
 
 @dataclass
 class CollectorConfig:
-    total_frames: int = 50_000
+    total_frames: int = 50_000  # env steps at most (rounded up to whole batches)
     frames_per_batch: int = 32  # frames per collected batch, over all envs
-    init_random_frames: int = 1000  # frames drawn with a uniform random policy first
+    init_random_frames: int = 1000  # frames with a uniform random policy first (whole batches)
     updates_per_batch: int = 6  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
     # Scaling out (docs/scaling.md): collection in worker processes or Ray actors, each with
     # env.num_envs envs. workers=1 on the local backend collects in the training process.
-    workers: int = 1
+    workers: int = 1  # collector processes or Ray actors (docs/scaling.md); 1: in this process
     sync: bool = True  # workers > 1: batches from all workers (true) or the first ready (false)
     backend: str = "local"  # local (this machine) | ray (TorchRL's RayCollector)
     ray_address: str | None = None  # ray: a running cluster's host:port; null: start one here
@@ -127,7 +127,7 @@ class EvalConfig:
     episodes: int = 20  # episodes per periodic evaluation
     final_episodes: int = 100  # episodes for the final evaluation of the best policy
     solve_threshold: float | None = None  # None: Gymnasium's reward_threshold for the env
-    stop_when_solved: bool = True
+    stop_when_solved: bool = True  # end the run at the first evaluation >= the threshold
     max_steps: int = 10_000  # step cap for an episode of an env with no TimeLimit
     seed_offset: int = 1_000_000  # eval env seed = seed + seed_offset
 
@@ -137,7 +137,8 @@ class LoggerConfig:
     backend: str = "csv"  # csv | tensorboard | wandb | none
     project: str = "trl_cartpole"  # wandb project
     wandb_offline: bool = True  # wandb runs offline (sync later with `wandb sync`)
-    progress_bar: bool = True
+    progress_bar: bool = True  # a progress bar on a terminal (a line per evaluation otherwise)
+    verbose: bool = False  # also show the libraries' INFO lines and warnings
     plots: bool = True  # durations.png and dashboard.png at the end of the run
     live_plot: bool = True  # redraw the duration plot at each evaluation (notebook/window/PNG)
 
@@ -153,9 +154,10 @@ class CheckpointConfig:
 
 @dataclass
 class Config:
-    seed: int = 0
+    seed: int = 0  # seeds torch, the envs and the exploration (same seed, same run)
+    # where the run writes; the default name also lists the overrides that differ from presets
     run_dir: str = "runs/${env.id}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
-    device: str = "cpu"
+    device: str = "cpu"  # cpu | cuda | cuda:N (networks, losses and the replay buffer)
     num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
     compile: bool = False  # torch.compile the gradient step (about 10 s once, then ~2x faster)
     env: EnvConfig = field(default_factory=EnvConfig)

@@ -11,6 +11,7 @@ import io
 import os
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from matplotlib.figure import Figure
 from trl_cartpole.files import write_atomic
 
 __all__ = [
+    "LearningCurves",
     "LiveDurationPlot",
     "draw_durations",
     "hold_last",
@@ -46,26 +48,54 @@ def _atomic_savefig(fig: Figure, path: Path) -> None:
     write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
 
 
-def draw_durations(ax, episode_lengths: Sequence[int], title: str = "") -> None:
-    """Draw the tutorial's ``plot_durations`` on ``ax``: durations and their 100-episode mean."""
-    episodes = np.arange(1, len(episode_lengths) + 1)
-    ax.plot(episodes, episode_lengths, label="duration", alpha=0.6)
-    if len(episode_lengths) >= 100:
-        # The tutorial draws the mean only once 100 episodes exist.
-        means = moving_average(episode_lengths, 100)
-        ax.plot(episodes[99:], means[99:], label="100-episode mean", linewidth=2)
-    ax.set_xlabel("Episode")
-    ax.set_ylabel("Duration")
-    ax.set_title(title or "Training episode durations")
-    ax.legend(loc="upper left")
+@dataclass
+class LearningCurves:
+    """What the duration plot draws: training episodes and greedy evaluations, by frame."""
+
+    episode_frames: Sequence[int]  # frame at which each training episode ended, in that order
+    episode_returns: Sequence[float]  # its return (its duration on CartPole: +1 per step)
+    eval_frames: Sequence[int]  # frame of each periodic greedy evaluation
+    eval_returns: Sequence[float]  # its mean return over eval.episodes episodes
+    threshold: float | None = None  # the solve threshold (475 on CartPole-v1), if any
+
+
+def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
+    """The PyTorch DQN tutorial's duration plot, against frames, with the greedy evaluations.
+
+    Training episodes (epsilon-greedy, from all envs, ordered by the frame they ended at) are
+    dots with their 100-episode mean, as the tutorial draws them; the greedy evaluations and
+    the solve threshold show whether the policy itself is solved.
+    """
+    frames = np.asarray(curves.episode_frames)
+    returns = np.asarray(curves.episode_returns, dtype=np.float64)
+    ax.scatter(frames, returns, s=4, alpha=0.3, label="training episode (epsilon-greedy)")
+    if returns.size >= 100:  # the tutorial draws the mean only once 100 episodes exist
+        ax.plot(frames[99:], moving_average(returns, 100)[99:], label="100-episode mean")
+    if len(curves.eval_frames):
+        ax.plot(
+            curves.eval_frames,
+            curves.eval_returns,
+            marker="o",
+            linewidth=2,
+            color="black",
+            label="greedy evaluation (mean)",
+        )
+    if curves.threshold is not None:
+        ax.axhline(
+            curves.threshold, color="green", linestyle="--", label=f"solved ({curves.threshold:g})"
+        )
+    ax.set_xlabel("Frames")
+    ax.set_ylabel("Episode return (= duration on CartPole)")
+    ax.set_title(title or "Training episodes and greedy evaluations")
+    ax.legend(loc="best", fontsize="small")
     ax.grid(alpha=0.3)
 
 
-def plot_durations(episode_lengths: Sequence[int], path: str | Path, title: str = "") -> Path:
-    """The tutorial's ``plot_durations`` as a PNG file (written atomically)."""
+def plot_durations(curves: LearningCurves, path: str | Path, title: str = "") -> Path:
+    """:func:`draw_durations` as a PNG file (written atomically)."""
     path = Path(path)
     fig = Figure(figsize=(8, 4.5))
-    draw_durations(fig.subplots(), episode_lengths, title)
+    draw_durations(fig.subplots(), curves, title)
     _atomic_savefig(fig, path)
     return path
 
@@ -107,14 +137,14 @@ class LiveDurationPlot:
         self.target = target or live_plot_target()
         self._window = None
 
-    def update(self, episode_lengths: Sequence[int]) -> None:
+    def update(self, curves: LearningCurves) -> None:
         if self.target == "file":
-            plot_durations(episode_lengths, self.path, self.title)
+            plot_durations(curves, self.path, self.title)
         elif self.target == "notebook":
             from IPython import display
 
             fig = Figure(figsize=(8, 4.5))
-            draw_durations(fig.subplots(), episode_lengths, self.title)
+            draw_durations(fig.subplots(), curves, self.title)
             buffer = io.BytesIO()
             fig.savefig(buffer, format="png", dpi=80)
             display.clear_output(wait=True)
@@ -126,7 +156,7 @@ class LiveDurationPlot:
                 plt.ion()
                 self._window = plt.figure(figsize=(8, 4.5))
             self._window.clf()
-            draw_durations(self._window.subplots(), episode_lengths, self.title)
+            draw_durations(self._window.subplots(), curves, self.title)
             plt.pause(0.001)
 
 
@@ -139,14 +169,22 @@ def plot_dashboard(
     grad_norms: Sequence[float],
     path: str | Path,
     smoothing: int = 100,
+    title: str = "",
+    threshold: float | None = None,
 ) -> Path:
     """The Practical RL DQN assignment's 4 panels: eval return, TD loss, initial V, grad norm.
 
-    TD loss and grad norm are smoothed with a moving average over ``smoothing`` updates.
+    TD loss and grad norm are smoothed with a moving average over ``smoothing`` updates; the
+    eval panel shows the solve ``threshold`` when there is one.
     """
     path = Path(path)
     fig = Figure(figsize=(12, 8))
     axes = fig.subplots(2, 2)
+    if title:
+        fig.suptitle(title)
+    if threshold is not None:
+        axes[0, 0].axhline(threshold, color="green", linestyle="--", label="solved")
+        axes[0, 0].legend(loc="lower right", fontsize="small")
     panels = [
         (axes[0, 0], eval_frames, eval_returns, "Mean greedy return (eval)", False),
         (axes[0, 1], update_frames, td_losses, "TD loss (smoothed)", True),

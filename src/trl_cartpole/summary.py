@@ -47,7 +47,7 @@ def finish(c: Components) -> dict[str, Any]:
     if cfg.logger.plots:
         history, curve = c.telemetry.history, evaluator.curve
         title = run_title(cfg)
-        plot_durations(history.episode_lengths, c.run_dir / "durations.png", title)
+        plot_durations(c.telemetry.curves(), c.run_dir / "durations.png", title)
         plot_dashboard(
             curve.frames,
             curve.returns,
@@ -56,6 +56,8 @@ def finish(c: Components) -> dict[str, Any]:
             history.td_losses,
             history.grad_norms,
             c.run_dir / "dashboard.png",
+            title=title,
+            threshold=c.threshold,
         )
     summary = _summary(c, final)
     write_json_atomic(c.run_dir / "summary.json", summary)

@@ -10,12 +10,13 @@ duration plot at each evaluation, and keeps the history the final plots and the 
 from __future__ import annotations
 
 import resource
+import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from tensordict import TensorDictBase
-from torch import nn
+from torch import Tensor, nn
 from torchrl.modules import EGreedyModule
 from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLogger
 from tqdm.auto import tqdm
@@ -24,12 +25,27 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_text_atomic
 from trl_cartpole.learner import UpdateReport
 from trl_cartpole.models import expected_action_values
-from trl_cartpole.plotting import LiveDurationPlot
+from trl_cartpole.plotting import LearningCurves, LiveDurationPlot, live_plot_target
 from trl_cartpole.progress import Progress
 
 __all__ = ["History", "Telemetry", "make_logger", "peak_rss_mb", "truncate_csv_metrics"]
 
 UPDATE_LOG_INTERVAL = 100  # log TD loss, grad norm and epsilon once per this many updates
+# 80 columns hold the bar with eval and best first: "CartPole-v1  29%|██▊   | 14.3k/50.0k 00:21,
+# eval 500 best 500 | ret 134 eps .05"
+BAR_FORMAT = "{desc} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {elapsed}{postfix}"
+
+
+def _short(value: float) -> str:
+    """A return as the bar shows it: ``500``, ``-123``, ``10.5``."""
+    return f"{value:.0f}" if abs(value) >= 100 else f"{value:.1f}"
+
+
+def bar_mode(progress_bar: bool) -> str:
+    """``bar`` on a terminal or in a notebook, ``lines`` (one per evaluation) when redirected."""
+    if not progress_bar:
+        return "off"
+    return "bar" if sys.stderr.isatty() or live_plot_target() == "notebook" else "lines"
 
 
 def peak_rss_mb() -> float:
@@ -93,8 +109,11 @@ def truncate_csv_metrics(run_dir: str | Path, frames: int) -> None:
 class History:
     """The training curves the plots and the summary read, kept in memory."""
 
-    episode_returns: list[float] = field(default_factory=list)
+    episode_returns: list[float] = field(default_factory=list)  # in the order they ended
     episode_lengths: list[int] = field(default_factory=list)
+    episode_frames: list[int] = field(default_factory=list)  # the frame each episode ended at
+    eval_frames: list[int] = field(default_factory=list)  # periodic greedy evaluations
+    eval_returns: list[float] = field(default_factory=list)
     update_frames: list[int] = field(default_factory=list)
     td_losses: list[float] = field(default_factory=list)
     grad_norms: list[float] = field(default_factory=list)
@@ -110,18 +129,23 @@ class Telemetry:
         progress_bar: bool = True,
         description: str = "",
         total_frames: int | None = None,
+        threshold: float | None = None,
     ) -> None:
-        self.logger, self.live_plot = logger, live_plot
+        self.logger, self.live_plot, self.threshold = logger, live_plot, threshold
         self.history = History()
+        self.mode = bar_mode(progress_bar)
+        self.total_frames = total_frames
         self._bar_options = {
-            "disable": not progress_bar,
+            "disable": self.mode != "bar",
             "total": total_frames,
             "unit": "frame",
+            "unit_scale": True,
             "dynamic_ncols": True,
             "desc": description,
+            "bar_format": BAR_FORMAT,
         }
         self.bar: tqdm | None = None
-        self.postfix: dict[str, str] = {}  # ep_return, eps, eval, best: shown together
+        self.postfix: dict[str, str] = {}  # eval, best, ret, eps: shown in this order
         self._last_report = UpdateReport()
         self._closed = False
 
@@ -135,15 +159,29 @@ class Telemetry:
                 self.logger.log_scalar(name, float(value), step=step)
 
     def episodes(self, batch: TensorDictBase, progress: Progress) -> None:
-        """Record the episodes that finished in ``batch`` ``[rows, T]``."""
-        done = batch["next", "done"].reshape(-1)  # [F]
+        """Record the episodes that finished in ``batch`` ``[rows, T]`` (or ``[T]``).
+
+        Episodes are kept in the order they ended (time-major over the envs), each with the
+        frame it ended at; ``progress.frames`` already counts this batch.
+        """
+        steps = batch.shape[-1]
+        rows = batch.numel() // steps
+
+        def time_major(key: tuple[str, str]) -> Tensor:  # [T, rows]
+            return batch[key].reshape(rows, steps).T
+
+        done = time_major(("next", "done"))  # [T, rows]
         if not done.any():
             return
-        returns = batch["next", "episode_reward"].reshape(-1)[done].tolist()
-        lengths = batch["next", "step_count"].reshape(-1)[done].tolist()
-        for episode_return, length in zip(returns, lengths, strict=True):
+        returns = time_major(("next", "episode_reward"))[done].tolist()
+        lengths = time_major(("next", "step_count"))[done].tolist()
+        step_index = done.nonzero()[:, 0]  # [episodes]: the step of the batch each one ended at
+        first_frame = progress.frames - batch.numel()
+        frames = (first_frame + (step_index + 1) * rows).tolist()
+        for episode_return, length, frame in zip(returns, lengths, frames, strict=True):
             self.history.episode_returns.append(episode_return)
             self.history.episode_lengths.append(length)
+            self.history.episode_frames.append(frame)
             self.log(
                 {"train/episode_return": episode_return, "train/episode_length": length},
                 progress.frames,
@@ -168,9 +206,9 @@ class Telemetry:
         if self.bar is not None:
             self.bar.update(batch.numel())
         if self.history.episode_returns:
-            self.postfix.update(ep_return=f"{self.history.episode_returns[-1]:.0f}")
+            self.postfix.update(ret=f"{self.history.episode_returns[-1]:.0f}")
         if exploration is not None:
-            self.postfix.update(eps=f"{exploration.eps.item():.3f}")
+            self.postfix.update(eps=f"{exploration.eps.item():.2f}".replace("0.", "."))
         self._show_postfix()
         if progress.updates // UPDATE_LOG_INTERVAL <= updates_before // UPDATE_LOG_INTERVAL:
             return
@@ -201,16 +239,39 @@ class Telemetry:
             },
             frames,
         )
-        self.postfix.update(eval=f"{result.mean:.1f}", best=f"{best:.1f}")
+        self.history.eval_frames.append(frames)
+        self.history.eval_returns.append(result.mean)
+        self.postfix.update(eval=_short(result.mean), best=_short(best))
         self._show_postfix()
+        if self.mode == "lines":  # output redirected: one line per evaluation, no redraws
+            print(
+                f"{frames} / {self.total_frames} frames: greedy return {result.mean:.1f} "
+                f"(best {best:.1f})",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    def curves(self) -> LearningCurves:
+        """The training episodes and greedy evaluations so far, for the duration plot."""
+        history = self.history
+        return LearningCurves(
+            history.episode_frames,
+            history.episode_returns,
+            history.eval_frames,
+            history.eval_returns,
+            self.threshold,
+        )
 
     def redraw_live_plot(self) -> None:
         if self.live_plot is not None:
-            self.live_plot.update(self.history.episode_lengths)
+            self.live_plot.update(self.curves())
 
     def _show_postfix(self) -> None:
         if self.bar is not None:
-            self.bar.set_postfix(self.postfix, refresh=False)
+            shown = {key: f"{key} {value}" for key, value in self.postfix.items()}
+            greedy = " ".join(shown[key] for key in ("eval", "best") if key in shown)
+            training = " ".join(shown[key] for key in ("ret", "eps") if key in shown)
+            self.bar.set_postfix_str(" | ".join(part for part in (greedy, training) if part))
 
     def close_bar(self) -> None:
         if self.bar is not None:

@@ -19,6 +19,7 @@ from omegaconf import DictConfig
 from trl_cartpole.buffers import extend_with_batch
 from trl_cartpole.build import TRANSITION_KEYS, Components, build_components
 from trl_cartpole.config import Config, to_config
+from trl_cartpole.console import quiet_libraries
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.run_control import StopRequest
 from trl_cartpole.summary import finish, record_failure
@@ -42,7 +43,7 @@ def train(
     wrap it to inject a fault).
     """
     cfg = validate(to_config(cfg))
-    with build(cfg, resume) as c, StopRequest() as stop:
+    with quiet_libraries(cfg.logger.verbose), build(cfg, resume) as c, StopRequest() as stop:
         progress, phase = c.progress, c.progress.phase
         progress.clock.start()
         try:

@@ -1,0 +1,143 @@
+"""``--help`` for the scripts, written from the dataclasses that define their arguments.
+
+Every field's one-line meaning is the comment on its line (or the comment lines just above
+it) in the dataclass's source, so the schema stays the one place a field is documented:
+``trl_cartpole.config`` for ``train.py``, each script's ``...Args`` dataclass for the others.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import re
+import sys
+import textwrap
+import typing
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+from omegaconf import OmegaConf
+
+__all__ = ["HELP_FLAGS", "field_help", "parse_args", "wants_help"]
+
+HELP_FLAGS = ("-h", "--help")
+T = TypeVar("T")
+_FIELD_LINE = re.compile(r"^\s+(\w+):[^#]*?(?:#\s*(.*))?$")
+
+
+def wants_help(argv: Sequence[str]) -> bool:
+    """True when the command line asks for help (``-h`` or ``--help``)."""
+    return any(arg in HELP_FLAGS for arg in argv)
+
+
+def _comments(cls: type) -> dict[str, str]:
+    """``{field: comment}`` from the source of dataclass ``cls`` (trailing or the lines above)."""
+    comments: dict[str, str] = {}
+    above: list[str] = []
+    for line in inspect.getsource(cls).splitlines()[1:]:
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            above.append(stripped.lstrip("# "))
+            continue
+        match = _FIELD_LINE.match(line)
+        if match and not stripped.startswith(('"', "def ", "@")):
+            trailing = match.group(2)
+            comments[match.group(1)] = trailing or " ".join(above)
+        above = []
+    return comments
+
+
+def _type_name(annotation: Any) -> str:
+    text = str(annotation) if not isinstance(annotation, type) else annotation.__name__
+    return text.replace("typing.", "").replace("NoneType", "None").replace(" | None", "|None")
+
+
+def _shown(value: Any) -> str:
+    """``value`` as it is written on the command line (``null``, ``true``, ``[128,128]``)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, list | tuple):
+        return "[" + ",".join(_shown(item) for item in value) + "]"
+    return str(value)
+
+
+def _default(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return "???"
+
+
+def field_help(cls: type, prefix: str = "") -> list[tuple[str, str, str, str]]:
+    """``(key, type, default, meaning)`` for every leaf field of dataclass ``cls``, nested first."""
+    rows: list[tuple[str, str, str, str]] = []
+    comments = _comments(cls)
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        kind = hints[f.name]
+        if dataclasses.is_dataclass(kind):
+            rows.extend(field_help(kind, f"{prefix}{f.name}."))
+            continue
+        rows.append((f"{prefix}{f.name}", _type_name(kind), _shown(_default(f)), comments[f.name]))
+    return rows
+
+
+def format_fields(rows: list[tuple[str, str, str, str]], width: int = 100) -> str:
+    """The rows of :func:`field_help` as text: ``key=default (type)`` then the meaning, wrapped.
+
+    A blank line separates the sections (``env.``, ``loss.``...).
+    """
+    lines: list[str] = []
+    section = None
+    for key, kind, default, meaning in rows:
+        if "." in key and key.split(".")[0] != section:
+            section = key.split(".")[0]
+            lines.append("")
+        head = f"  {key}={default} ({kind})"
+        text = f"{head:<44} {meaning}" if len(head) < 44 else f"{head} {meaning}"
+        lines.extend(textwrap.wrap(text, width, subsequent_indent=" " * 45))
+    return "\n".join(lines)
+
+
+def parse_args(schema: type[T], argv: Sequence[str], usage: str) -> T:
+    """``key=value`` arguments merged onto dataclass ``schema``; ``--help`` prints and exits 0.
+
+    ``usage`` (the script's docstring) is printed above the table of fields. A misspelt key or
+    a wrong type raises OmegaConf's error, which :func:`trl_cartpole.cli.run_cli` reports in
+    one line with exit status 2.
+    """
+    if wants_help(argv):
+        print(f"{usage.strip()}\n\narguments (key=default (type) meaning):")
+        print(format_fields(field_help(schema)))
+        raise SystemExit(0)
+    return OmegaConf.to_object(
+        OmegaConf.merge(OmegaConf.structured(schema), OmegaConf.from_dotlist(list(argv)))
+    )
+
+
+def preset_lines(config_dir: Path, group: str, width: int = 100) -> list[str]:
+    """One line per preset of ``configs/<group>/``: its name and the first line of its comment."""
+    lines = []
+    for path in sorted((config_dir / group).glob("*.yaml")):
+        comments = [
+            line.lstrip("# ").strip()
+            for line in path.read_text().splitlines()
+            if line.startswith("#") and "@package" not in line
+        ]
+        line = f"  {group}={path.stem:<12} {comments[0] if comments else ''}".rstrip()
+        lines.append(line if len(line) <= width else line[: width - 3] + "...")
+    return lines
+
+
+def print_train_help(usage: str, config_dir: Path, schema: type) -> None:
+    """``train.py --help``: usage, the presets of each config group, then every field."""
+    out = [usage.strip(), "", "presets (configs/):"]
+    for group in ("algo", "env"):
+        out.extend(preset_lines(config_dir, group))
+    out += ["", "fields (key=default (type) meaning), each one an override key=value:"]
+    out.append(format_fields(field_help(schema)))
+    print("\n".join(out), file=sys.stdout)

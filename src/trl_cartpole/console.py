@@ -1,0 +1,104 @@
+"""What a run prints: nothing from libraries by habit, and a short ending that tells the truth.
+
+:func:`quiet_libraries` keeps TorchRL's INFO lines (spec checks, storage sizes) off the console
+while a run trains, unless ``logger.verbose=true``. :func:`ending` is the run's last words:
+whether it solved (and whether the best policy's final check met the threshold too), where the
+run is, and the next commands, written with the interpreter that is running so they work when
+pasted.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ending", "python_command", "quiet_libraries", "shown_path", "verdict"]
+
+LIBRARY_LOGGERS = ("torchrl", "tensordict")
+
+
+@contextmanager
+def quiet_libraries(verbose: bool = False) -> Iterator[None]:
+    """Inside the block, TorchRL's and tensordict's loggers show warnings only (all if verbose)."""
+    loggers = [logging.getLogger(name) for name in LIBRARY_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.INFO if verbose else logging.WARNING)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+
+
+def python_command() -> str:
+    """How to call this interpreter from the current directory: ``python`` if that is it."""
+    executable = Path(sys.executable)
+    on_path = shutil.which("python")
+    if on_path and Path(on_path).resolve() == executable.resolve():
+        return "python"
+    return shown_path(executable)
+
+
+def shown_path(path: str | Path) -> str:
+    """``path`` relative to the current directory when it lies below it, else absolute."""
+    path = Path(path).absolute()
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def verdict(summary: dict[str, Any]) -> str:
+    """One line: env, preset and seed, then solved or not and the best policy's final check."""
+    return f"{summary['env_id']} [{summary['algo']}, seed {summary['seed']}]: {_outcome(summary)}"
+
+
+def _outcome(summary: dict[str, Any]) -> str:
+    threshold = summary.get("solve_threshold")
+    evaluations = len(summary["eval_curve"]["frames"])
+    final = (
+        f"the best policy of {evaluations} evaluation{'s' * (evaluations != 1)} returned "
+        f"{summary['final_eval_return_mean']:.1f} +/- {summary['final_eval_return_std']:.1f} "
+        f"over {summary['final_eval_episodes']} new episodes"
+    )
+    if threshold is None:
+        return f"{summary['frames']} frames, no solve threshold for this env; {final}"
+    if not summary["solved"]:
+        return (
+            f"not solved in {summary['frames']} frames (threshold {threshold:g}, best evaluation "
+            f"{summary['best_eval_return_mean']:.1f}); {final}"
+        )
+    when = f"{summary['frames_to_solve']} frames, {summary['seconds_to_solve']:.1f} s of training"
+    if summary["final_eval_return_mean"] >= threshold:
+        return f"solved at {when}; {final} (>= {threshold:g})"
+    return (
+        f"reached {threshold:g} once at {when}, but {final}, below {threshold:g}: not reliably "
+        "solved (try more frames or another seed)"
+    )
+
+
+def ending(summary: dict[str, Any], scripts: str | Path = "scripts") -> str:
+    """The lines a finished run prints: the verdict, the run directory and what to try next.
+
+    ``scripts`` is the directory of the project's scripts (``scripts/train.py``'s own).
+    """
+    run = shown_path(summary["run_dir"])
+    python, scripts = python_command(), shown_path(scripts)
+    lines = [
+        verdict(summary),
+        f"run directory: {run} (durations.png, dashboard.png, summary.json, checkpoints/)",
+    ]
+    if summary.get("checkpoint"):
+        lines += [
+            "next:",
+            f"  {python} {scripts}/evaluate.py checkpoint={run}   # 100 greedy episodes",
+            f"  {python} {scripts}/render.py checkpoint={run}     # a GIF of the agent",
+            f"  {python} {scripts}/export.py checkpoint={run} output=policy.onnx",
+        ]
+    return "\n".join(lines)
