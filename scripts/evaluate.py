@@ -1,6 +1,6 @@
 """Evaluate a trained policy greedily over many episodes.
 
-    python scripts/evaluate.py checkpoint=RUN_DIR [episodes=100] [seed=N] [epsilon=0.05]
+usage: python scripts/evaluate.py checkpoint=RUN_DIR [episodes=100] [seed=N] [epsilon=0.05]
 
 RUN_DIR is the directory training printed (its best policy is evaluated) or one checkpoint
 in it (runs/.../checkpoints/last). Prints mean, std, min and max of the episode returns and

@@ -1,6 +1,6 @@
 """Watch a trained agent: greedy episodes as a GIF/MP4, or live in a window.
 
-    python scripts/render.py checkpoint=RUN_DIR [episodes=3] [output=agent.gif] [human=true]
+usage: python scripts/render.py checkpoint=RUN_DIR [episodes=3] [output=agent.gif] [human=true]
 
 RUN_DIR is the directory training printed (its best policy plays) or one checkpoint in it.
 Every frame is captioned with the episode, step and return so far and written to ``output``

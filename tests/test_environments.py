@@ -159,6 +159,7 @@ class _DictEnv(gym.Env):
     ("env_id", "message"),
     [
         ("Pendulum-v1", "has continuous \\(Box\\) actions .*DQN needs one discrete action"),
+        ("Blackjack-v1", r"has observation entries \['Discrete', 'Discrete', 'Discrete'\]"),
         ("tests.test_environments:_ImageEnv", r"has image observations of shape \(8, 8, 3\)"),
         ("tests.test_environments:_MatrixEnv", r"has an observation of shape \(3, 2\)"),
         ("tests.test_environments:_DictEnv", r"has observation entries \['a', 'b'\]"),
@@ -168,9 +169,10 @@ class _DictEnv(gym.Env):
         ("json:JSONDecoder", "neither registers 'JSONDecoder' nor defines a gymnasium.Env"),
     ],
 )
-def test_envs_that_cannot_work_are_refused_in_one_line(env_id, message, fresh_registry):
+@pytest.mark.parametrize("num_envs", [1, 4])  # a vector env is checked before TorchRL wraps it
+def test_envs_that_cannot_work_are_refused_in_one_line(env_id, message, num_envs, fresh_registry):
     with pytest.raises(ConfigError, match=message) as caught:
-        make_env(env_id)
+        make_env(env_id, num_envs=num_envs)
     assert "\n" not in str(caught.value)
 
 

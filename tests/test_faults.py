@@ -308,12 +308,20 @@ BAD_INPUTS = [
     ("impossible value", ["loss.gamma=1.5"], "loss.gamma=1.5 must lie in (0, 1]"),
     ("unknown env id", ["env.id=Nope-v0"], "is not a registered Gymnasium env"),
     ("continuous actions", ["env.id=Pendulum-v1"], "discrete"),
+    ("discrete states, 32 envs", ["env.id=FrozenLake-v1"], "has a discrete observation"),
+    ("tuple observation", ["env.id=Blackjack-v1"], "has observation entries"),
+    pytest.param(
+        "no cuda",
+        ["device=cuda"],
+        "has no usable CUDA GPU",
+        marks=pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA"),
+    ),
     ("unwritable run dir", ["run_dir=/proc/trl_cartpole"], "is not writable"),
     ("missing checkpoint", ["resume=/nonexistent/run"], "does not exist"),
 ]
 
 
-@pytest.mark.parametrize(("case", "args", "message"), BAD_INPUTS, ids=[c[0] for c in BAD_INPUTS])
+@pytest.mark.parametrize(("case", "args", "message"), BAD_INPUTS)
 def test_bad_training_input_is_one_line_and_exit_2(tmp_path, case, args, message):
     run_dir = tmp_path / "run"
     proc = run_script("train.py", f"run_dir={run_dir}", *args)

@@ -17,10 +17,8 @@ from typing import Any
 
 import gymnasium as gym
 import torch
-from torchrl.data import Categorical, OneHot
 from torchrl.envs import (
     DoubleToFloat,
-    EnvBase,
     GymWrapper,
     ObservationNorm,
     RewardSum,
@@ -113,38 +111,44 @@ def _missing_dependency(env_id: str, error: Exception) -> ConfigError:
     return ConfigError(f"env {env_id!r} needs a package that is not installed ({reason}); {how}")
 
 
-def check_env_fits(env: EnvBase, env_id: str) -> None:
-    """Raise :class:`ConfigError` unless ``env`` has one vector observation and discrete actions."""
-    action_spec = env.action_spec
-    if not isinstance(action_spec, (OneHot, Categorical)):
-        kind = "continuous (Box)" if action_spec.domain == "continuous" else "multi-part"
+def check_env_fits(observation_space: gym.Space, action_space: gym.Space, env_id: str) -> None:
+    """Raise :class:`ConfigError` unless the spaces are one vector and one discrete action.
+
+    Checked on the Gymnasium spaces (of one env, ``single_*_space`` for a vector env) before
+    TorchRL wraps the env, so a space TorchRL cannot batch fails here in one line too.
+    """
+    spaces = gym.spaces
+    if not isinstance(action_space, spaces.Discrete):
+        kind = "continuous (Box)" if isinstance(action_space, spaces.Box) else "multi-part"
         raise ConfigError(
-            f"env {env_id!r} has {kind} actions (TorchRL spec {type(action_spec).__name__}); "
+            f"env {env_id!r} has {kind} actions ({type(action_space).__name__}); "
             "DQN needs one discrete action (a Gymnasium Discrete space)"
         )
-    observation_spec = env.observation_spec
-    keys = list(observation_spec.keys(True, True))
-    batch_dims = len(env.batch_size)  # a vector env's leading batch dimension
-    if "pixels" in keys:  # TorchRL's key for a Gymnasium image observation
-        shape = tuple(observation_spec["pixels"].shape[batch_dims:])
-        raise ConfigError(
-            f"env {env_id!r} has image observations of shape {shape}; DQN here needs one vector "
-            "observation: use the env's vector-state version or flatten it in a Gymnasium wrapper"
+    if isinstance(observation_space, spaces.Dict | spaces.Tuple):
+        parts = (
+            list(observation_space.spaces)
+            if isinstance(observation_space, spaces.Dict)
+            else [type(part).__name__ for part in observation_space.spaces]
         )
-    if keys != [OBSERVATION_KEY]:
         raise ConfigError(
-            f"env {env_id!r} has observation entries {keys} (a Gymnasium Dict or Tuple space); "
-            "DQN here needs one vector observation (a Gymnasium Box of rank 1)"
+            f"env {env_id!r} has observation entries {parts} (a Gymnasium "
+            f"{type(observation_space).__name__} space); DQN here needs one vector observation "
+            "(a Gymnasium Box of rank 1): flatten it (gymnasium.wrappers.FlattenObservation)"
         )
-    if observation_spec[OBSERVATION_KEY].domain == "discrete":  # Gymnasium Discrete states
+    if isinstance(observation_space, spaces.Discrete | spaces.MultiDiscrete):
         raise ConfigError(
             f"env {env_id!r} has a discrete observation (a state index, e.g. Taxi or FrozenLake); "
             "DQN here needs a vector observation (a Gymnasium Box of rank 1)"
         )
-    obs_shape = tuple(observation_spec[OBSERVATION_KEY].shape[batch_dims:])
-    if len(obs_shape) != 1:
+    shape = tuple(observation_space.shape or ())
+    if len(shape) == 3:
         raise ConfigError(
-            f"env {env_id!r} has an observation of shape {obs_shape}; DQN here needs a vector "
+            f"env {env_id!r} has image observations of shape {shape}; DQN here needs one vector "
+            "observation: use the env's vector-state version or flatten it in a Gymnasium wrapper"
+        )
+    if len(shape) != 1 or not isinstance(observation_space, spaces.Box):
+        raise ConfigError(
+            f"env {env_id!r} has an observation of shape {shape}; DQN here needs a vector "
             "(rank 1): flatten it (gymnasium.wrappers.FlattenObservation) or use a vector-state env"
         )
 
@@ -208,18 +212,19 @@ def make_env(
         make_kwargs["render_mode"] = render_mode
     try:
         if num_envs == 1:
-            base_env = GymWrapper(gym.make(env_id, **make_kwargs), device=device)
+            gym_env = gym.make(env_id, **make_kwargs)
+            spaces = gym_env.observation_space, gym_env.action_space
         else:
-            base_env = GymWrapper(
-                make_sync_vector_env(env_id, num_envs, **make_kwargs), device=device
-            )
+            gym_env = make_sync_vector_env(env_id, num_envs, **make_kwargs)
+            spaces = gym_env.single_observation_space, gym_env.single_action_space
     except (ImportError, gym.error.DependencyNotInstalled) as error:
         raise _missing_dependency(env_id, error) from None
     try:
-        check_env_fits(base_env, env_id)
+        check_env_fits(*spaces, env_id)
     except ConfigError:
-        base_env.close()
+        gym_env.close()
         raise
+    base_env = GymWrapper(gym_env, device=device)
     transforms = [StepCounter(), RewardSum()]
     if base_env.observation_spec[OBSERVATION_KEY].dtype == torch.float64:
         transforms.append(DoubleToFloat())

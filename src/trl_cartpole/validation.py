@@ -9,6 +9,8 @@ from __future__ import annotations
 import importlib.util
 from typing import Any
 
+import torch
+
 from trl_cartpole.config import Config
 from trl_cartpole.envs import resolve_env_id
 from trl_cartpole.errors import ConfigError
@@ -112,12 +114,35 @@ def validate(cfg: Config) -> Config:
     for ok, message in checks:
         if not ok:
             raise ConfigError(message)
-    if cfg.device != "cpu" and not cfg.device.startswith(("cuda", "mps")):
-        raise ConfigError(f"device={cfg.device!r} is not a torch device; use cpu or cuda[:N]")
+    check_device(cfg.device)
     _check_combination(cfg)
     check_network_choices(cfg.network.head, cfg.network.activation)
     resolve_env_id(cfg.env.id, cfg.env.imports)
     return cfg
+
+
+def check_device(device: str) -> None:
+    """Raise a one-line :class:`ConfigError` unless ``device`` exists on this machine."""
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise ConfigError(f"device={device!r} is not a torch device; use cpu or cuda[:N]") from None
+    if parsed.type == "cuda":
+        if not torch.cuda.is_available():
+            build = "a CPU-only build" if torch.version.cuda is None else "no CUDA GPU visible"
+            raise ConfigError(
+                f"device={device!r} but this machine has no usable CUDA GPU (torch "
+                f"{torch.__version__}: {build}); use device=cpu"
+            )
+        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+            raise ConfigError(
+                f"device={device!r} but this machine has {torch.cuda.device_count()} CUDA "
+                f"GPU(s), numbered from 0"
+            )
+    elif parsed.type == "mps" and not torch.backends.mps.is_available():
+        raise ConfigError(f"device={device!r} but MPS is not available here; use device=cpu")
+    elif parsed.type not in ("cpu", "cuda", "mps"):
+        raise ConfigError(f"device={device!r} is not supported; use cpu or cuda[:N]")
 
 
 def _envs_per_batch(cfg: Config) -> int:

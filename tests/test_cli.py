@@ -1,0 +1,154 @@
+"""What a new user meets: --help, a quiet console, an ending that tells the truth."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tqdm import tqdm
+
+from tests.conftest import ROOT, SCRIPTS, SMOKE_OVERRIDES, run_script
+from trl_cartpole.cli_help import field_help
+from trl_cartpole.config import Config
+from trl_cartpole.console import ending, verdict
+from trl_cartpole.progress import Progress
+from trl_cartpole.telemetry import BAR_FORMAT, Telemetry
+
+SCRIPT_NAMES = sorted(path.name for path in SCRIPTS.glob("*.py"))
+
+
+@pytest.mark.parametrize("name", SCRIPT_NAMES)
+def test_every_script_answers_help(name):
+    proc = run_script(name, "--help", timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "usage" in proc.stdout.lower() and proc.stderr == ""
+
+
+def test_benchmarks_answer_help():
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks", "--help"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert proc.returncode == 0 and "usage" in proc.stdout
+
+
+def test_train_help_lists_presets_and_every_field_with_a_meaning():
+    proc = run_script("train.py", "--help", timeout=60)
+    for preset in ("algo=dqn", "algo=tutorial", "algo=rainbow", "env=cartpole", "env=acrobot"):
+        assert preset in proc.stdout
+    rows = field_help(Config)
+    assert len(rows) > 60
+    for key, _, default, meaning in rows:
+        assert meaning, f"{key} has no comment in trl_cartpole/config.py"
+        assert f"  {key}={default} " in proc.stdout
+    assert "  loss.gamma=0.995 (float)" in proc.stdout
+    assert "  network.hidden_sizes=[128,128] (list[int])" in proc.stdout
+
+
+def test_a_run_prints_its_evaluations_and_ending_and_nothing_else(tmp_path):
+    run_dir = tmp_path / "run"
+    overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("logger.progress_bar")]
+    # 300 frames in batches of 4 do not divide into the 298 asked for: no warning about it.
+    overrides = [o.replace("total_frames=300", "total_frames=298") for o in overrides]
+    proc = run_script("train.py", *overrides, f"run_dir={run_dir}", timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    output = proc.stdout + proc.stderr
+    for noise in ("[INFO]", "Warning", "\x1b[", "Traceback"):
+        assert noise not in output
+    # stderr is not a terminal here: one line per evaluation instead of a redrawn bar
+    evaluations = proc.stderr.splitlines()
+    assert evaluations and all(
+        re.fullmatch(r"\d+ / 300 frames: greedy return -?[\d.]+ \(best -?[\d.]+\)", line)
+        for line in evaluations
+    ), proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0].startswith("CartPole-v1 [dqn, seed 0]: not solved in 300 frames")
+    assert lines[1].startswith(f"run directory: {run_dir}")
+    assert f"scripts/evaluate.py checkpoint={run_dir}" in proc.stdout
+    command = lines[3].split()[0]  # the interpreter that ran, so the command works as printed
+    assert Path(shutil.which(command) or command).resolve() == Path(sys.executable).resolve()
+
+
+def _summary(**changes) -> dict:
+    summary = {
+        "env_id": "CartPole-v1",
+        "algo": "dqn",
+        "seed": 3,
+        "frames": 43008,
+        "solved": True,
+        "solve_threshold": 475.0,
+        "frames_to_solve": 43008,
+        "seconds_to_solve": 41.0,
+        "final_eval_return_mean": 500.0,
+        "final_eval_return_std": 0.0,
+        "final_eval_episodes": 100,
+        "best_eval_return_mean": 478.5,
+        "eval_curve": {"frames": [1024 * i for i in range(1, 43)]},
+        "run_dir": "runs/x",
+        "checkpoint": "runs/x/checkpoints/best",
+    }
+    return {**summary, **changes}
+
+
+def test_the_ending_never_says_solved_when_the_final_check_missed():
+    missed = verdict(_summary(final_eval_return_mean=422.1, final_eval_return_std=129.7))
+    assert "reached 475 once at 43008 frames" in missed
+    assert "422.1 +/- 129.7 over 100 new episodes, below 475: not reliably solved" in missed
+    assert "solved at" not in missed
+    met = verdict(_summary())
+    assert "solved at 43008 frames, 41.0 s of training" in met and "(>= 475)" in met
+    assert "the best policy of 42 evaluations" in met
+
+
+def test_the_ending_of_an_unsolved_run_and_of_an_env_without_threshold():
+    unsolved = verdict(_summary(solved=False, frames_to_solve=None, frames=5000))
+    assert "not solved in 5000 frames (threshold 475, best evaluation 478.5)" in unsolved
+    one = verdict(_summary(solve_threshold=None, eval_curve={"frames": [5000]}))
+    assert "no solve threshold" in one and "the best policy of 1 evaluation returned" in one
+    assert "next:" in ending(_summary()) and "next:" not in ending(_summary(checkpoint=None))
+
+
+def test_episodes_are_recorded_in_the_order_they_ended_with_their_frame():
+    telemetry = Telemetry(None, progress_bar=False)
+    progress = Progress()
+    # 2 envs x 3 steps: env 0 ends at step 2, env 1 at step 0
+    done = torch.tensor([[False, False, True], [True, False, False]]).unsqueeze(-1)
+    batch = TensorDict(
+        {
+            "next": {
+                "done": done,
+                "episode_reward": torch.tensor([[1.0, 2.0, 30.0], [10.0, 1.0, 2.0]]).unsqueeze(-1),
+                "step_count": torch.tensor([[1, 2, 30], [10, 1, 2]]).unsqueeze(-1),
+            }
+        },
+        batch_size=[2, 3],
+    )
+    progress.frames = 100 + batch.numel()  # the loop counts the batch before recording it
+    telemetry.episodes(batch, progress)
+    history = telemetry.history
+    assert history.episode_returns == [10.0, 30.0]  # env 1's episode ended first
+    assert history.episode_lengths == [10, 30]
+    assert history.episode_frames == [100 + 1 * 2, 100 + 3 * 2]
+
+
+def test_the_bar_shows_eval_and_best_in_80_columns():
+    bar = tqdm.format_meter(
+        n=14_336,
+        total=50_016,
+        elapsed=21.0,
+        ncols=80,
+        prefix="LunarLander-v3",
+        bar_format=BAR_FORMAT,
+        unit_scale=True,
+        postfix="eval -123 best -45.5 | ret -300 eps .05",
+    )
+    assert len(bar) <= 80 and "eval -123 best -45.5" in bar
