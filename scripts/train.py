@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
-from trl_cartpole.cli import compose_config, run_cli, split_resume
+from trl_cartpole.cli import compose_run_config, run_cli, split_resume
 from trl_cartpole.cli_help import print_train_help, wants_help
 from trl_cartpole.config import Config
 from trl_cartpole.console import ending, python_command, shown_path, verdict
@@ -42,7 +42,7 @@ def main(argv: list[str]) -> None:
         return
     resume, overrides = split_resume(argv)
     if resume is None:
-        summary = train(compose_config(CONFIG_DIR, overrides))
+        summary = train(compose_run_config(CONFIG_DIR, overrides))
     else:
         checkpoint = find_resume_checkpoint(resume)
         if not any(arg.startswith("run_dir=") for arg in overrides):  # continue where it is

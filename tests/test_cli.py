@@ -14,6 +14,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from tests.conftest import ROOT, SCRIPTS, SMOKE_OVERRIDES, run_script
+from trl_cartpole.cli import compose_run_config
 from trl_cartpole.cli_help import field_help
 from trl_cartpole.config import Config
 from trl_cartpole.console import ending, verdict
@@ -152,3 +153,18 @@ def test_the_bar_shows_eval_and_best_in_80_columns():
         postfix="eval -123 best -45.5 | ret -300 eps .05",
     )
     assert len(bar) <= 80 and "eval -123 best -45.5" in bar
+
+
+@pytest.mark.parametrize(
+    ("overrides", "name"),
+    [
+        ([], "runs/CartPole-v1-dqn-seed0-"),
+        (["loss.double_dqn=true"], "runs/CartPole-v1-dqn-double_dqn=true-seed0-"),
+        (["algo=double", "seed=2"], "runs/CartPole-v1-double-seed2-"),  # a preset names itself
+        (["env=acrobot", "network.hidden_sizes=[64,64]"], "-dqn-hidden_sizes=64x64-seed0-"),
+        (["seed=3", "buffer.batch_size=64", "optim.lr=5e-4"], "-batch_size=64,lr=0.0005-seed3-"),
+        (["logger.backend=none", "checkpoint.keep_last=5"], "runs/CartPole-v1-dqn-seed0-"),
+    ],
+)
+def test_a_run_directory_names_what_differs_from_its_presets(overrides, name):
+    assert name in compose_run_config(ROOT / "configs", overrides).run_dir

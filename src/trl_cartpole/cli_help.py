@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 from omegaconf import OmegaConf
 
-__all__ = ["HELP_FLAGS", "field_help", "parse_args", "wants_help"]
+__all__ = ["HELP_FLAGS", "field_help", "parse_args", "shown_value", "wants_help"]
 
 HELP_FLAGS = ("-h", "--help")
 T = TypeVar("T")
@@ -53,14 +53,14 @@ def _type_name(annotation: Any) -> str:
     return text.replace("typing.", "").replace("NoneType", "None").replace(" | None", "|None")
 
 
-def _shown(value: Any) -> str:
+def shown_value(value: Any) -> str:
     """``value`` as it is written on the command line (``null``, ``true``, ``[128,128]``)."""
     if value is None:
         return "null"
     if isinstance(value, bool):
         return str(value).lower()
     if isinstance(value, list | tuple):
-        return "[" + ",".join(_shown(item) for item in value) + "]"
+        return "[" + ",".join(shown_value(item) for item in value) + "]"
     return str(value)
 
 
@@ -82,7 +82,9 @@ def field_help(cls: type, prefix: str = "") -> list[tuple[str, str, str, str]]:
         if dataclasses.is_dataclass(kind):
             rows.extend(field_help(kind, f"{prefix}{f.name}."))
             continue
-        rows.append((f"{prefix}{f.name}", _type_name(kind), _shown(_default(f)), comments[f.name]))
+        rows.append(
+            (f"{prefix}{f.name}", _type_name(kind), shown_value(_default(f)), comments[f.name])
+        )
     return rows
 
 
