@@ -16,8 +16,6 @@ from pathlib import Path
 from trl_cartpole.cli import run_cli
 from trl_cartpole.cli_help import parse_args
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.files import write_json_atomic
-from trl_cartpole.policy_io import evaluate_checkpoint, policy_checkpoint
 
 
 @dataclass
@@ -31,6 +29,10 @@ class EvaluateArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(EvaluateArgs, argv, __doc__)
+    # imported after the arguments are read, so that --help answers at once
+    from trl_cartpole.files import write_json_atomic
+    from trl_cartpole.policy_io import evaluate_checkpoint, policy_checkpoint
+
     if args.episodes < 1:
         raise ConfigError(f"episodes={args.episodes} must be >= 1")
     if not 0.0 <= args.epsilon <= 1.0:

@@ -17,9 +17,11 @@ from pathlib import Path
 from trl_cartpole.cli import run_cli
 from trl_cartpole.cli_help import parse_args
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.export import export_onnx, export_program, greedy_q_network
 
-FORMATS = {".onnx": ("ONNX model", export_onnx), ".pt2": ("torch.export program", export_program)}
+FORMATS = {
+    ".onnx": ("ONNX model", "export_onnx"),
+    ".pt2": ("torch.export program", "export_program"),
+}
 
 
 @dataclass
@@ -30,6 +32,9 @@ class ExportArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(ExportArgs, argv, __doc__)
+    # imported after the arguments are read, so that --help answers at once
+    from trl_cartpole import export
+
     output = Path(args.output)
     if output.suffix not in FORMATS:
         raise ConfigError(
@@ -40,9 +45,9 @@ def main(argv: list[str]) -> None:
         raise ConfigError(
             f"output={args.output!r}: directory {str(output.parent)!r} does not exist"
         )
-    kind, export = FORMATS[output.suffix]
-    module = greedy_q_network(args.checkpoint)
-    export(module, module.obs_dim, output)
+    kind, exporter = FORMATS[output.suffix]
+    module = export.greedy_q_network(args.checkpoint)
+    getattr(export, exporter)(module, module.obs_dim, output)
     print(
         f"wrote the {kind} {output}: observation [batch, {module.obs_dim}] float32 -> "
         f"action_values [batch, {module.num_actions}] (greedy action: their arg-max); "

@@ -17,8 +17,6 @@ from pathlib import Path
 from trl_cartpole.cli import run_cli
 from trl_cartpole.cli_help import parse_args
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.policy_io import load_trained_policy
-from trl_cartpole.video import render_episodes, write_video
 
 
 @dataclass
@@ -34,6 +32,10 @@ class RenderArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(RenderArgs, argv, __doc__)
+    # imported after the arguments are read, so that --help answers at once
+    from trl_cartpole.policy_io import load_trained_policy
+    from trl_cartpole.video import render_episodes, write_video
+
     if args.episodes < 1 or args.fps < 1 or not 0 < args.scale <= 4:
         raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
     if args.human:

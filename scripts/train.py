@@ -17,13 +17,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
 from trl_cartpole.cli import compose_run_config, run_cli, split_resume
 from trl_cartpole.cli_help import print_train_help, wants_help
 from trl_cartpole.config import Config
 from trl_cartpole.console import ending, python_command, shown_path, verdict
-from trl_cartpole.sweeps import is_multirun, run_sweep
-from trl_cartpole.train import train
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
@@ -32,6 +29,11 @@ def main(argv: list[str]) -> None:
     if wants_help(argv):
         print_train_help(__doc__, CONFIG_DIR, Config)
         return
+    # imported after the help check, so that --help answers at once
+    from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
+    from trl_cartpole.sweeps import is_multirun, run_sweep
+    from trl_cartpole.train import train
+
     if is_multirun(argv):
         summaries = run_sweep(CONFIG_DIR, argv)
         for summary in summaries:
