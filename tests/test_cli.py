@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -14,6 +15,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from tests.conftest import ROOT, SCRIPTS, SMOKE_OVERRIDES, run_script
+from trl_cartpole.build import prepare_run_dir
 from trl_cartpole.cli import compose_run_config
 from trl_cartpole.cli_help import field_help
 from trl_cartpole.config import Config
@@ -168,3 +170,14 @@ def test_the_bar_shows_eval_and_best_in_80_columns():
 )
 def test_a_run_directory_names_what_differs_from_its_presets(overrides, name):
     assert name in compose_run_config(ROOT / "configs", overrides).run_dir
+
+
+def test_runs_latest_points_at_the_newest_run_and_survives_a_resume_through_it(tmp_path):
+    runs = tmp_path / "runs"
+    for name in ("first", "second"):
+        prepare_run_dir(runs / name)
+    assert (runs / "latest").resolve() == (runs / "second").resolve()
+    prepare_run_dir(runs / "latest")  # resume=runs/latest writes through the link
+    assert os.readlink(runs / "latest") == "second"
+    prepare_run_dir(tmp_path / "elsewhere" / "run")  # not under runs/: no link
+    assert not (tmp_path / "elsewhere" / "latest").exists()

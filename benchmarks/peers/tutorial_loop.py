@@ -1,8 +1,8 @@
-"""The seeds' PyTorch DQN tutorial loop, in plain PyTorch, under the benchmark protocol.
+"""The PyTorch DQN tutorial's training loop, in plain PyTorch, under the benchmark protocol.
 
     python -m benchmarks.peers.tutorial_loop --seed 0 --run-dir runs/peers/tutorial_loop-seed0
 
-The training code is the tutorial's (``../shared/seeds/001_*.txt``), kept as written there:
+The training code is the tutorial's (pytorch.org, reinforcement_q_learning), kept as written:
 ``deque`` replay memory of ``Transition`` tuples, ``random.sample``, ``torch.cat`` batching, a
 non-final mask, Huber loss, gradient value clipping at 100, AdamW(amsgrad) lr 1e-4, and the
 soft target update through ``state_dict`` after every step. Batch 128, gamma 0.99,

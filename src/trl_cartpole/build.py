@@ -14,6 +14,7 @@ notebook and the benchmark tools use them too, so every tool builds what trainin
 
 from __future__ import annotations
 
+import os
 import random
 import time
 from contextlib import ExitStack
@@ -95,8 +96,26 @@ def run_title(cfg: Config) -> str:
     return f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
 
 
+def point_latest(run_dir: Path) -> None:
+    """Point ``runs/latest`` at ``run_dir`` when it lies in a ``runs`` directory (best effort).
+
+    So a command can name the newest run without knowing its timestamp
+    (``scripts/evaluate.py checkpoint=runs/latest``); the link is replaced atomically.
+    """
+    real = run_dir.resolve()
+    if real.parent.name != "runs" or real.name == "latest":
+        return
+    temporary = real.parent / f".latest-{os.getpid()}"
+    try:
+        temporary.unlink(missing_ok=True)
+        temporary.symlink_to(real.name)
+        os.replace(temporary, real.parent / "latest")
+    except OSError:  # a file system without symbolic links, or a real directory named latest
+        temporary.unlink(missing_ok=True)
+
+
 def prepare_run_dir(run_dir: str | Path) -> Path:
-    """Create ``run_dir`` or raise a one-line ConfigError if it cannot be written."""
+    """Create ``run_dir`` (and point ``runs/latest`` at it), or raise a one-line ConfigError."""
     path = Path(run_dir)
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -107,6 +126,7 @@ def prepare_run_dir(run_dir: str | Path) -> Path:
         raise ConfigError(
             f"run_dir={str(path)!r} is not writable ({error.strerror}); choose another run_dir"
         ) from None
+    point_latest(path)
     return path
 
 
