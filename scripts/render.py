@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 from trl_cartpole.cli import run_cli
 from trl_cartpole.cli_help import parse_args
@@ -34,35 +33,23 @@ def main(argv: list[str]) -> None:
     args = parse_args(RenderArgs, argv, __doc__)
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy_io import load_trained_policy
-    from trl_cartpole.video import render_episodes, write_video
+    from trl_cartpole.video import record_agent
 
-    if args.episodes < 1 or args.fps < 1 or not 0 < args.scale <= 4:
-        raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
-    if args.human:
-        if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
-            raise ConfigError("human=true needs a display; write a file instead (output=x.gif)")
-    else:
-        os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # no window for rgb_array frames
-    trained = load_trained_policy(
-        args.checkpoint, seed=args.seed, render_mode="human" if args.human else "rgb_array"
-    )
-    actor, env, cfg = trained.actor, trained.env, trained.cfg
-    if args.human:
-        for _ in range(args.episodes):
-            env.rollout(cfg.eval.max_steps, actor)
-        env.close()
+    if not args.human:
+        print(
+            record_agent(
+                args.checkpoint, args.episodes, args.seed, args.output, args.fps, args.scale
+            )
+        )
         return
-    frames, returns = [], []
-    for episode in render_episodes(actor, env, args.episodes, cfg.eval.max_steps, args.scale):
-        frames.extend(episode.frames)
-        returns.append(episode.episode_return)
-    env.close()
-    output = Path(args.output or trained.checkpoint.parent / "video.gif")
-    write_video(frames, output, args.fps)
-    print(
-        f"{cfg.env.id}: {args.episodes} greedy episodes, returns {returns}, "
-        f"{len(frames)} frames written to {output}"
-    )
+    if args.episodes < 1:
+        raise ConfigError("episodes must be >= 1")
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        raise ConfigError("human=true needs a display; write a file instead (output=x.gif)")
+    trained = load_trained_policy(args.checkpoint, seed=args.seed, render_mode="human")
+    for _ in range(args.episodes):
+        trained.env.rollout(trained.cfg.eval.max_steps, trained.actor)
+    trained.env.close()
 
 
 if __name__ == "__main__":

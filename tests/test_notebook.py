@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import os
 import shutil
-from pathlib import Path
 
 import nbformat
 from nbclient import NotebookClient
@@ -17,15 +17,26 @@ def test_quickstart_notebook_trains_evaluates_and_renders(tmp_path, monkeypatch)
         notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": ROOT}}
     )
     monkeypatch.setenv("MPLBACKEND", "agg")
+    latest = ROOT / "runs" / "latest"  # training points it at the new run: put it back after
+    latest_before = os.readlink(latest) if latest.is_symlink() else None
     client.execute()
     outputs = [out for cell in notebook.cells if cell.cell_type == "code" for out in cell.outputs]
     text = "".join(out.get("text", "") for out in outputs if out.output_type == "stream")
-    run_dir = Path(text.split("run directory: ", 1)[1].splitlines()[0])
-    assert (run_dir / "summary.json").is_file() and (run_dir / "agent.gif").is_file()
-    shutil.rmtree(run_dir)  # under the repository's (ignored) runs/
-    assert "solved: True" in text
-    assert "mean " in text and "frames, return" in text
+    # the ending: "run directory: runs/<run> (durations.png, ...)", relative to the kernel's cwd
+    run_dir = ROOT / text.split("run directory: ", 1)[1].split(" (", 1)[0]
+    assert run_dir.parent == ROOT / "runs", run_dir
+    try:
+        assert (run_dir / "summary.json").is_file()
+        assert (run_dir / "checkpoints" / "video.gif").is_file()
+    finally:
+        shutil.rmtree(run_dir)  # under the repository's (ignored) runs/
+        if latest.is_symlink() and os.readlink(latest) == run_dir.name:
+            latest.unlink()
+            if latest_before is not None:
+                latest.symlink_to(latest_before)
+    assert "solved at" in text
+    assert "30 greedy games: mean " in text and "1 greedy episode, return " in text
     images = [out for out in outputs if "image/png" in out.get("data", {})]
     gifs = [out for out in outputs if "image/gif" in out.get("data", {})]
-    assert images, "the live duration plot was not displayed"
+    assert len(images) == 1, "the live duration plot was not displayed (once, the latest)"
     assert gifs, "the agent's GIF was not displayed inline"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from PIL import Image
 
@@ -23,10 +25,12 @@ def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, t
         env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)},  # headless: no DISPLAY
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    # "... returns [r1, r2], N frames written": a frame per step (r = steps in CartPole) + reset.
-    returns = [float(r) for r in proc.stdout.split("returns [")[1].split("]")[0].split(",")]
+    # "...: 2 greedy episodes, return r1, r2; N frames in FILE": a frame per step (r = steps in
+    # CartPole) plus the reset's.
+    found = re.search(r"2 greedy episodes, return ([\d., ]+); (\d+) frames in (.+)", proc.stdout)
+    returns = [float(r) for r in found.group(1).split(",")]
     expected_frames = int(sum(returns)) + len(returns)
-    assert f"{expected_frames} frames written" in proc.stdout
+    assert int(found.group(2)) == expected_frames and found.group(3).strip() == str(out)
     with Image.open(out) as gif:
         assert gif.n_frames == expected_frames
         assert gif.size == (150, 100)  # 600x400 scaled by 0.25

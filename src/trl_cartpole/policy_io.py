@@ -18,6 +18,7 @@ from torchrl.modules import DistributionalQValueActor, QValueActor
 from trl_cartpole.build import build_actor, build_env
 from trl_cartpole.checkpoint import load_policy, read_checkpoint_config, read_observation_norm
 from trl_cartpole.config import Config
+from trl_cartpole.console import quiet_libraries
 from trl_cartpole.evaluation import EvalResult, evaluate
 
 __all__ = ["TrainedPolicy", "evaluate_checkpoint", "load_trained_policy", "policy_checkpoint"]
@@ -59,7 +60,8 @@ def load_trained_policy(
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
     cfg.device = "cpu"  # a policy trained on a GPU is loaded for this machine's CPU
-    env = build_env(cfg, seed, num_envs, read_observation_norm(path), render_mode)
+    with quiet_libraries():  # no TorchRL INFO lines (spec checks) from a library call
+        env = build_env(cfg, seed, num_envs, read_observation_norm(path), render_mode)
     actor = load_policy(path, build_actor(cfg, env))
     return TrainedPolicy(actor, env, cfg, path)
 

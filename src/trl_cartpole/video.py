@@ -3,14 +3,16 @@
 Frames come from Gymnasium's ``render_mode="rgb_array"`` through the same ``make_env`` the
 training used; each frame carries the episode number, the step and the return so far. GIFs
 are written with Pillow (a matplotlib dependency); MP4 needs ``imageio[ffmpeg]``
-(``pip install -e '.[video]'``).
+(``pip install -e '.[video]'``). In a notebook, :func:`show_agent` does it all in one call.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -19,10 +21,19 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
 from trl_cartpole.compat import gym_env
+from trl_cartpole.console import quiet_libraries, shown_path
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_atomic
+from trl_cartpole.policy_io import load_trained_policy
 
-__all__ = ["EpisodeFrames", "render_episodes", "write_video"]
+__all__ = [
+    "EpisodeFrames",
+    "Recording",
+    "record_agent",
+    "render_episodes",
+    "show_agent",
+    "write_video",
+]
 
 
 @dataclass
@@ -95,3 +106,77 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Pa
             path, lambda tmp: iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")
         )
     raise ConfigError(f"output={str(path)!r}: choose a .gif or .mp4 file name")
+
+
+@dataclass
+class Recording:
+    """What :func:`record_agent` wrote: the file, each episode's return and the frame count."""
+
+    path: Path
+    env_id: str
+    returns: list[float]
+    frames: int
+
+    def __str__(self) -> str:
+        episodes = len(self.returns)
+        returns = ", ".join(f"{value:g}" for value in self.returns)
+        return (
+            f"{self.env_id}: {episodes} greedy episode{'s' * (episodes != 1)}, return "
+            f"{returns}; {self.frames} frames in {shown_path(self.path)}"
+        )
+
+
+def record_agent(
+    run_dir_or_checkpoint: str | Path,
+    episodes: int = 1,
+    seed: int | None = None,
+    output: str | Path | None = None,
+    fps: int = 50,
+    scale: float = 0.5,
+) -> Recording:
+    """Play ``episodes`` greedy episodes of a trained policy into a GIF (or MP4) file.
+
+    ``run_dir_or_checkpoint`` is a run directory (its best policy plays) or a checkpoint;
+    ``seed`` defaults to the run's final evaluation seeds and ``output`` to ``video.gif``
+    beside the checkpoint; frames are scaled by ``scale``.
+    """
+    if episodes < 1 or fps < 1 or not 0 < scale <= 4:
+        raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only, no window
+    frames, returns = [], []
+    with quiet_libraries():  # no TorchRL INFO lines (spec checks), as in the scripts
+        trained = load_trained_policy(run_dir_or_checkpoint, seed=seed, render_mode="rgb_array")
+        try:
+            for episode in render_episodes(
+                trained.actor, trained.env, episodes, trained.cfg.eval.max_steps, scale
+            ):
+                frames.extend(episode.frames)
+                returns.append(episode.episode_return)
+        finally:
+            trained.env.close()
+    path = write_video(frames, output or trained.checkpoint.parent / "video.gif", fps)
+    return Recording(Path(path), trained.cfg.env.id, returns, len(frames))
+
+
+def show_agent(
+    run_dir_or_checkpoint: str | Path,
+    episodes: int = 1,
+    seed: int | None = None,
+    output: str | Path | None = None,
+    fps: int = 50,
+    scale: float = 0.5,
+) -> Any:
+    """:func:`record_agent` into a GIF, shown inline when it ends a notebook cell.
+
+    Prints what was recorded; returns an ``IPython.display.Image`` of the GIF, or its path
+    where IPython is not installed.
+    """
+    if output is not None and Path(output).suffix != ".gif":
+        raise ConfigError(f"output={str(output)!r}: show_agent writes a .gif file")
+    recording = record_agent(run_dir_or_checkpoint, episodes, seed, output, fps, scale)
+    print(recording)
+    try:
+        from IPython.display import Image as IPythonImage
+    except ImportError:
+        return recording.path
+    return IPythonImage(filename=str(recording.path))
