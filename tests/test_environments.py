@@ -230,12 +230,12 @@ def test_observation_norm_travels_with_the_checkpoints(compose, tmp_path):
     assert result.mean == summary["final_eval_return_mean"]
 
 
-def test_readme_shows_the_custom_env_that_the_tests_train():
-    readme = (ROOT / "README.md").read_text()
+def test_the_guide_shows_the_custom_env_that_the_tests_train():
+    guide = (ROOT / "docs" / "guide.md").read_text()
     source = (EXAMPLES / "corridor.py").read_text()
     class_source = source[source.index("class Corridor") :]
-    assert class_source.strip() in readme
-    assert "PYTHONPATH=examples python scripts/train.py env.id=corridor:Corridor" in readme
+    assert class_source.strip() in guide
+    assert "PYTHONPATH=examples .venv/bin/python scripts/train.py env.id=corridor:Corridor" in guide
 
 
 def test_benchmark_envs_trains_a_preset_and_tabulates_it(tmp_path):
