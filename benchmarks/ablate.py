@@ -4,9 +4,10 @@
         [--out runs/ablations] [--doc docs/ablations.md] [key=value ...]
 
 Runs each preset once per seed (``scripts/train.py`` in its own process, ``--jobs`` at a time;
-finished runs are reused), then writes ``OUT/results.json``, the plot of greedy evaluation
+finished runs are reused), then writes ``OUT/results.json`` and the plot of greedy evaluation
 return against frames (median and interquartile band over seeds, one panel per preset) to
-``docs/images/ablations.png`` and the table between the ``ablation`` markers of ``--doc``.
+``OUT/ablations.png``. With ``--doc`` (the project's own page: ``--doc docs/ablations.md``)
+the plot goes to the doc's ``images/`` and the table between its ``ablation`` markers.
 """
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ def write_between_markers(doc: Path, block: str) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algos", nargs="+", default=list(VARIANT_PRESETS))
-    parser.add_argument("--doc", type=Path, default=Path("docs/ablations.md"))
+    parser.add_argument(
+        "--doc", type=Path, default=None, help="a Markdown page to write the table into"
+    )
 
 
 def main(args: argparse.Namespace) -> None:
@@ -45,15 +48,22 @@ def main(args: argparse.Namespace) -> None:
         algo: [(r["eval_curve"]["frames"], r["eval_curve"]["returns"]) for r in runs]
         for algo, runs in results.items()
     }
-    image = args.doc.parent / "images" / "ablations.png"
+    image = (
+        args.out / "ablations.png"
+        if args.doc is None
+        else args.doc.parent / "images" / "ablations.png"
+    )
     image.parent.mkdir(parents=True, exist_ok=True)
     threshold = next(iter(results.values()))[0]["solve_threshold"]
     plot_seed_groups(curves, image, threshold=threshold)
     table = markdown_table(results)
     print(table)
+    print(f"written: {args.out / 'results.json'}, {image}")
+    if args.doc is None:
+        return
     seeds = " ".join(str(seed) for seed in args.seeds)
     block = (
-        f"Seeds {seeds}; command: `python -m benchmarks ablate"
+        f"Seeds {seeds}; command: `python -m benchmarks ablate --doc {args.doc}"
         f"{''.join(' ' + o for o in args.overrides)} --seeds {seeds}`.\n\n{table}\n\n"
         f"![eval return against frames per preset]({image.relative_to(args.doc.parent)})"
     )
