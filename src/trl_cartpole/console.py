@@ -99,6 +99,7 @@ def ending(summary: dict[str, Any], scripts: str | Path = "scripts") -> str:
             "next:",
             f"  {python} {scripts}/evaluate.py checkpoint={run}   # 100 greedy episodes",
             f"  {python} {scripts}/render.py checkpoint={run}     # a GIF of the agent",
-            f"  {python} {scripts}/export.py checkpoint={run} output=policy.onnx",
+            f"  {python} {scripts}/export.py checkpoint={run} output=policy.onnx"
+            "  # the export extra",
         ]
     return "\n".join(lines)
