@@ -357,11 +357,32 @@ def test_damaged_checkpoint_is_refused_in_one_line(tmp_path, finished_run, how, 
         (["env.id=Acrobot-v1"], "env.id cannot change"),
         (["network.hidden_sizes=[64]"], "network.hidden_sizes cannot change"),
         (["loss.gama=1"], "Key 'gama' not in"),
+        ([], "leaves nothing to train: the run has 600 frames"),  # a distributed one never ended
     ],
 )
 def test_resume_refuses_an_incompatible_config(finished_run, args, message):
     proc = run_script("train.py", f"resume={finished_run}", *args)
     assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("script", ["evaluate.py", "render.py", "export.py"])
+def test_a_directory_without_a_best_policy_is_one_line_naming_what_to_pass(
+    tmp_path, finished_run, script
+):
+    no_best = tmp_path / "run"
+    shutil.copytree(finished_run, no_best)
+    shutil.rmtree(no_best / "checkpoints" / "best")
+    last = no_best / "checkpoints" / "last"
+    cases = [
+        (no_best, f"has no best policy (no evaluation ran); pass checkpoint={last}"),
+        (tmp_path, "is neither a checkpoint nor a run directory"),
+    ]
+    output = tmp_path / ("policy.pt2" if script == "export.py" else "out.gif")
+    for path, message in cases:
+        proc = run_script(script, f"checkpoint={path}", f"output={output}")
+        lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+        assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr
+        assert "Traceback" not in proc.stderr
 
 
 def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluated(

@@ -230,6 +230,12 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
             f"resume continues the stored run, so {', '.join(refused)} cannot change; only "
             f"{', '.join(RESUMABLE_FIELDS)} may"
         )
+    frames = Checkpoint.manifest(checkpoint)["metadata"]["counters"]["frames"]
+    if cfg.collector.total_frames <= frames:
+        raise ConfigError(
+            f"collector.total_frames={cfg.collector.total_frames} leaves nothing to train: the "
+            f"run has {frames} frames; pass a larger collector.total_frames to continue it"
+        )
     return cfg
 
 
@@ -241,7 +247,7 @@ def read_checkpoint_config(path: str | Path) -> Config:
     try:
         manifest = Checkpoint.manifest(path)
         return to_config(manifest["metadata"]["config"])
-    except (CheckpointError, KeyError, TypeError, ValueError) as error:
+    except (CheckpointError, KeyError, TypeError, ValueError, OSError) as error:
         raise ConfigError(
             f"checkpoint={str(path)!r} is not a trl_cartpole checkpoint ({error})"
         ) from None

@@ -10,6 +10,7 @@ pasted.
 from __future__ import annotations
 
 import logging
+import shlex
 import shutil
 import sys
 from collections.abc import Iterator
@@ -37,12 +38,17 @@ def quiet_libraries(verbose: bool = False) -> Iterator[None]:
 
 
 def python_command() -> str:
-    """How to call this interpreter from the current directory: ``python`` if that is it."""
-    executable = Path(sys.executable)
+    """How to call this interpreter from the current directory: ``python`` if that is it.
+
+    ``python`` only when the ``python`` on PATH lives in this interpreter's own ``bin``
+    directory (an activated virtual environment): a venv's interpreter links to the system
+    one, so comparing resolved paths would send the user to a Python without the package.
+    """
+    executable = Path(sys.executable).absolute()
     on_path = shutil.which("python")
-    if on_path and Path(on_path).resolve() == executable.resolve():
+    if on_path and Path(on_path).absolute().parent == executable.parent:
         return "python"
-    return shown_path(executable)
+    return shlex.quote(shown_path(executable))
 
 
 def shown_path(path: str | Path) -> str:
@@ -88,8 +94,8 @@ def ending(summary: dict[str, Any], scripts: str | Path = "scripts") -> str:
 
     ``scripts`` is the directory of the project's scripts (``scripts/train.py``'s own).
     """
-    run = shown_path(summary["run_dir"])
-    python, scripts = python_command(), shown_path(scripts)
+    run = shlex.quote(shown_path(summary["run_dir"]))
+    python, scripts = python_command(), shlex.quote(shown_path(scripts))
     lines = [
         verdict(summary),
         f"run directory: {run} (durations.png, dashboard.png, summary.json, checkpoints/)",
@@ -99,7 +105,6 @@ def ending(summary: dict[str, Any], scripts: str | Path = "scripts") -> str:
             "next:",
             f"  {python} {scripts}/evaluate.py checkpoint={run}   # 100 greedy episodes",
             f"  {python} {scripts}/render.py checkpoint={run}     # a GIF of the agent",
-            f"  {python} {scripts}/export.py checkpoint={run} output=policy.onnx"
-            "  # the export extra",
+            f"  {python} {scripts}/export.py checkpoint={run} output=policy.pt2  # or .onnx",
         ]
     return "\n".join(lines)

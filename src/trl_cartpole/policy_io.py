@@ -19,6 +19,7 @@ from trl_cartpole.build import build_actor, build_env
 from trl_cartpole.checkpoint import load_policy, read_checkpoint_config, read_observation_norm
 from trl_cartpole.config import Config
 from trl_cartpole.console import quiet_libraries
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.evaluation import EvalResult, evaluate
 
 __all__ = ["TrainedPolicy", "evaluate_checkpoint", "load_trained_policy", "policy_checkpoint"]
@@ -35,12 +36,25 @@ class TrainedPolicy:
 
 
 def policy_checkpoint(path: str | Path) -> Path:
-    """``path`` if it is a checkpoint; for a run directory, its best policy."""
+    """``path`` if it is a checkpoint; for a run directory, its best policy.
+
+    Raises a one-line ``ConfigError`` for a directory that is neither.
+    """
     path = Path(path)
-    best = path / "checkpoints" / "best"
-    if not (path / "manifest.json").is_file() and (best / "manifest.json").is_file():
-        return best
-    return path
+    checkpoints = path / "checkpoints"
+    if not path.is_dir() or (path / "manifest.json").is_file():
+        return path  # a checkpoint, or a path whose reading says what is wrong with it
+    if (checkpoints / "best" / "manifest.json").is_file():
+        return checkpoints / "best"
+    if (checkpoints / "last" / "manifest.json").is_file():
+        raise ConfigError(
+            f"checkpoint={str(path)!r} has no best policy (no evaluation ran); pass "
+            f"checkpoint={checkpoints / 'last'} for its last one"
+        )
+    raise ConfigError(
+        f"checkpoint={str(path)!r} is neither a checkpoint nor a run directory with "
+        "checkpoints/best; pass the directory training printed"
+    )
 
 
 def load_trained_policy(
