@@ -37,10 +37,11 @@ def main(argv: list[str]) -> None:
         raise ConfigError(f"episodes={args.episodes} must be >= 1")
     if not 0.0 <= args.epsilon <= 1.0:
         raise ConfigError(f"epsilon={args.epsilon} must lie in [0, 1]")
-    result, cfg = evaluate_checkpoint(args.checkpoint, args.episodes, args.seed, args.epsilon)
+    checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
+    result, cfg = evaluate_checkpoint(checkpoint, args.episodes, args.seed, args.epsilon)
     returns = result.returns
     report = {
-        "checkpoint": args.checkpoint,
+        "checkpoint": str(checkpoint.resolve()),  # the one evaluated (runs/latest moves on)
         "env_id": cfg["env"]["id"],
         "episodes": len(returns),
         "epsilon": args.epsilon,
@@ -51,7 +52,6 @@ def main(argv: list[str]) -> None:
         "returns": returns,
         "lengths": result.lengths,
     }
-    checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
     output = Path(args.output or checkpoint.parent / f"evaluation-{checkpoint.name}.json")
     write_json_atomic(output, report)
     print(

@@ -40,7 +40,8 @@ def main(argv: list[str]) -> None:
             print(f"{verdict(summary)}\n  run directory: {shown_path(summary['run_dir'])}")
         sweep_dir = shown_path(Path(summaries[0]["run_dir"]).parent)
         scripts = shown_path(Path(__file__).parent)
-        print(f"compare them: {python_command()} {scripts}/plot.py {sweep_dir}")
+        compare = f"{scripts}/plot.py {sweep_dir} --out {sweep_dir}/comparison"
+        print(f"compare them: {python_command()} {compare}")
         return
     resume, overrides = split_resume(argv)
     if resume is None:

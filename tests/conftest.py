@@ -77,7 +77,8 @@ def smoke_checkpoint(tmp_path_factory) -> Path:
 def run_script(
     name: str, *args: str, timeout: float = 120, **kwargs
 ) -> subprocess.CompletedProcess:
-    """Run ``scripts/<name>`` with this interpreter and capture its text output."""
+    """Run ``scripts/<name>`` with this interpreter, from the repository root, capturing text."""
+    kwargs.setdefault("cwd", ROOT)  # the scripts print paths relative to where they run
     return subprocess.run(
         [sys.executable, str(SCRIPTS / name), *args],
         capture_output=True,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import shutil
@@ -182,3 +183,25 @@ def test_runs_latest_points_at_the_newest_run_and_survives_a_resume_through_it(t
     assert os.readlink(runs / "latest") == "second"
     prepare_run_dir(tmp_path / "elsewhere" / "run")  # not under runs/: no link
     assert not (tmp_path / "elsewhere" / "latest").exists()
+
+
+@dataclasses.dataclass
+class _BaseArgs:
+    checkpoint: str = "???"  # a run directory
+
+
+@dataclasses.dataclass
+class _Args(_BaseArgs):
+    colour: str = "#fff"  # a colour, not the comment "#fff"
+    # the block above a field
+    # that has no comment of its own
+    width: int = 3
+    height: int = 4  # trailing wins over the block above
+
+
+def test_help_reads_each_fields_own_comment_inherited_fields_included():
+    rows = {key: (kind, default, meaning) for key, kind, default, meaning in field_help(_Args)}
+    assert rows["checkpoint"] == ("str", "???", "a run directory")
+    assert rows["colour"] == ("str", "#fff", 'a colour, not the comment "#fff"')
+    assert rows["width"] == ("int", "3", "the block above a field that has no comment of its own")
+    assert rows["height"] == ("int", "4", "trailing wins over the block above")

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
@@ -24,7 +25,7 @@ from trl_cartpole.envs import (
 )
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.evaluation import evaluate
-from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.models import make_q_actor, make_q_actor_for_env
 from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.train import train
 
@@ -158,7 +159,7 @@ class _DictEnv(gym.Env):
 @pytest.mark.parametrize(
     ("env_id", "message"),
     [
-        ("Pendulum-v1", "has continuous \\(Box\\) actions .*DQN needs one discrete action"),
+        ("Pendulum-v1", "has continuous actions \\(a Gymnasium Box\\); DQN needs one discrete"),
         ("Blackjack-v1", r"has observation entries \['Discrete', 'Discrete', 'Discrete'\]"),
         ("tests.test_environments:_ImageEnv", r"has image observations of shape \(8, 8, 3\)"),
         ("tests.test_environments:_MatrixEnv", r"has an observation of shape \(3, 2\)"),
@@ -270,3 +271,28 @@ def test_benchmark_envs_trains_a_preset_and_tabulates_it(tmp_path):
     assert float(cells[3]) == round(summary["final_eval_return_mean"], 1)
     assert cells[5] == ("yes" if summary["final_eval_return_mean"] >= -80 else "no")
     assert (tmp_path / "acrobot.png").stat().st_size > 0
+
+
+class _IntegerVectorEnv(gym.Env):
+    """A rank-1 observation of small integers (uint8): trains once cast to float32."""
+
+    observation_space = gym.spaces.Box(0, 255, (3,), dtype=np.uint8)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.steps = 0
+        return np.zeros(3, np.uint8), {}
+
+    def step(self, action):
+        self.steps += 1
+        observation = np.full(3, self.steps, np.uint8)
+        return observation, 1.0, False, self.steps >= 10, {}
+
+
+def test_an_integer_vector_observation_reaches_the_network_as_float32(fresh_registry):
+    env = make_env("tests.test_environments:_IntegerVectorEnv", num_envs=2, seed=0)
+    actor = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
+    rollout = env.rollout(5, actor)
+    assert rollout["observation"].dtype == torch.float32
+    assert rollout["next", "observation"][0, -1].tolist() == [5.0, 5.0, 5.0]

@@ -7,11 +7,13 @@ it) in the dataclass's source, so the schema stays the one place a field is docu
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import inspect
-import re
+import io
 import sys
 import textwrap
+import tokenize
 import typing
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,7 +25,6 @@ __all__ = ["HELP_FLAGS", "field_help", "parse_args", "shown_value", "wants_help"
 
 HELP_FLAGS = ("-h", "--help")
 T = TypeVar("T")
-_FIELD_LINE = re.compile(r"^\s+(\w+):[^#]*?(?:#\s*(.*))?$")
 
 
 def wants_help(argv: Sequence[str]) -> bool:
@@ -31,21 +32,41 @@ def wants_help(argv: Sequence[str]) -> bool:
     return any(arg in HELP_FLAGS for arg in argv)
 
 
+def _own_comments(cls: type) -> dict[str, str]:
+    """``{field: comment}`` for the fields ``cls`` itself declares, read from its source.
+
+    A field's meaning is the comment at the end of its line; a field without one takes the
+    comment lines right above it. (So a comment is never split between two fields.)
+    """
+    source = textwrap.dedent(inspect.getsource(cls))
+    comments: dict[int, tuple[str, bool]] = {}  # line: (text, the line holds only a comment)
+    lines = source.splitlines()
+    for token in tokenize.generate_tokens(io.StringIO(source).readline):
+        if token.type == tokenize.COMMENT:
+            row = token.start[0]
+            alone = not lines[row - 1][: token.start[1]].strip()
+            comments[row] = (token.string.lstrip("#").strip(), alone)
+    body = ast.parse(source).body[0].body
+    found: dict[str, str] = {}
+    for node in (node for node in body if isinstance(node, ast.AnnAssign)):
+        text, alone = comments.get(node.end_lineno, ("", True))
+        if not text or alone:  # no trailing comment: the comment lines right above
+            above, row = [], node.lineno - 1
+            while row in comments and comments[row][1]:
+                above.insert(0, comments[row][0])
+                row -= 1
+            text = " ".join(above)
+        found[node.target.id] = text
+    return found
+
+
 def _comments(cls: type) -> dict[str, str]:
-    """``{field: comment}`` from the source of dataclass ``cls`` (trailing or the lines above)."""
-    comments: dict[str, str] = {}
-    above: list[str] = []
-    for line in inspect.getsource(cls).splitlines()[1:]:
-        stripped = line.strip()
-        if stripped.startswith("#"):
-            above.append(stripped.lstrip("# "))
-            continue
-        match = _FIELD_LINE.match(line)
-        if match and not stripped.startswith(('"', "def ", "@")):
-            trailing = match.group(2)
-            comments[match.group(1)] = trailing or " ".join(above)
-        above = []
-    return comments
+    """``{field: comment}`` for every field of dataclass ``cls``, inherited ones included."""
+    found: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(klass) and klass is not object:
+            found.update(_own_comments(klass))
+    return found
 
 
 def _type_name(annotation: Any) -> str:

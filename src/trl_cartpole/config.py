@@ -43,7 +43,7 @@ class EnvConfig:
     # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.envs.
     id: str = "CartPole-v1"  # a Gymnasium id (vector observation, discrete actions), or module:Id
     imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
-    max_episode_steps: int | None = None  # None: Gymnasium's registered TimeLimit
+    max_episode_steps: int | None = None  # null: Gymnasium's registered TimeLimit
     num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
     normalize_observations: bool = False  # TorchRL ObservationNorm, stats from random rollouts
     normalization_frames: int = 10_000  # random-policy frames the stats are estimated from
@@ -82,7 +82,7 @@ class BufferConfig:
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
     alpha: float = 0.6  # P(i) ~ (|delta_i| + priority_eps) ** alpha
     beta: float = 0.4  # importance-sampling exponent at the start, annealed linearly to 1
-    beta_anneal_frames: int | None = None  # frames to reach beta = 1; None: collector.total_frames
+    beta_anneal_frames: int | None = None  # frames to reach beta = 1; null: collector.total_frames
     priority_eps: float = 1e-6  # added to |delta| so that no transition has priority 0
     n_steps: int = 3  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
 
@@ -126,7 +126,7 @@ class EvalConfig:
     interval_frames: int = 1000  # greedy evaluation every this many frames
     episodes: int = 20  # episodes per periodic evaluation
     final_episodes: int = 100  # episodes for the final evaluation of the best policy
-    solve_threshold: float | None = None  # None: Gymnasium's reward_threshold for the env
+    solve_threshold: float | None = None  # null: Gymnasium's reward_threshold for the env
     stop_when_solved: bool = True  # end the run at the first evaluation >= the threshold
     max_steps: int = 10_000  # step cap for an episode of an env with no TimeLimit
     seed_offset: int = 1_000_000  # eval env seed = seed + seed_offset

@@ -19,6 +19,7 @@ import gymnasium as gym
 import torch
 from torchrl.envs import (
     DoubleToFloat,
+    DTypeCastTransform,
     GymWrapper,
     ObservationNorm,
     RewardSum,
@@ -119,9 +120,9 @@ def check_env_fits(observation_space: gym.Space, action_space: gym.Space, env_id
     """
     spaces = gym.spaces
     if not isinstance(action_space, spaces.Discrete):
-        kind = "continuous (Box)" if isinstance(action_space, spaces.Box) else "multi-part"
+        kind = "continuous" if isinstance(action_space, spaces.Box) else "multi-part"
         raise ConfigError(
-            f"env {env_id!r} has {kind} actions ({type(action_space).__name__}); "
+            f"env {env_id!r} has {kind} actions (a Gymnasium {type(action_space).__name__}); "
             "DQN needs one discrete action (a Gymnasium Discrete space)"
         )
     if isinstance(observation_space, spaces.Dict | spaces.Tuple):
@@ -135,7 +136,7 @@ def check_env_fits(observation_space: gym.Space, action_space: gym.Space, env_id
             f"{type(observation_space).__name__} space); DQN here needs one vector observation "
             "(a Gymnasium Box of rank 1): flatten it (gymnasium.wrappers.FlattenObservation)"
         )
-    if isinstance(observation_space, spaces.Discrete | spaces.MultiDiscrete):
+    if isinstance(observation_space, spaces.Discrete | spaces.MultiDiscrete | spaces.MultiBinary):
         raise ConfigError(
             f"env {env_id!r} has a discrete observation (a state index, e.g. Taxi or FrozenLake); "
             "DQN here needs a vector observation (a Gymnasium Box of rank 1)"
@@ -183,7 +184,8 @@ def make_env(
     The base env is ``GymWrapper(gymnasium.make(env_id))``: the env ``GymEnv(env_id)`` builds,
     made here because ``GymEnv`` first calls the env's constructor with ``frameskip=1``, which a
     custom env class whose ``__init__`` takes no arguments rejects. ``DoubleToFloat`` is added
-    for float64 observations. ``env_name`` (TorchRL's ``GymEnv`` name for it) is any id
+    for float64 observations, ``DTypeCastTransform`` to float32 for other dtypes. ``env_name``
+    (TorchRL's ``GymEnv`` name for it) is any id
     :func:`resolve_env_id` accepts; ``make_env(env_name, device)`` is the call of TorchRL's DQN
     example, the other arguments are keywords. With
     ``observation_norm`` (``{"loc": [...], "scale": [...]}``, from
@@ -226,8 +228,13 @@ def make_env(
         raise
     base_env = GymWrapper(gym_env, device=device)
     transforms = [StepCounter(), RewardSum()]
-    if base_env.observation_spec[OBSERVATION_KEY].dtype == torch.float64:
+    observation_dtype = base_env.observation_spec[OBSERVATION_KEY].dtype
+    if observation_dtype == torch.float64:
         transforms.append(DoubleToFloat())
+    elif observation_dtype != torch.float32:  # int or uint8 vectors: the network takes float32
+        transforms.append(
+            DTypeCastTransform(observation_dtype, torch.float32, in_keys=[OBSERVATION_KEY])
+        )
     if observation_norm is not None:
         transforms.append(
             ObservationNorm(

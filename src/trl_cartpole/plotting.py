@@ -66,8 +66,10 @@ def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
     dots with their 100-episode mean, as the tutorial draws them; the greedy evaluations and
     the solve threshold show whether the policy itself is solved.
     """
-    frames = np.asarray(curves.episode_frames)
     returns = np.asarray(curves.episode_returns, dtype=np.float64)
+    frames = np.asarray(curves.episode_frames)
+    if frames.size != returns.size:  # a run resumed from a state saved without their frames
+        frames = np.linspace(0, curves.episode_frames[-1] if frames.size else 0, returns.size)
     ax.scatter(frames, returns, s=4, alpha=0.3, label="training episode (epsilon-greedy)")
     if returns.size >= 100:  # the tutorial draws the mean only once 100 episodes exist
         ax.plot(frames[99:], moving_average(returns, 100)[99:], label="100-episode mean")
