@@ -159,7 +159,10 @@ def _wait_until_training(run_dir: Path, proc: subprocess.Popen, timeout: float =
         time.sleep(0.05)
 
 
-@pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize(
+    ("signum", "code"),
+    [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129), (signal.SIGUSR1, 138)],
+)
 def test_signal_checkpoints_and_the_resumed_run_equals_the_uninterrupted_one(
     compose, python, tmp_path, signum, code
 ):
@@ -188,6 +191,37 @@ def test_signal_checkpoints_and_the_resumed_run_equals_the_uninterrupted_one(
     assert _comparable(got) == _comparable(expected)
     a, b = (_weights(d / "checkpoints" / "last") for d in (run_dir, tmp_path / "whole"))
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_ctrl_c_saves_after_the_reader_of_a_tee_pipeline_died(python, tmp_path):
+    # train.py ... 2>&1 | tee log, where tee is gone before Ctrl-C: every later write to the
+    # pipe fails (EPIPE), and the save and its message must not be stopped by it.
+    run_dir = tmp_path / "run"
+    overrides = [o for o in LONG if not o.startswith("logger.progress_bar")]  # a line per eval
+    proc = subprocess.Popen(
+        [python, str(SCRIPTS / "train.py"), *overrides, f"run_dir={run_dir}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    tee = subprocess.Popen(["tee", str(tmp_path / "log")], stdin=proc.stdout)
+    proc.stdout.close()  # only tee reads the pipe
+    _wait_until_training(run_dir, proc)
+    tee.kill()
+    tee.wait()
+    evaluations = run_dir / "metrics" / "scalars" / "eval" / "return_mean.csv"
+    deadline = time.monotonic() + 120
+    while not evaluations.is_file():  # an evaluation after tee died: its line hit the dead pipe
+        assert proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=120) == 130
+    checkpoint = find_resume_checkpoint(run_dir)
+    frames = Checkpoint.manifest(checkpoint)["metadata"]["counters"]["frames"]
+    assert frames >= 1000 and not (run_dir / "summary.json").exists()
+    resumed = run_script("train.py", f"resume={run_dir}", timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert json.loads((run_dir / "summary.json").read_text())["frames"] == 4000
 
 
 def test_second_ctrl_c_exits_at_once_and_corrupts_nothing(python, tmp_path):

@@ -25,6 +25,7 @@ from trl_cartpole.cli_help import shown_value
 from trl_cartpole.config import flat_fields, register_configs, to_config
 from trl_cartpole.console import python_command, quiet_libraries
 from trl_cartpole.errors import ConfigError, TrainingFailed, TrainingInterrupted
+from trl_cartpole.run_control import install_unbreakable_console
 
 __all__ = [
     "changes_from_presets",
@@ -125,6 +126,8 @@ def split_resume(argv: Sequence[str]) -> tuple[str | None, list[str]]:
 def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None) -> int:
     """Run ``main(argv)``; report bad input, interrupts and faults in one line with its code."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    # for the rest of the process: the messages below and Python's last flush at exit too
+    install_unbreakable_console()
     try:
         with quiet_libraries():
             main(argv)

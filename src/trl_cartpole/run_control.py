@@ -1,9 +1,15 @@
-"""How a run is stopped from outside: SIGINT or SIGTERM become a request the loop honours.
+"""How a run is stopped from outside: a stop signal becomes a request the loop honours.
 
-:class:`StopRequest` turns the first SIGINT/SIGTERM into a flag the training loop reads at its
-next safe point (the end of a collected batch), where it writes a checkpoint and raises
-:class:`TrainingInterrupted`; a second signal raises ``KeyboardInterrupt`` at once (checkpoint
-writes are atomic, so that corrupts nothing). The errors live in :mod:`trl_cartpole.errors`.
+:class:`StopRequest` turns the first SIGINT (Ctrl-C), SIGTERM (``kill``, a scheduler),
+SIGHUP (the terminal or SSH connection closed) or SIGUSR1 (SLURM's ``--signal=USR1@60``
+warning before preemption) into a flag the training loop reads at its next safe point (the end
+of a collected batch), where it writes a checkpoint and raises :class:`TrainingInterrupted`; a
+second signal raises ``KeyboardInterrupt`` at once (checkpoint writes are atomic, so that
+corrupts nothing). The errors live in :mod:`trl_cartpole.errors`.
+
+Output must not stop a save: once the terminal is gone or the reader of a pipe (``| tee``)
+has died, writing to stdout or stderr raises ``OSError``. :func:`unbreakable_console` makes
+such writes silent, for the training (``StopRequest``) and for a whole command line run.
 """
 
 from __future__ import annotations
@@ -11,21 +17,89 @@ from __future__ import annotations
 import signal
 import sys
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import FrameType
+from typing import Any, TextIO
 
-__all__ = ["StopRequest"]
+__all__ = [
+    "StopRequest",
+    "UnbreakableStream",
+    "install_unbreakable_console",
+    "unbreakable_console",
+]
+
+# The stop signals this platform has (SIGHUP and SIGUSR1 are POSIX only).
+STOP_SIGNALS = tuple(
+    getattr(signal, name)
+    for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1")
+    if hasattr(signal, name)
+)
+
+
+class UnbreakableStream:
+    """A text stream whose writes never raise: after the first failure they are dropped.
+
+    Wraps ``sys.stdout`` / ``sys.stderr`` so that a closed terminal (``EIO``) or a pipe whose
+    reader died (``EPIPE``) cannot end a run between a stop signal and its checkpoint.
+    """
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream, self.broken = stream, False
+
+    def write(self, text: str) -> int:
+        if not self.broken:
+            try:
+                return self.stream.write(text)
+            except (OSError, ValueError):  # EPIPE, EIO, or a closed file
+                self.broken = True
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.broken:
+            try:
+                self.stream.flush()
+            except (OSError, ValueError):
+                self.broken = True
+
+    def __getattr__(self, name: str) -> Any:  # isatty, fileno, encoding...: the stream's own
+        return getattr(self.stream, name)
+
+
+def install_unbreakable_console() -> None:
+    """Make ``sys.stdout`` and ``sys.stderr`` :class:`UnbreakableStream` (if not already)."""
+    if not isinstance(sys.stdout, UnbreakableStream):
+        sys.stdout = UnbreakableStream(sys.stdout)
+    if not isinstance(sys.stderr, UnbreakableStream):
+        sys.stderr = UnbreakableStream(sys.stderr)
+
+
+@contextmanager
+def unbreakable_console() -> Iterator[None]:
+    """Inside the block, ``sys.stdout`` and ``sys.stderr`` are :class:`UnbreakableStream`."""
+    saved = sys.stdout, sys.stderr
+    install_unbreakable_console()
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = saved
 
 
 class StopRequest:
-    """Catch SIGINT and SIGTERM during training (a no-op outside the main thread)."""
+    """Catch the stop signals during training (a no-op outside the main thread).
 
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+    Inside it the console is unbreakable (:func:`unbreakable_console`).
+    """
+
+    SIGNALS = STOP_SIGNALS
 
     def __init__(self) -> None:
         self.signum: int | None = None
         self._previous: dict[int, object] = {}
+        self._console = unbreakable_console()
 
     def __enter__(self) -> StopRequest:
+        self._console.__enter__()
         if threading.current_thread() is threading.main_thread():
             for signum in self.SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._handle)
@@ -35,6 +109,7 @@ class StopRequest:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
         self._previous.clear()
+        self._console.__exit__(*exc_info)
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is not None:

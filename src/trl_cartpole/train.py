@@ -38,12 +38,13 @@ def train(
 
     ``resume`` is a training-state checkpoint (``checkpoint.find_resume_checkpoint``) and
     ``cfg`` its stored config (``checkpoint.resume_config``): the run continues exactly where
-    it stopped. SIGINT/SIGTERM write a checkpoint and raise ``TrainingInterrupted``; a
-    non-finite TD loss raises ``TrainingFailed``. ``build`` makes the components (a test may
-    wrap it to inject a fault).
+    it stopped. A stop signal (SIGINT, SIGTERM, SIGHUP, SIGUSR1) writes a checkpoint and raises
+    ``TrainingInterrupted``; a non-finite TD loss raises ``TrainingFailed``. ``build`` makes
+    the components (a test may wrap it to inject a fault).
     """
     cfg = validate(to_config(cfg))
-    with quiet_libraries(cfg.logger.verbose), build(cfg, resume) as c, StopRequest() as stop:
+    # the stop request first: its unbreakable console is the one the progress bar writes to
+    with quiet_libraries(cfg.logger.verbose), StopRequest() as stop, build(cfg, resume) as c:
         progress, phase = c.progress, c.progress.phase
         progress.clock.start()
         try:
