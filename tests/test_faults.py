@@ -6,6 +6,7 @@ Each case is listed with what it proves in docs/reliability.md.
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import signal
@@ -222,6 +223,26 @@ def test_ctrl_c_saves_after_the_reader_of_a_tee_pipeline_died(python, tmp_path):
     resumed = run_script("train.py", f"resume={run_dir}", timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert json.loads((run_dir / "summary.json").read_text())["frames"] == 4000
+
+
+def test_one_writer_per_run_directory_and_a_killed_one_blocks_nothing(python, tmp_path):
+    run_dir = tmp_path / "run"
+    endless = [o for o in LONG if not o.startswith(("collector.total_frames", "checkpoint."))]
+    endless += ["collector.total_frames=1000000", "checkpoint.interval_frames=500"]
+    proc = _start(python, run_dir, *endless, "eval.stop_when_solved=false")
+    _wait_until_training(run_dir, proc)
+    try:
+        for args in ([f"run_dir={run_dir}", *SMOKE_OVERRIDES], [f"resume={run_dir}"]):
+            second = run_script("train.py", *args)
+            lines = [line for line in second.stderr.splitlines() if line.startswith("error:")]
+            assert second.returncode == 2 and len(lines) == 1, second.stderr[-1500:]
+            assert f"is being written by process {proc.pid} on " in lines[0]
+    finally:
+        proc.kill()  # SIGKILL: no chance to release anything itself
+        proc.wait()
+    after = run_script("train.py", f"run_dir={run_dir}", *SMOKE_OVERRIDES)
+    assert after.returncode == 0, after.stderr[-1500:]
+    assert f"process {os.getpid()}" not in (run_dir / ".lock").read_text()  # the new run's
 
 
 def test_second_ctrl_c_exits_at_once_and_corrupts_nothing(python, tmp_path):

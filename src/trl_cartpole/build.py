@@ -55,6 +55,7 @@ from trl_cartpole.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.models import make_q_actor_for_env, reset_network_noise
 from trl_cartpole.plotting import LiveDurationPlot
 from trl_cartpole.progress import Progress
+from trl_cartpole.run_lock import RunLock
 from trl_cartpole.telemetry import Telemetry, make_logger, truncate_csv_metrics
 from trl_cartpole.update import make_optimizer, make_update
 
@@ -232,6 +233,7 @@ class Components:
     learning_starts: int = 0  # no update before the buffer holds this many transitions
     sync_policy_weights: bool = False  # the collector steps a copy of the policy
     wall_start: float = 0.0
+    lock: RunLock | None = None  # the run directory's, released on close
     _collector_released: bool = field(default=False, init=False, repr=False)
 
     def after_batch(self, batch: TensorDictBase, updates_before: int) -> None:
@@ -263,6 +265,8 @@ class Components:
         for env in (self.env, self.eval_env):
             env.close()
         self.telemetry.close()
+        if self.lock is not None:
+            self.lock.release()
 
     def __enter__(self) -> Components:
         return self
@@ -297,24 +301,27 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     with ExitStack() as on_error:  # an error while building the rest closes the envs
         on_error.callback(eval_env.close)
         on_error.callback(env.close)
-        components = _assemble(cfg, resume, env, eval_env, observation_norm, threshold)
+        if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
+            check_ray_address(cfg.collector.ray_address)  # before anything is written
+        run_dir = prepare_run_dir(cfg.run_dir)
+        lock = RunLock(run_dir)  # a second writer of run_dir stops here
+        on_error.callback(lock.release)
+        components = _assemble(cfg, resume, run_dir, env, eval_env, observation_norm, threshold)
         on_error.pop_all()
-    components.wall_start = wall_start
+    components.lock, components.wall_start = lock, wall_start
     return components
 
 
 def _assemble(
     cfg: Config,
     resume: str | Path | None,
+    run_dir: Path,
     env: TransformedEnv,
     eval_env: TransformedEnv,
     observation_norm: dict[str, list[float]] | None,
     threshold: float | None,
 ) -> Components:
-    """Everything after the envs: run directory, networks, buffer, learner, collector..."""
-    if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
-        check_ray_address(cfg.collector.ray_address)  # before anything is written
-    run_dir = prepare_run_dir(cfg.run_dir)
+    """Everything after the envs and the run directory: networks, buffer, learner, collector..."""
     frames_done = 0
     if resume is not None:  # rows logged after the checkpoint will be logged again
         frames_done = Checkpoint.manifest(resume)["metadata"]["counters"]["frames"]
