@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import pytest
+from torchrl.checkpoint import Checkpoint
 
+from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.plotting import LearningCurves, LiveDurationPlot, live_plot_target
 from trl_cartpole.telemetry import make_logger
@@ -46,6 +48,26 @@ def test_tensorboard_backend_events_read_back(compose, tmp_path):
     evals = accumulator.Scalars("eval/return_mean")
     assert [event.step for event in evals] == [152, 300]
     assert not (tmp_path / "metrics" / "scalars").exists()  # no CSV files with TensorBoard
+
+
+def test_tensorboard_events_after_the_checkpoint_are_not_doubled_by_a_resume(compose, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    overrides = [*SMOKE_OVERRIDES, f"run_dir={tmp_path}", "logger.backend=tensorboard"]
+    train(compose(*overrides, "checkpoint.interval_frames=100", "checkpoint.keep_last=5"))
+    periodic = sorted(
+        (tmp_path / "checkpoints" / "periodic").iterdir(),
+        key=lambda p: Checkpoint.manifest(p)["metadata"]["counters"]["frames"],
+    )[0]  # before the evaluation at frame 152: the resumed run logs that one again
+    resumed_at = Checkpoint.manifest(periodic)["metadata"]["counters"]["frames"]
+    assert resumed_at < 152
+    (tmp_path / "summary.json").unlink()
+    train(resume_config(periodic, [f"run_dir={tmp_path}"]), resume=periodic)
+    accumulator = EventAccumulator(str(tmp_path / "metrics"))  # every events file in it
+    accumulator.Reload()
+    assert [event.step for event in accumulator.Scalars("eval/return_mean")] == [152, 300]
+    losses = [event.step for event in accumulator.Scalars("train/td_loss")]
+    assert losses == sorted(set(losses))  # each logged once, in order
 
 
 def test_wandb_without_the_package_is_a_clear_error(tmp_path):

@@ -351,7 +351,13 @@ def _assemble(
     )
     title = run_title(cfg)
     telemetry = Telemetry(
-        make_logger(cfg.logger.backend, run_dir, cfg.logger.project, cfg.logger.wandb_offline),
+        make_logger(
+            cfg.logger.backend,
+            run_dir,
+            cfg.logger.project,
+            cfg.logger.wandb_offline,
+            resumed_at=None if resume is None else frames_done,
+        ),
         LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None,
         progress_bar=cfg.logger.progress_bar,
         description=cfg.env.id,

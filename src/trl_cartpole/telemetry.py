@@ -53,18 +53,39 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+class ResumedTensorboardLogger(TensorboardLogger):
+    """TorchRL's ``TensorboardLogger`` whose writer drops the events logged after ``purge_step``.
+
+    A run resumed from a checkpoint at frame T logs frames T.. again; ``SummaryWriter``'s
+    ``purge_step=T`` hides the events the stopped run wrote from T on, so none appears twice.
+    ``_create_experiment`` is the hook TorchRL's ``Logger`` subclasses implement.
+    """
+
+    def __init__(self, exp_name: str, log_dir: str, purge_step: int) -> None:
+        self.purge_step = purge_step
+        super().__init__(exp_name=exp_name, log_dir=log_dir)
+
+    def _create_experiment(self) -> Any:
+        from torch.utils.tensorboard import SummaryWriter
+
+        log_dir = str(Path(self.log_dir) / self.exp_name)
+        return SummaryWriter(log_dir=log_dir, purge_step=self.purge_step)
+
+
 def make_logger(
     backend: str,
     run_dir: str | Path,
     project: str = "trl_cartpole",
     wandb_offline: bool = True,
+    resumed_at: int | None = None,
 ) -> Logger | None:
     """Return TorchRL's ``CSVLogger``, ``TensorboardLogger`` or ``WandbLogger`` for ``run_dir``.
 
     ``CSVLogger`` writes one ``metrics/scalars/<name>.csv`` per scalar, each row ``step,value``
     with ``step`` the frame count; ``TensorboardLogger`` writes event files under
     ``run_dir/metrics``; ``WandbLogger`` logs to ``project`` (offline by default, files under
-    ``run_dir/wandb``). ``backend="none"`` returns ``None``.
+    ``run_dir/wandb``). ``backend="none"`` returns ``None``. ``resumed_at`` (the frame of the
+    checkpoint a resumed run starts from) makes TensorBoard drop what was logged after it.
     """
     if backend == "none":
         return None
@@ -77,6 +98,8 @@ def make_logger(
             raise ConfigError(
                 "logger.backend=tensorboard needs tensorboard: pip install -e '.[tensorboard]'"
             ) from None
+        if resumed_at is not None:
+            return ResumedTensorboardLogger("metrics", str(run_dir), purge_step=resumed_at)
         return TensorboardLogger(exp_name="metrics", log_dir=str(run_dir))
     if backend == "wandb":
         try:
