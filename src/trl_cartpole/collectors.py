@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import socket
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -200,6 +201,13 @@ def make_collector(
             "(and the cluster's token) if the cluster uses token authentication"
         ) from None
     collector.update_policy_weights_(policy)  # registers the learner's policy as the source
+    warnings.warn(
+        "collector.backend=ray: with torchrl 0.14.1 the Ray actors keep their first network and "
+        "epsilon 1 for the whole run (they play uniformly at random; docs/scaling.md); prefer "
+        "collector.workers on one machine",
+        RuntimeWarning,
+        stacklevel=2,
+    )
     return collector
 
 
