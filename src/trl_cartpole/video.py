@@ -158,22 +158,17 @@ def record_agent(
     return Recording(Path(path), trained.cfg.env.id, returns, len(frames))
 
 
-def show_agent(
-    run_dir_or_checkpoint: str | Path,
-    episodes: int = 1,
-    seed: int | None = None,
-    output: str | Path | None = None,
-    fps: int = 50,
-    scale: float = 0.5,
-) -> Any:
+def show_agent(run_dir_or_checkpoint: str | Path, episodes: int = 1, **options: Any) -> Any:
     """:func:`record_agent` into a GIF, shown inline when it ends a notebook cell.
 
-    Prints what was recorded; returns an ``IPython.display.Image`` of the GIF, or its path
-    where IPython is not installed.
+    ``options`` are :func:`record_agent`'s (``seed``, ``output``, ``fps``, ``scale``). Prints
+    what was recorded; returns an ``IPython.display.Image`` of the GIF, or its path where
+    IPython is not installed.
     """
+    output = options.get("output")
     if output is not None and Path(output).suffix != ".gif":
         raise ConfigError(f"output={str(output)!r}: show_agent writes a .gif file")
-    recording = record_agent(run_dir_or_checkpoint, episodes, seed, output, fps, scale)
+    recording = record_agent(run_dir_or_checkpoint, episodes, **options)
     print(recording)
     try:
         from IPython.display import Image as IPythonImage
