@@ -18,7 +18,12 @@ from tensordict.nn import TensorDictSequential
 
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
 from trl_cartpole.checkpoint import resume_config
-from trl_cartpole.collectors import make_collector, shutdown_collector, worker_env_constructors
+from trl_cartpole.collectors import (
+    make_collector,
+    needs_weight_sync,
+    shutdown_collector,
+    worker_env_constructors,
+)
 from trl_cartpole.config import to_config
 from trl_cartpole.envs import make_env_from_config
 from trl_cartpole.errors import ConfigError
@@ -37,6 +42,23 @@ def _greedy_mismatch(batch) -> float:
     """Fraction of the batch's actions that are not the argmax of its Q-values (exploration)."""
     greedy = batch["action_value"].argmax(-1)
     return (greedy != batch["action"].argmax(-1)).float().mean().item()
+
+
+def test_ray_actors_are_sent_the_learners_weights():
+    """TorchRL's RayCollector keeps the learner's policy as ``.policy``, yet its actors step
+    copies: the loop must still send them the weights (it did not: they played at random)."""
+
+    class RayLike:  # what needs_weight_sync sees of a RayCollector
+        def __init__(self, policy):
+            self.policy, self.remote_collectors = policy, [object(), object()]
+
+    class SingleProcess:  # a Collector stepping the learner's policy itself
+        def __init__(self, policy):
+            self.policy = policy
+
+    policy = torch.nn.Linear(1, 1)
+    assert needs_weight_sync(RayLike(policy), policy)
+    assert not needs_weight_sync(SingleProcess(policy), policy)
 
 
 @pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])

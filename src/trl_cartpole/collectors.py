@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import os
 import socket
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -201,13 +200,6 @@ def make_collector(
             "(and the cluster's token) if the cluster uses token authentication"
         ) from None
     collector.update_policy_weights_(policy)  # registers the learner's policy as the source
-    warnings.warn(
-        "collector.backend=ray: with torchrl 0.14.1 the Ray actors keep their first network and "
-        "epsilon 1 for the whole run (they play uniformly at random; docs/scaling.md); prefer "
-        "collector.workers on one machine",
-        RuntimeWarning,
-        stacklevel=2,
-    )
     return collector
 
 
@@ -232,8 +224,12 @@ def check_ray_address(address: str, timeout: float = 5.0) -> None:
 def needs_weight_sync(collector: BaseCollector, policy: TensorDictModuleBase) -> bool:
     """Whether ``collector`` steps a copy of ``policy`` that must be sent the new weights.
 
-    A single-process ``Collector`` steps ``policy`` itself.
+    A single-process ``Collector`` steps ``policy`` itself; worker processes and Ray actors
+    step copies. (TorchRL's ``RayCollector`` keeps the learner's ``policy`` as its
+    ``.policy`` while its actors step their own: it is told by its ``remote_collectors``.)
     """
+    if hasattr(collector, "remote_collectors"):  # Ray actors
+        return True
     return getattr(collector, "policy", None) is not policy
 
 
