@@ -146,7 +146,7 @@ class Evaluator:
         stop_when_solved: bool = True,
         report: Callable[[EvalResult, float, int], None] | None = None,
         save_best: Callable[[int, float], Any] | None = None,
-        redraw: Callable[[], None] | None = None,
+        redraw: Callable[[EvalCurve], None] | None = None,
     ) -> None:
         self.actor, self.env = actor, env
         self.interval_frames, self.max_steps = interval_frames, max_steps
@@ -185,7 +185,7 @@ class Evaluator:
         if self.report is not None:
             self.report(result, self.best_return, frames)
         if redraw and self.redraw is not None:
-            self.redraw()
+            self.redraw(self.curve)
         if running:
             progress.clock.start()
         return Evaluation(result, solved, solved and self.stop_when_solved)

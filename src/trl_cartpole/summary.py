@@ -47,7 +47,7 @@ def finish(c: Components) -> dict[str, Any]:
     if cfg.logger.plots:
         history, curve = c.telemetry.history, evaluator.curve
         title = run_title(cfg)
-        plot_durations(c.telemetry.curves(), c.run_dir / "durations.png", title)
+        plot_durations(c.telemetry.curves(curve), c.run_dir / "durations.png", title)
         plot_dashboard(
             curve.frames,
             curve.returns,

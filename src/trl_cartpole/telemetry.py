@@ -22,6 +22,7 @@ from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLo
 from tqdm.auto import tqdm
 
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.evaluation import EvalCurve
 from trl_cartpole.files import write_text_atomic
 from trl_cartpole.learner import UpdateReport
 from trl_cartpole.models import expected_action_values
@@ -135,8 +136,6 @@ class History:
     episode_returns: list[float] = field(default_factory=list)  # in the order they ended
     episode_lengths: list[int] = field(default_factory=list)
     episode_frames: list[int] = field(default_factory=list)  # the frame each episode ended at
-    eval_frames: list[int] = field(default_factory=list)  # periodic greedy evaluations
-    eval_returns: list[float] = field(default_factory=list)
     update_frames: list[int] = field(default_factory=list)
     td_losses: list[float] = field(default_factory=list)
     grad_norms: list[float] = field(default_factory=list)
@@ -262,8 +261,6 @@ class Telemetry:
             },
             frames,
         )
-        self.history.eval_frames.append(frames)
-        self.history.eval_returns.append(result.mean)
         self.postfix.update(eval=_short(result.mean), best=_short(best))
         self._show_postfix()
         if self.mode == "lines":  # output redirected: one line per evaluation, no redraws
@@ -274,20 +271,20 @@ class Telemetry:
                 flush=True,
             )
 
-    def curves(self) -> LearningCurves:
-        """The training episodes and greedy evaluations so far, for the duration plot."""
+    def curves(self, evaluations: EvalCurve) -> LearningCurves:
+        """The training episodes so far, with ``evaluations`` (the evaluator's curve)."""
         history = self.history
         return LearningCurves(
             history.episode_frames,
             history.episode_returns,
-            history.eval_frames,
-            history.eval_returns,
+            evaluations.frames,
+            evaluations.returns,
             self.threshold,
         )
 
-    def redraw_live_plot(self) -> None:
+    def redraw_live_plot(self, evaluations: EvalCurve) -> None:
         if self.live_plot is not None:
-            self.live_plot.update(self.curves())
+            self.live_plot.update(self.curves(evaluations))
 
     def _show_postfix(self) -> None:
         if self.bar is not None:
