@@ -422,7 +422,13 @@ def _assemble(
             "evaluator": evaluator,
             "telemetry": telemetry,
             # last: its carrier replaces the one the collector's own state restored
-            "envs": EnvState(None if distributed else env, eval_env, collector, buffer),
+            "envs": EnvState(
+                None if distributed else env,
+                eval_env,
+                collector,
+                buffer,
+                trust_pickle=cfg.checkpoint.trust_pickled_envs,
+            ),
         },
         observation_norm,
     )

@@ -30,6 +30,7 @@ from trl_cartpole.config import Config, flat_fields, to_config
 from trl_cartpole.console import python_command, shown_path
 from trl_cartpole.errors import ConfigError, TrainingInterrupted
 from trl_cartpole.files import write_json_atomic
+from trl_cartpole.pickle_scan import refuse_code
 from trl_cartpole.progress import Progress
 from trl_cartpole.validation import validate
 
@@ -45,11 +46,12 @@ __all__ = [
     "run_dir_of",
     "save_policy",
     "save_training_state",
-    "verify_integrity",
+    "verify_checkpoint",
 ]
 
 POLICY, TRAINING_STATE = "policy", "training_state"  # the two kinds of checkpoint
 INTEGRITY = "integrity.json"  # SHA-256 of every file, written once the checkpoint is complete
+TRUST_PICKLE = "checkpoint.trust_pickled_envs"
 # What a resumed run may change; everything else must match the stored config.
 RESUMABLE_FIELDS = (
     "collector.total_frames",
@@ -61,6 +63,7 @@ RESUMABLE_FIELDS = (
     "logger.live_plot",
     "logger.plots",
     "collector.ray_address",  # a restarted cluster may listen elsewhere
+    TRUST_PICKLE,  # read from the resuming command only, never from the checkpoint
 )
 
 
@@ -107,7 +110,7 @@ def save_training_state(
 
 def load_training_state(path: str | Path, **components: Any) -> dict[str, Any]:
     """Load every component saved by :func:`save_training_state` in place; return the metadata."""
-    verify_integrity(path)
+    verify_checkpoint(path)
     try:
         Checkpoint(rng=GlobalRNGState(), **components).load(path)
         return Checkpoint.manifest(path)["metadata"]
@@ -131,7 +134,7 @@ def find_resume_checkpoint(path: str | Path) -> Path:
     if not path.exists():
         raise ConfigError(f"resume={str(path)!r} does not exist; pass a run directory")
     if (path / "manifest.json").is_file():
-        verify_integrity(path)
+        verify_checkpoint(path)
         return path
     candidates = []
     periodic = path / "checkpoints" / "periodic"
@@ -149,7 +152,7 @@ def find_resume_checkpoint(path: str | Path) -> Path:
             "checkpoints/last); pass the run directory of a run with checkpoints"
         )
     for candidate in candidates:
-        verify_integrity(candidate)
+        verify_checkpoint(candidate)
     return max(candidates, key=lambda c: _read_manifest(c)["metadata"]["counters"]["frames"])
 
 
@@ -176,8 +179,12 @@ def _write_integrity(path: Path) -> Path:
     return path
 
 
-def verify_integrity(path: str | Path) -> None:
-    """Raise :class:`ConfigError` unless every file of the checkpoint matches its record."""
+def verify_checkpoint(path: str | Path) -> None:
+    """Raise :class:`ConfigError` unless every file of the checkpoint matches its record.
+
+    Then refuse a checkpoint holding a pickle that could run code
+    (:func:`trl_cartpole.pickle_scan.refuse_code`): nothing is loaded from it.
+    """
     path = Path(path)
     record = path / INTEGRITY
     if not record.is_file():
@@ -197,6 +204,7 @@ def verify_integrity(path: str | Path) -> None:
             f"{' ...' if len(damaged) > 3 else ''} missing, truncated or changed since it was "
             "written; use an older checkpoint"
         )
+    refuse_code(path)
 
 
 def run_dir_of(checkpoint: str | Path) -> Path:
@@ -220,6 +228,8 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
             "state; pass the run directory (its checkpoints/periodic or checkpoints/last)"
         )
     stored = read_checkpoint_config(checkpoint)
+    # Trust in pickled env state comes from whoever resumes, not from the checkpoint's config.
+    stored.checkpoint.trust_pickled_envs = False
     merged = OmegaConf.merge(OmegaConf.structured(stored), OmegaConf.from_dotlist(list(overrides)))
     cfg = validate(to_config(merged))
     before, after = flat_fields(stored), flat_fields(cfg)
@@ -260,7 +270,7 @@ def read_observation_norm(path: str | Path) -> dict[str, list[float]] | None:
 
 def load_policy(path: str | Path, actor: nn.Module) -> nn.Module:
     """Load policy weights saved by :func:`save_policy` into ``actor`` (in place)."""
-    verify_integrity(path)
+    verify_checkpoint(path)
     try:
         Checkpoint(policy=actor).load(path, components=["policy"])
     except (CheckpointError, RuntimeError, KeyError) as error:

@@ -150,6 +150,9 @@ class CheckpointConfig:
     include_buffer: bool = True  # store the replay buffer in training states (exact resume)
     interval_frames: int = 10_000  # a training state every this many frames (0: never)
     keep_last: int = 2  # periodic training states kept (checkpoints/periodic)
+    # store and load envs that are not classic control pickled; loading runs any code the
+    # checkpoint holds, so a resume reads this from its command line only (docs/reliability.md)
+    trust_pickled_envs: bool = False
 
 
 @dataclass

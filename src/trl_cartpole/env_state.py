@@ -6,19 +6,24 @@ counters, global RNGs and the loop's own objects (progress, learner, evaluator, 
 their own; :class:`EnvState` gathers what lives inside TorchRL and Gymnasium objects, so that a
 run resumed from a checkpoint continues exactly as if never stopped:
 
-- the Gymnasium envs' internal state (physics, ``np_random``, time-limit counters), pickled:
-  the training env mid-episode and the evaluation env, whose episodes follow one another
-  (with TorchRL's autoreset memo of the last evaluation step, which the next reset reads);
+- the Gymnasium envs' internal state, as arrays and numbers, never pickled: for classic-control
+  envs (CartPole, Acrobot, MountainCar...) every plain-data attribute of the env and of each
+  wrapper around it (the physics ``state``, ``steps_beyond_terminated``, the time limit's
+  ``_elapsed_steps``, the order and checker flags), its RNG's ``bit_generator.state``, and for a
+  vector env its own arrays (``_autoreset_envs``, the last observations, rewards and flags);
+- TorchRL's autoreset memo of the last vector-env step, which the next reset reads;
 - the collector's carrier (the last observation and the running step count and return);
 - the n-step window the replay buffer's ``MultiStepTransform`` holds back.
 
-The private TorchRL names these live under are read through :mod:`trl_cartpole.compat`.
+Other envs (Box2D's LunarLander, MuJoCo, a user's own) do not expose their state as data: the
+resumed run resets them and says so. ``checkpoint.trust_pickled_envs=true`` stores such envs
+pickled instead and loads them back; unpickling runs any code the checkpoint holds, so the
+setting is read from the command that loads, never from the checkpoint. Gymnasium's
+``EzPickle`` envs (LunarLander, MuJoCo) pickle as their constructor arguments, i.e. as a fresh
+env never reset, so they are reset even then. The training envs of worker processes or Ray
+actors (``env=None``) are not saved: the resumed workers start new episodes.
 
-An env whose state cannot be pickled is recorded as missing: the resumed run then resets it and
-says so, the only case where a resume is not exact. That includes Gymnasium's ``EzPickle`` envs
-(Box2D's LunarLander, MuJoCo): they pickle as their constructor arguments, so unpickling gives a
-fresh env that was never reset, not the one mid-episode. The training envs of worker processes or
-Ray actors (``env=None``) are not saved either: the resumed workers start new episodes.
+The private TorchRL names these live under are read through :mod:`trl_cartpole.compat`.
 """
 
 from __future__ import annotations
@@ -27,9 +32,10 @@ import pickle
 import warnings
 from typing import Any
 
+import numpy as np
 from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
 from trl_cartpole.compat import (
@@ -42,73 +48,158 @@ from trl_cartpole.compat import (
     set_n_step_window,
 )
 
-__all__ = ["EnvState"]
+__all__ = ["EnvState", "env_snapshot", "restore_env_snapshot"]
+
+DATA_STATE_MODULE = "gymnasium.envs.classic_control"  # envs whose whole state is plain data
 
 
-def _state_is_lost(envs: Any) -> bool:
-    """Whether pickling ``envs`` (a Gymnasium env or a list of them) loses their state.
+def _is_plain(value: Any) -> bool:
+    """Whether ``value`` is data a checkpoint stores without pickle (numbers, strings, arrays)."""
+    if value is None or isinstance(value, (bool, int, float, str, np.generic)):
+        return True
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "biuf"
+    if isinstance(value, (list, tuple)):
+        return all(_is_plain(item) for item in value)
+    return False
 
-    Gymnasium's ``EzPickle`` envs (Box2D, MuJoCo) pickle as their constructor arguments:
-    unpickled, they are fresh envs that were never reset.
-    """
-    return any(
-        isinstance(e.unwrapped, EzPickle) for e in (envs if isinstance(envs, list) else [envs])
-    )
+
+def _plain_attributes(obj: Any) -> dict[str, Any]:
+    return {name: value for name, value in vars(obj).items() if _is_plain(value)}
 
 
-def _pickled_env(env: EnvBase) -> bytes | None:
-    """The Gymnasium env behind ``env`` pickled; for a ``SyncVectorEnv``, its list of envs.
+def _layers(env: Any) -> list[Any]:
+    """A Gymnasium env's wrappers from the outside in, then the env itself."""
+    layers = [env]
+    while hasattr(layers[-1], "env"):
+        layers.append(layers[-1].env)
+    return layers
 
-    (A vector env made by ``gymnasium.make_vec`` holds local functions and cannot be pickled;
-    between two evaluations its only state is that of its envs.) None where pickling would
-    lose the env's state.
+
+def _single_env_snapshot(env: Any) -> dict[str, Any]:
+    rng = env.unwrapped._np_random  # None until the env is seeded
+    return {
+        "layers": [_plain_attributes(layer) for layer in _layers(env)],
+        "rng": None if rng is None else rng.bit_generator.state,
+    }
+
+
+def _restore_single_env(env: Any, snapshot: dict[str, Any]) -> None:
+    layers = _layers(env)
+    if len(layers) != len(snapshot["layers"]):
+        raise ValueError("the env's wrappers differ from the checkpoint's")
+    for layer, attributes in zip(layers, snapshot["layers"], strict=True):
+        for name, value in attributes.items():
+            if name in vars(layer) and _is_plain(vars(layer)[name]):
+                setattr(layer, name, value.copy() if isinstance(value, np.ndarray) else value)
+    if snapshot["rng"] is not None:
+        env.unwrapped.np_random.bit_generator.state = snapshot["rng"]
+
+
+def _envs_of(gymnasium_env: Any) -> list[Any]:
+    return gymnasium_env.envs if isinstance(gymnasium_env, SyncVectorEnv) else [gymnasium_env]
+
+
+def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | None:
+    """The state of the Gymnasium env (or ``SyncVectorEnv``) behind ``env``, or None.
+
+    ``{"data": ...}`` (nested dicts, lists, numbers and arrays) for classic-control envs;
+    ``{"pickle": bytes}`` for other envs only with ``trust_pickle``; None where neither holds
+    the env's state.
     """
     gymnasium_env = gym_env(env)
-    envs = gymnasium_env.envs if isinstance(gymnasium_env, SyncVectorEnv) else gymnasium_env
-    if _state_is_lost(envs):
+    envs = _envs_of(gymnasium_env)
+    if all(type(e.unwrapped).__module__.startswith(DATA_STATE_MODULE) for e in envs):
+        vector = _plain_attributes(gymnasium_env) if gymnasium_env is not envs[0] else {}
+        return {"data": {"envs": [_single_env_snapshot(e) for e in envs], "vector": vector}}
+    if not trust_pickle or any(isinstance(e.unwrapped, EzPickle) for e in envs):
         return None
-    try:
-        return pickle.dumps(envs)
+    try:  # a vector env made by gymnasium.make_vec holds local functions: pickle its envs
+        return {"pickle": pickle.dumps(envs)}
     except Exception:  # native handles and other unpicklable state
         return None
 
 
-def _pickled_autoreset_state(env: EnvBase) -> bytes | None:
-    memo = autoreset_state(env)
-    return None if memo is None else pickle.dumps(memo)
+def restore_env_snapshot(
+    env: EnvBase, snapshot: dict[str, Any] | bytes | None, trust_pickle: bool = False
+) -> bool:
+    """Put a snapshot of :func:`env_snapshot` back into ``env``; False if it holds no state.
 
-
-def _restore_env(env: EnvBase, payload: bytes | None) -> bool:
-    """Put the pickled envs back into ``env``; False if there is no state to put back.
-
-    (Checkpoints written before ``_state_is_lost`` hold ``EzPickle`` envs: those are refused.)
+    A pickled snapshot (or the bare pickle bytes checkpoints held before arrays replaced it) is
+    loaded only with ``trust_pickle``.
     """
-    envs = None if payload is None else pickle.loads(payload)
-    if envs is None or _state_is_lost(envs):
+    if isinstance(snapshot, bytes):
+        snapshot = {"pickle": snapshot}
+    if snapshot is None:
         return False
     gymnasium_env = gym_env(env)
+    if "data" in snapshot:
+        envs = _envs_of(gymnasium_env)
+        if len(envs) != len(snapshot["data"]["envs"]):
+            return False
+        for single_env, single_snapshot in zip(envs, snapshot["data"]["envs"], strict=True):
+            _restore_single_env(single_env, single_snapshot)
+        for name, value in snapshot["data"]["vector"].items():
+            setattr(gymnasium_env, name, value.copy() if isinstance(value, np.ndarray) else value)
+        return True
+    if not trust_pickle:
+        return False
+    envs = pickle.loads(snapshot["pickle"])
+    envs = envs if isinstance(envs, list) else [envs]  # older checkpoints: a single env bare
+    if any(isinstance(e.unwrapped, EzPickle) for e in envs):
+        return False
     if isinstance(gymnasium_env, SyncVectorEnv):
         gymnasium_env.envs = envs
     else:
-        set_gym_env(env, envs)
+        set_gym_env(env, envs[0])
     return True
 
 
-class EnvState:
-    """``state_dict`` / ``load_state_dict`` over the envs' and collector's state (module doc)."""
+def _autoreset_snapshot(env: EnvBase) -> dict[str, Any] | None:
+    """TorchRL's autoreset memo (``done``: Tensor, ``saved_next``: TensorDict or None) as data."""
+    memo = autoreset_state(env)
+    if memo is None:
+        return None
+    return {
+        key: {"tensordict": value.to_dict(), "batch_size": list(value.batch_size)}
+        if isinstance(value, TensorDictBase)
+        else value
+        for key, value in memo.items()
+    }
 
-    def __init__(self, env: EnvBase | None, eval_env: EnvBase, collector, buffer) -> None:
+
+def _restore_autoreset(env: EnvBase, snapshot: dict[str, Any]) -> None:
+    memo = {
+        key: TensorDict(value["tensordict"], batch_size=value["batch_size"])
+        if isinstance(value, dict)
+        else value
+        for key, value in snapshot.items()
+    }
+    set_autoreset_state(env, memo)
+
+
+class EnvState:
+    """``state_dict`` / ``load_state_dict`` over the envs' and collector's state (module doc).
+
+    ``trust_pickle`` (``checkpoint.trust_pickled_envs``) saves and loads envs that are not
+    plain data with pickle.
+    """
+
+    def __init__(
+        self, env: EnvBase | None, eval_env: EnvBase, collector, buffer, trust_pickle: bool = False
+    ) -> None:
         self.env, self.eval_env = env, eval_env  # env: None when workers hold the training envs
         self.collector, self.buffer = collector, buffer
+        self.trust_pickle = trust_pickle
 
     def state_dict(self) -> dict[str, Any]:
         window = n_step_window(self.buffer)
         in_process = self.env is not None  # else the training envs live in the workers
         return {
-            "env": _pickled_env(self.env) if in_process else None,
-            "eval_env": _pickled_env(self.eval_env),
-            "env_autoreset": _pickled_autoreset_state(self.env) if in_process else None,
-            "eval_env_autoreset": _pickled_autoreset_state(self.eval_env),
+            "env": env_snapshot(self.env, self.trust_pickle) if in_process else None,
+            "eval_env": env_snapshot(self.eval_env, self.trust_pickle),
+            "env_autoreset": _autoreset_snapshot(self.env) if in_process else None,
+            "eval_env_autoreset": _autoreset_snapshot(self.eval_env),
             "carrier": carrier_of(self.collector).to_dict() if in_process else None,
             "n_step_window": None if window is None else window.to_dict(),
             "n_step_window_size": None if window is None else list(window.batch_size),
@@ -125,18 +216,17 @@ class EnvState:
         for env, key in ((self.env, "env"), (self.eval_env, "eval_env")):
             if env is None:
                 continue
-            restored[key] = _restore_env(env, state[key])
+            restored[key] = restore_env_snapshot(env, state[key], self.trust_pickle)
             if not restored[key]:  # a fresh env: new episodes, and a fresh autoreset memo
-                warnings.warn(
-                    f"the {key.replace('_', ' ')}'s state could not be pickled when the "
-                    "checkpoint was written, so the resumed run is not an exact continuation",
-                    stacklevel=2,
-                )
+                warnings.warn(self._not_restored(key, state[key]), stacklevel=2)
                 if key == "env":  # start a new episode from the restored RNG
                     carrier_of(self.collector).update(env.reset())
                 continue
-            if state[f"{key}_autoreset"] is not None:
-                set_autoreset_state(env, pickle.loads(state[f"{key}_autoreset"]))
+            memo = state[f"{key}_autoreset"]
+            if isinstance(memo, dict):
+                _restore_autoreset(env, memo)
+            elif isinstance(memo, bytes) and self.trust_pickle:  # older checkpoints pickled it
+                set_autoreset_state(env, pickle.loads(memo))
         # The carrier and the n-step window continue the training env's episodes: only with it.
         if restored["env"]:
             carrier = carrier_of(self.collector)
@@ -144,3 +234,18 @@ class EnvState:
             if state["n_step_window"] is not None:
                 window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
                 set_n_step_window(self.buffer, window)
+
+    def _not_restored(self, key: str, snapshot: Any) -> str:
+        name = key.replace("_", " ")
+        pickled = isinstance(snapshot, bytes) or "pickle" in (snapshot or {})
+        if pickled and not self.trust_pickle:
+            return (
+                f"the {name}'s state was stored pickled, and unpickling runs any code the "
+                "checkpoint holds, so it was not loaded: the resumed run starts new episodes (not "
+                "an exact continuation); pass checkpoint.trust_pickled_envs=true to load it if you "
+                "wrote this checkpoint"
+            )
+        return (
+            f"the {name}'s state is not stored as data (only classic-control envs are), so the "
+            "resumed run starts new episodes (not an exact continuation)"
+        )
