@@ -1,7 +1,8 @@
 """How collection and training scale with envs and workers on this machine (docs/scaling.md).
 
     python -m benchmarks scaling [--seeds 0 1 2] [--frames 16384] [--train-frames 8192]
-        [--out runs/scaling] [--parts collect train solve] [key=value ...]
+        [--out runs/scaling] [--parts collect train solve] [--solve-layouts one sync async ray]
+        [key=value ...]
 
 A layout is how many envs each worker steps (``env.num_envs``), how many workers collect
 (``collector.workers``) and whether they are synchronous; the overrides apply to every layout.
@@ -70,20 +71,17 @@ TRAIN_OVERRIDES = [
     "logger.plots=false",
     "logger.live_plot=false",
 ]
-SOLVE_LAYOUTS = {  # label -> overrides of the default config (32 envs in all)
-    "1 worker, 32 envs": [],
-    "2 workers, sync, 16 envs each": ["collector.workers=2", "env.num_envs=16"],
-    "2 workers, async, 16 envs each": [
-        "collector.workers=2",
-        "env.num_envs=16",
-        "collector.sync=false",
-        "buffer.n_steps=1",
-    ],
-    "2 Ray actors, sync, 16 envs each": [
-        "collector.backend=ray",
-        "collector.workers=2",
-        "env.num_envs=16",
-    ],
+SOLVE_LAYOUTS = {  # name -> (label, overrides of the default config: 32 envs in all)
+    "one": ("1 worker, 32 envs", []),
+    "sync": ("2 workers, sync, 16 envs each", ["collector.workers=2", "env.num_envs=16"]),
+    "async": (
+        "2 workers, async, 16 envs each",
+        ["collector.workers=2", "env.num_envs=16", "collector.sync=false", "buffer.n_steps=1"],
+    ),
+    "ray": (
+        "2 Ray actors, sync, 16 envs each",
+        ["collector.backend=ray", "collector.workers=2", "env.num_envs=16"],
+    ),
 }
 
 
@@ -204,9 +202,11 @@ def train_table(
     return "\n".join(rows)
 
 
-def solve_table(seeds: list[int], out: Path, overrides: list[str], jobs: int) -> str:
+def solve_table(
+    seeds: list[int], out: Path, overrides: list[str], jobs: int, layouts: list[str]
+) -> str:
     results = {}
-    for label, layout_overrides in SOLVE_LAYOUTS.items():
+    for label, layout_overrides in (SOLVE_LAYOUTS[name] for name in layouts):
         name = label.replace(", ", "-").replace(" ", "")
         results[label] = run_presets(
             ["dqn"], seeds, out / "solve" / name, [*overrides, *layout_overrides], jobs=jobs
@@ -233,6 +233,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=["collect", "train", "solve"],
         choices=["collect", "train", "solve"],
     )
+    parser.add_argument(
+        "--solve-layouts",
+        nargs="+",
+        default=list(SOLVE_LAYOUTS),
+        choices=list(SOLVE_LAYOUTS),
+        help="the layouts of the solve part: "
+        + "; ".join(f"{name}: {label}" for name, (label, _) in SOLVE_LAYOUTS.items()),
+    )
 
 
 def main(args: argparse.Namespace) -> None:
@@ -247,7 +255,7 @@ def main(args: argparse.Namespace) -> None:
         )
         sections.append("## Training\n\n" + table)
     if "solve" in args.parts:
-        table = solve_table(args.seeds, args.out, args.overrides, args.jobs)
+        table = solve_table(args.seeds, args.out, args.overrides, args.jobs, args.solve_layouts)
         sections.append("## Solving CartPole with workers\n\n" + table)
     text = "\n\n".join(sections)
     print(text)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import shutil
 import signal
 import socket
 import subprocess
@@ -21,6 +22,7 @@ from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.collectors import (
     make_collector,
     needs_weight_sync,
+    ray_init_config,
     shutdown_collector,
     worker_env_constructors,
 )
@@ -59,6 +61,18 @@ def test_ray_actors_are_sent_the_learners_weights():
     policy = torch.nn.Linear(1, 1)
     assert needs_weight_sync(RayLike(policy), policy)
     assert not needs_weight_sync(SingleProcess(policy), policy)
+
+
+def test_a_local_ray_instance_is_started_apart_from_any_other_on_the_machine():
+    """A temporary directory of its own: ray.init does not join the cluster a ``ray start``
+    recorded in /tmp/ray/ray_current_cluster (machine-wide state) instead of starting one."""
+    first, second = ray_init_config(None, 2), ray_init_config(None, 2)
+    assert first["address"] is None and first["num_cpus"] >= 2
+    assert Path(first["_temp_dir"]).is_dir() and first["_temp_dir"] != second["_temp_dir"]
+    assert not Path(first["_temp_dir"], "ray_current_cluster").exists()
+    assert "_temp_dir" not in ray_init_config("10.0.0.1:6379", 2)  # a cluster keeps its own
+    for config in (first, second):
+        shutil.rmtree(config["_temp_dir"])
 
 
 @pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])
