@@ -89,3 +89,28 @@ def test_headless_live_plot_rewrites_the_png_at_each_evaluation(compose, tmp_pat
     plot.update(LearningCurves(list(range(32, 3872, 32)), [10, 20, 30, 40] * 30, [], [], None))
     assert (tmp_path / "durations.png").stat().st_mtime_ns >= first
     assert not list(tmp_path.glob(".*.tmp"))  # written atomically
+
+
+def test_a_resumed_run_rewinds_its_own_wandb_run_to_the_checkpoint(tmp_path, monkeypatch):
+    """W&B's counterpart of purge_step: the same W&B run, rewound with ``resume_from``.
+
+    (W&B applies the rewind on its server, at upload or ``wandb sync``: not testable here, so
+    this checks what the logger asks of W&B; the recorded run was checked by hand.)
+    """
+    import sys
+    import types
+
+    from trl_cartpole import telemetry
+
+    created = []
+    monkeypatch.setitem(sys.modules, "wandb", types.ModuleType("wandb"))
+    monkeypatch.setattr(telemetry, "WandbLogger", lambda **kwargs: created.append(kwargs))
+    run_dir = tmp_path / "CartPole-v1-dqn-seed0-20261123-120000"
+    make_logger("wandb", run_dir)
+    make_logger("wandb", run_dir, resumed_at=4096)
+    make_logger("wandb", tmp_path / "another-run")
+    fresh, resumed, other = created
+    assert fresh["id"] == resumed["id"] != other["id"]  # one W&B run per run directory
+    assert "resume_from" not in fresh
+    assert resumed["resume_from"] == f"{fresh['id']}?_step=4096" and resumed["resume"] is None
+    assert fresh["settings"] == {"silent": True}  # no W&B banner on the console

@@ -9,6 +9,7 @@ duration plot at each evaluation, and keeps the history the final plots and the 
 
 from __future__ import annotations
 
+import hashlib
 import resource
 import sys
 from dataclasses import asdict, dataclass, field
@@ -73,6 +74,11 @@ class ResumedTensorboardLogger(TensorboardLogger):
         return SummaryWriter(log_dir=log_dir, purge_step=self.purge_step)
 
 
+def wandb_run_id(run_dir: str | Path) -> str:
+    """The W&B run id of a run directory: the same id again when the run is resumed."""
+    return hashlib.sha256(Path(run_dir).resolve().name.encode()).hexdigest()[:16]
+
+
 def make_logger(
     backend: str,
     run_dir: str | Path,
@@ -85,8 +91,9 @@ def make_logger(
     ``CSVLogger`` writes one ``metrics/scalars/<name>.csv`` per scalar, each row ``step,value``
     with ``step`` the frame count; ``TensorboardLogger`` writes event files under
     ``run_dir/metrics``; ``WandbLogger`` logs to ``project`` (offline by default, files under
-    ``run_dir/wandb``). ``backend="none"`` returns ``None``. ``resumed_at`` (the frame of the
-    checkpoint a resumed run starts from) makes TensorBoard drop what was logged after it.
+    ``run_dir/wandb``, one W&B run per run directory). ``backend="none"`` returns ``None``.
+    ``resumed_at`` (the frame of the checkpoint a resumed run starts from) makes TensorBoard drop
+    what was logged after it, and rewinds the W&B run to it (``resume_from``).
     """
     if backend == "none":
         return None
@@ -109,11 +116,19 @@ def make_logger(
             raise ConfigError(
                 "logger.backend=wandb needs wandb: pip install -e '.[wandb]'"
             ) from None
+        run_id = wandb_run_id(run_dir)
+        # A resumed run rewinds its W&B run to the checkpoint's frame (W&B's resume_from),
+        # so the steps the stopped run logged after it are replaced, not doubled.
+        rewind = f"{run_id}?_step={resumed_at}"
+        resume = {} if resumed_at is None else {"resume": None, "resume_from": rewind}
         return WandbLogger(
             exp_name=Path(run_dir).name,
             offline=wandb_offline,
             save_dir=str(run_dir),
             project=project,
+            id=run_id,
+            settings={"silent": True},  # W&B's banner and run summary off: a quiet console
+            **resume,
         )
     raise ConfigError(f"logger.backend={backend!r}; choose csv, tensorboard, wandb or none")
 
