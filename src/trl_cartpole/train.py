@@ -33,6 +33,7 @@ def train(
     resume: str | Path | None = None,
     *,
     build: Callable[[Config, str | Path | None], Components] = build_components,
+    on_evaluation: Callable[[int, float], None] | None = None,
 ) -> dict[str, Any]:
     """Train DQN as configured, write the run directory and return the summary dict.
 
@@ -40,7 +41,9 @@ def train(
     ``cfg`` its stored config (``checkpoint.resume_config``): the run continues exactly where
     it stopped. A stop signal (SIGINT, SIGTERM, SIGHUP, SIGUSR1) writes a checkpoint and raises
     ``TrainingInterrupted``; a non-finite TD loss raises ``TrainingFailed``. ``build`` makes
-    the components (a test may wrap it to inject a fault).
+    the components (a test may wrap it to inject a fault). ``on_evaluation(frames, mean)`` is
+    called after each periodic evaluation (the tuner reports it to Optuna, which may stop the
+    run by raising).
     """
     cfg = validate(to_config(cfg))
     # the stop request first: its unbreakable console is the one the progress bar writes to
@@ -62,8 +65,12 @@ def train(
                         c.telemetry.updates(report, progress)
                 with phase("explore"):  # epsilon, noise, beta, weight sync, progress bar
                     c.after_batch(batch, updates_before)
-                if c.evaluator.due(progress) and c.evaluator.run(progress).stop:
-                    break
+                if c.evaluator.due(progress):
+                    evaluation = c.evaluator.run(progress)
+                    if on_evaluation is not None:
+                        on_evaluation(progress.frames, evaluation.result.mean)
+                    if evaluation.stop:
+                        break
                 c.checkpointer.maybe_save(progress, stop)  # after a signal: save, then raise
         except TrainingFailed as failure:
             raise record_failure(c, failure) from None

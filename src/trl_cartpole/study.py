@@ -1,0 +1,225 @@
+"""An Optuna study over :mod:`trl_cartpole.tuning`'s trials: storage, pruning, workers, results.
+
+Needs the ``tune`` extra (``pip install -e ".[tune]"``). The study is stored in ``storage``
+(``sqlite:///runs/tune/<study>/study.db`` by default: a stopped study resumes, and the
+processes of ``jobs`` share it; any database URL Optuna takes, e.g. PostgreSQL, for workers on
+several machines). Sampling is TPE (``optuna.samplers.TPESampler``), pruning Optuna's
+``MedianPruner`` (a trial stops when its running score is below the median of the earlier
+trials at the same step, after 5 trials and 2 evaluations). Trials are counted to ``trials``
+finished (complete or pruned) across all processes; parallel workers may finish a few more.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import shutil
+import sys
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from trl_cartpole.cli import compose_config
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.tuning import load_search_space, suggest, trial_score, write_preset
+
+try:
+    import optuna
+except ImportError:  # the tune extra
+    optuna = None
+
+__all__ = ["StudyResult", "run_study"]
+
+FINISHED = ("COMPLETE", "PRUNED")
+
+
+@dataclass
+class StudyResult:
+    best_value: float
+    best_params: dict[str, Any]
+    finished: int
+    pruned: int
+    summary: str
+    preset: Path
+
+
+def _storage(url: str) -> Any:
+    """An RDB storage that waits for SQLite's lock when several processes write."""
+    if url.startswith("sqlite:///"):
+        Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+        return optuna.storages.RDBStorage(url, engine_kwargs={"connect_args": {"timeout": 60}})
+    return url
+
+
+def _pruner(name: Any) -> Any:
+    """``median``, ``none``, or an ``optuna.pruners`` object (one process only)."""
+    if not isinstance(name, str):
+        return name
+    if name == "none":
+        return optuna.pruners.NopPruner()
+    return optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=0, n_min_trials=1)
+
+
+def _finished(study: Any) -> list[Any]:
+    states = [getattr(optuna.trial.TrialState, name) for name in FINISHED]
+    return study.get_trials(deepcopy=False, states=states)
+
+
+def _work(spec: dict[str, Any]) -> None:
+    """One worker: trials until the study holds ``spec['trials']`` finished ones."""
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.load_study(
+        study_name=spec["study_name"],
+        storage=_storage(spec["storage"]),
+        sampler=optuna.samplers.TPESampler(),
+        pruner=_pruner(spec["pruner"]),
+    )
+    space = spec["space"]
+    study_dir = Path(spec["study_dir"])
+
+    def objective(trial: Any) -> float:
+        params = suggest(trial, space)
+        trial_dir = study_dir / f"trial-{trial.number:04d}"
+
+        def report(step: int, value: float) -> None:
+            trial.report(value, step)
+            if trial.should_prune():
+                raise optuna.TrialPruned()
+
+        try:
+            return trial_score(
+                spec["config_dir"], spec["overrides"], params, spec["seeds"], trial_dir, report
+            )
+        finally:
+            shutil.rmtree(trial_dir, ignore_errors=True)  # a trial's runs are not kept
+
+    def enough(study: Any, _trial: Any) -> None:
+        if len(_finished(study)) >= spec["trials"]:
+            study.stop()
+
+    def tell(study: Any, trial: Any) -> None:
+        pruned = trial.state == optuna.trial.TrialState.PRUNED
+        value = f"pruned at step {trial.last_step}" if pruned else f"score {trial.value:.1f}"
+        print(
+            f"trial {trial.number}: {value} ({len(_finished(study))}/{spec['trials']})",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    if len(_finished(study)) < spec["trials"]:
+        study.optimize(objective, callbacks=[tell, enough], catch=())
+
+
+def run_study(
+    config_dir: str | Path,
+    overrides: Sequence[str],
+    trials: int,
+    out: str | Path,
+    jobs: int = 1,
+    storage: str | None = None,
+    study_name: str | None = None,
+    space_path: str | Path | None = None,
+    seeds: Sequence[int] = (0,),
+    pruner: Any = "median",
+) -> StudyResult:
+    """Run (or continue) a study to ``trials`` finished trials; write the best as a preset."""
+    if optuna is None:
+        raise ConfigError("scripts/tune.py needs Optuna: pip install -e '.[tune]'")
+    cfg = compose_config(config_dir, list(overrides))
+    preset = next((arg.split("=", 1)[1] for arg in overrides if arg.startswith("env=")), "cartpole")
+    space_path = Path(space_path or Path(config_dir) / "tune" / f"{preset}.yaml")
+    space = load_search_space(space_path)
+    study_name = study_name or preset
+    if storage is None:
+        study_dir = Path("runs") / "tune" / study_name
+        storage = f"sqlite:///{study_dir / 'study.db'}"
+    elif storage.startswith("sqlite:///"):  # the plots go beside the database
+        study_dir = Path(storage.removeprefix("sqlite:///")).parent
+    else:
+        study_dir = Path("runs") / "tune" / study_name
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    optuna.create_study(
+        study_name=study_name, storage=_storage(storage), direction="maximize", load_if_exists=True
+    )
+    spec = {
+        "study_name": study_name,
+        "storage": storage,
+        "pruner": pruner,
+        "space": space,
+        "study_dir": str(study_dir),
+        "config_dir": str(config_dir),
+        "overrides": [arg for arg in overrides if not arg.startswith("seed=")],
+        "seeds": list(seeds),
+        "trials": trials,
+    }
+    if not isinstance(pruner, str) and jobs > 1:
+        raise ConfigError("a pruner object works with jobs=1 only; name one for several jobs")
+    if jobs <= 1:
+        _work(spec)
+    else:  # processes, not threads: each trains with its own interpreter and torch threads
+        context = multiprocessing.get_context("spawn")
+        workers = [context.Process(target=_work, args=(spec,)) for _ in range(jobs)]
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+    study = optuna.load_study(study_name=study_name, storage=_storage(storage))
+    finished = _finished(study)
+    pruned = sum(t.state == optuna.trial.TrialState.PRUNED for t in finished)
+    if not any(t.state == optuna.trial.TrialState.COMPLETE for t in finished):
+        raise ConfigError(
+            f"study {study_name!r} has no complete trial ({pruned} pruned); run more trials"
+        )
+    best = study.best_trial
+    base_file = Path(config_dir) / "env" / f"{preset}.yaml"
+    base = _preset_body(base_file)
+    header = [
+        f"{cfg.env.id} tuned by scripts/tune.py (study {study_name}, trial {best.number}: "
+        f"score {best.value:.1f})",
+        f"base preset env={preset}; tuned over {', '.join(space)}",
+        f"score: mean greedy return over the evaluations of {cfg.collector.total_frames} frames, "
+        f"seeds {', '.join(map(str, seeds))}; {len(finished)} trials, {pruned} pruned",
+        f"tuning overrides: {' '.join(overrides) or 'none'}",
+    ]
+    path = write_preset(out, base, best.params, header)
+    _save_plots(study, study_dir)
+    lines = [
+        f"study {study_name} ({storage}): {len(finished)} trials finished, {pruned} pruned",
+        f"best trial {best.number}: score {best.value:.1f}",
+        *(f"  {name} = {value}" for name, value in best.params.items()),
+        f"plots: {study_dir / 'history.png'}, {study_dir / 'importances.png'}",
+    ]
+    return StudyResult(best.value, dict(best.params), len(finished), pruned, "\n".join(lines), path)
+
+
+def _preset_body(path: Path) -> dict[str, Any]:
+    """A preset file's settings (its ``# @package`` line and comments dropped)."""
+    from omegaconf import OmegaConf
+
+    if not path.is_file():
+        return {}
+    return OmegaConf.to_container(OmegaConf.load(path))
+
+
+def _save_plots(study: Any, study_dir: Path) -> None:
+    """Optuna's optimisation history and parameter importances as PNG files."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from optuna.visualization import matplotlib as plots
+
+    study_dir.mkdir(parents=True, exist_ok=True)
+    figures = {"history.png": plots.plot_optimization_history}
+    complete = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    if len(complete) >= 2:  # importances need two complete trials
+        figures["importances.png"] = plots.plot_param_importances
+    for name, plot in figures.items():
+        try:
+            with warnings.catch_warnings():  # Optuna marks its matplotlib plots experimental
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                axes = plot(study)
+        except (ValueError, RuntimeError):  # e.g. every parameter constant so far
+            continue
+        axes.figure.savefig(study_dir / name, dpi=100, bbox_inches="tight")
+        matplotlib.pyplot.close(axes.figure)

@@ -1,0 +1,180 @@
+"""Hyperparameter search with Optuna: a YAML search space, pruned trials, a preset as the result.
+
+A trial samples the fields of a search space (``configs/tune/<env>.yaml``) with Optuna's TPE
+sampler (Bergstra et al. 2011), trains one run per seed with them, and scores them by
+:func:`curve_score`: the mean greedy return over the periodic evaluations of the frame budget
+(the area under the evaluation curve, divided by its length), where a run that stopped because
+it solved the env keeps its last value until the budget. Each evaluation is reported to the
+trial, so Optuna's pruner (median rule by default) stops poor trials early. The study lives in an
+Optuna storage (SQLite by default), so a stopped study resumes and several processes share it.
+The best trial is written as a preset ``scripts/train.py`` takes by name.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+from omegaconf import OmegaConf
+
+from trl_cartpole.errors import ConfigError
+
+__all__ = [
+    "curve_score",
+    "load_search_space",
+    "objective_overrides",
+    "suggest",
+    "write_preset",
+]
+
+RANGE_KEYS = {"low", "high", "log", "step"}
+
+
+def load_search_space(path: str | Path) -> dict[str, dict[str, Any]]:
+    """``{field: spec}`` from a YAML file; a spec is ``{low, high[, log, step]}`` or ``{choices}``.
+
+    ``low``/``high`` integers give an integer range, floats a float range; a list among the
+    choices (``[64, 64]``) is passed to the config as written.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"search space {str(path)!r} does not exist; pass --space FILE.yaml")
+    space = yaml.safe_load(path.read_text()) or {}
+    for name, spec in space.items():
+        ok = isinstance(spec, dict) and (
+            (set(spec) == {"choices"} and isinstance(spec["choices"], list) and spec["choices"])
+            or ({"low", "high"} <= set(spec) <= RANGE_KEYS)
+        )
+        if not ok:
+            raise ConfigError(
+                f"search space {str(path)!r}: {name}: {spec!r} is neither "
+                "{low: L, high: H[, log: true][, step: S]} nor {choices: [...]}"
+            )
+    return space
+
+
+def suggest(trial: Any, space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """The values of one trial (``optuna.Trial``) for every field of ``space``."""
+    params = {}
+    for name, spec in space.items():
+        if "choices" in spec:
+            choices = [str(c) if isinstance(c, list) else c for c in spec["choices"]]
+            params[name] = trial.suggest_categorical(name, choices)
+        elif isinstance(spec["low"], int) and isinstance(spec["high"], int):
+            params[name] = trial.suggest_int(
+                name,
+                spec["low"],
+                spec["high"],
+                step=spec.get("step", 1),
+                log=spec.get("log", False),
+            )
+        else:
+            params[name] = trial.suggest_float(
+                name, float(spec["low"]), float(spec["high"]), log=spec.get("log", False)
+            )
+    return params
+
+
+def objective_overrides(params: Mapping[str, Any]) -> list[str]:
+    """``key=value`` overrides of a trial's values (lists as written: ``[64, 64]``)."""
+    return [f"{name}={_override_value(value)}" for name, value in params.items()]
+
+
+def _override_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def curve_score(returns: Sequence[float], expected: int) -> float:
+    """Mean greedy return over ``expected`` evaluations, the last one held after an early stop.
+
+    A run that stops when solved has fewer evaluations than its budget; its last (solved) value
+    stands for the rest, so solving early scores higher than solving late.
+    """
+    if not returns:
+        return -math.inf
+    held = max(expected - len(returns), 0)
+    return (sum(returns) + held * returns[-1]) / (len(returns) + held)
+
+
+def write_preset(
+    path: str | Path,
+    base: Mapping[str, Any],
+    params: Mapping[str, Any],
+    header: Sequence[str],
+) -> Path:
+    """Write ``base`` (a preset's nested dict) with ``params`` (dotted keys) as a Hydra preset.
+
+    ``header`` lines become its leading comments (``train.py --help`` shows the first).
+    """
+    merged = OmegaConf.merge(
+        OmegaConf.create(dict(base)), OmegaConf.from_dotlist(objective_overrides(params))
+    )
+    text = "".join(f"# {line}\n" for line in header)
+    text = "# @package _global_\n" + text + OmegaConf.to_yaml(merged)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def trial_score(
+    config_dir: str | Path,
+    overrides: Sequence[str],
+    params: Mapping[str, Any],
+    seeds: Sequence[int],
+    trial_dir: Path,
+    report: Any = None,
+) -> float:
+    """Train one run per seed with ``params``; the mean of their :func:`curve_score`.
+
+    ``report(step, value)`` (``optuna.Trial.report`` and a prune check) gets each evaluation's
+    running score; seed ``k``'s evaluations are steps ``k * total_frames + frames``.
+    """
+    from trl_cartpole.cli import compose_config
+    from trl_cartpole.train import train
+
+    scores = []
+    for index, seed in enumerate(seeds):
+        run_overrides = [
+            *overrides,
+            *objective_overrides(params),
+            f"seed={seed}",
+            f"run_dir={trial_dir / f'seed{seed}'}",
+            *QUIET_RUN,
+        ]
+        cfg = compose_config(config_dir, run_overrides)
+        scores.append(_run_score(train, cfg, index * cfg.collector.total_frames, report))
+    return sum(scores) / len(scores)
+
+
+def _run_score(train: Any, cfg: Any, first_step: int, report: Any) -> float:
+    """One run's :func:`curve_score`; each evaluation's running score reported at its step."""
+    expected = max(cfg.collector.total_frames // cfg.eval.interval_frames, 1)
+    returns: list[float] = []
+
+    def on_evaluation(frames: int, mean: float) -> None:
+        returns.append(mean)
+        if report is not None:
+            report(first_step + frames, curve_score(returns, len(returns)))
+
+    summary = train(cfg, on_evaluation=on_evaluation)
+    return curve_score(summary["eval_curve"]["returns"], expected)
+
+
+# A trial's runs write no plots, periodic checkpoints or policies: only what the score needs.
+QUIET_RUN = (
+    "logger.progress_bar=false",
+    "logger.live_plot=false",
+    "logger.plots=false",
+    "logger.backend=none",
+    "checkpoint.interval_frames=0",
+    "checkpoint.save_last=false",
+    "checkpoint.save_best=false",
+)

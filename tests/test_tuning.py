@@ -1,0 +1,111 @@
+"""scripts/tune.py: an Optuna study that prunes, resumes from SQLite and writes a preset."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from trl_cartpole.cli import compose_config
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.tuning import curve_score, load_search_space, objective_overrides
+
+from .conftest import CONFIG_DIR, run_script
+
+optuna = pytest.importorskip("optuna")
+
+# 3 000 frames, evaluations at 1 024, 2 048 and 3 072 frames (20 episodes each).
+TINY = ["collector.total_frames=3000", "eval.interval_frames=1000", "eval.final_episodes=5"]
+
+
+def test_the_score_is_the_mean_of_the_curve_held_at_its_last_value():
+    assert curve_score([10.0, 20.0, 30.0], 3) == 20.0
+    assert curve_score([10.0, 500.0], 4) == (10 + 500 * 3) / 4  # stopped solved: 500 held
+    assert curve_score([], 3) == float("-inf")
+
+
+def test_a_search_space_is_checked_and_lists_pass_as_written(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("optim.lr: {low: 0.1}\n")
+    with pytest.raises(ConfigError, match=r"optim\.lr: .* is neither"):
+        load_search_space(bad)
+    overrides = objective_overrides({"network.hidden_sizes": "[64, 64]", "loss.double_dqn": True})
+    assert overrides == ["network.hidden_sizes=[64, 64]", "loss.double_dqn=true"]
+    space = load_search_space(CONFIG_DIR / "tune" / "cartpole.yaml")
+    cfg = compose_config(
+        CONFIG_DIR, [f"{k}={v['choices'][0]}" for k, v in space.items() if "choices" in v]
+    )  # every choice is a valid override
+    assert cfg.network.hidden_sizes == [64, 64]
+
+
+def test_a_tiny_study_prunes_resumes_and_writes_a_preset_that_trains(tmp_path, monkeypatch):
+    from trl_cartpole.study import run_study
+    from trl_cartpole.train import train
+
+    monkeypatch.chdir(tmp_path)  # the study's directory: runs/tune/<study>
+    configs = tmp_path / "configs"
+    shutil.copytree(CONFIG_DIR, configs)
+    space = tmp_path / "space.yaml"
+    space.write_text("optim.lr: {low: 1.0e-7, high: 1.0e-2, log: true}\n")
+    storage = f"sqlite:///{tmp_path / 'study' / 'study.db'}"
+    (tmp_path / "study").mkdir()
+    study = optuna.create_study(study_name="tiny", storage=storage, direction="maximize")
+    # Evaluations at 1 024 and 2 048 frames and at the run's end (3 008): 10.5, 59.3, 145.9.
+    study.enqueue_trial({"optim.lr": 4e-3})
+    study.enqueue_trial({"optim.lr": 1e-7})  # learns nothing: pruned by construction
+    # After 1 500 frames (the second evaluation on), a running score below 20 is pruned.
+    pruner = optuna.pruners.ThresholdPruner(lower=20.0, n_warmup_steps=1500)
+    out = configs / "env" / "tiny_tuned.yaml"
+    options = dict(
+        config_dir=configs,
+        overrides=TINY,
+        out=out,
+        storage=storage,
+        study_name="tiny",
+        space_path=space,
+        pruner=pruner,
+    )
+    first = run_study(trials=2, **options)
+    assert (first.finished, first.pruned) == (2, 1)
+    assert first.best_params == {"optim.lr": 4e-3}
+    assert first.best_value == pytest.approx((10.5 + 59.3 + 145.9) / 3, abs=0.1)
+    # The same storage and more trials: the study continues (a third trial, TPE-sampled).
+    second = run_study(trials=3, **options)
+    assert (
+        second.finished == 3
+        and len(optuna.load_study(study_name="tiny", storage=storage).trials) == 3
+    )
+    assert (tmp_path / "study" / "history.png").is_file()
+    # The preset is a train.py preset by name: its tuned lr and the base preset's env.
+    text = out.read_text()
+    assert text.startswith("# @package _global_\n# CartPole-v1 tuned by scripts/tune.py")
+    cfg = compose_config(
+        configs,
+        [
+            "env=tiny_tuned",
+            *TINY,
+            f"run_dir={tmp_path / 'run'}",
+            "logger.plots=false",
+            "logger.progress_bar=false",
+        ],
+    )
+    assert cfg.optim.lr == second.best_params["optim.lr"] and cfg.env.id == "CartPole-v1"
+    assert train(cfg)["frames"] > 0
+
+
+def test_tune_answers_help_and_refuses_a_missing_space(tmp_path):
+    proc = run_script("tune.py", "--help", timeout=60)
+    assert proc.returncode == 0 and "--trials" in proc.stdout and "--storage" in proc.stdout
+    proc = run_script(
+        "tune.py",
+        "--trials",
+        "1",
+        "--out",
+        str(tmp_path / "x.yaml"),
+        "--space",
+        str(tmp_path / "none.yaml"),
+        "--storage",
+        f"sqlite:///{tmp_path / 'db' / 'study.db'}",
+    )
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(errors) == 1 and "does not exist" in errors[0]
