@@ -109,3 +109,18 @@ def test_tune_answers_help_and_refuses_a_missing_space(tmp_path):
     )
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1 and "does not exist" in errors[0]
+
+
+@pytest.mark.parametrize(
+    "space", sorted((CONFIG_DIR / "tune").glob("*.yaml")), ids=lambda p: p.stem
+)
+def test_every_search_space_samples_a_valid_config_of_its_env_preset(space):
+    from trl_cartpole.config import to_config
+    from trl_cartpole.tuning import suggest
+    from trl_cartpole.validation import validate
+
+    trial = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0)).ask()
+    params = suggest(trial, load_search_space(space))
+    cfg = compose_config(CONFIG_DIR, [f"env={space.stem}", *objective_overrides(params)])
+    validate(to_config(cfg))  # raises on an impossible value
+    assert cfg.optim.lr == params["optim.lr"]
