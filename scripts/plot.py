@@ -6,8 +6,11 @@ A sweep directory (``python scripts/train.py -m ...``) stands for all its runs. 
 directories (shell globs welcome: ``runs/ablations/*``) whose configs differ only in seed
 and run directory are one config: drawn as the median over its seeds with an interquartile
 band. Writes ``OUT.png`` (two panels: against training frames and against training seconds,
-evaluation excluded) and ``OUT.md`` (solve rate and medians to solve per config), and prints
-the table.
+evaluation excluded), ``OUT-profiles.png`` (performance profiles: the fraction of runs solved
+by each frame count, and with a final return above each value) and ``OUT.md`` (per config: solve
+rate; frames and seconds to solve as interquartile mean with its 95 % stratified bootstrap
+interval, median and slowest seed; the final return's interquartile mean and interval), and
+prints the table.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import sys
 from pathlib import Path
 
 from trl_cartpole.comparison import group_runs, load_runs, markdown_table
-from trl_cartpole.plotting import plot_comparison
+from trl_cartpole.plotting import plot_comparison, plot_profiles
 
 
 def main() -> int:
@@ -41,10 +44,17 @@ def main() -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     image = plot_comparison(curves, args.out.with_suffix(".png"), threshold)
     summaries = {label: [run["summary"] for run in runs] for label, runs in groups.items()}
+    profiles = plot_profiles(
+        {label: [s["frames_to_solve"] for s in runs] for label, runs in summaries.items()},
+        {label: [s["final_eval_return_mean"] for s in runs] for label, runs in summaries.items()},
+        args.out.with_name(f"{args.out.name}-profiles.png"),
+    )
     table = markdown_table(summaries, label="config")
-    args.out.with_suffix(".md").write_text(f"{table}\n\n![comparison]({image.name})\n")
+    args.out.with_suffix(".md").write_text(
+        f"{table}\n\n![comparison]({image.name})\n\n![performance profiles]({profiles.name})\n"
+    )
     print(table)
-    print(f"written: {image}, {args.out.with_suffix('.md')}")
+    print(f"written: {image}, {profiles}, {args.out.with_suffix('.md')}")
     return 0
 
 

@@ -50,11 +50,18 @@ def test_markdown_table_rows():
     for run, rss in zip(results["a"], (400.0, 500.0, 450.0), strict=True):
         run["peak_rss_mb"] = rss
     lines = markdown_table(results).splitlines()
+    # Frames and seconds: IQM (3 seeds: no cut, one unsolved: inf), median, slowest. Final
+    # return: IQM = mean of 500, 490, 20 = 336.7; each of 20 and 500 thrice drawn has p = 1/27
+    # > 2.5 %, so the bootstrap interval's ends are 20 and 500.
     assert lines[2] == (
-        "| a | 2/3 | 3000 | 6.0 | 490.0 | 1000, 3000, - | 2.0, 6.0, - | 10.0 | 1000 | 200 | 450 |"
+        "| a | 2/3 | not solved | 3000 | not solved | not solved | 6.0 | not solved | "
+        "337 [20.0, 500] | 1000, 3000, - | 2.0, 6.0, - | 10.0 | 1000 | 200 | 450 |"
     )
     # A peer's summary has no throughput figures: dashes.
-    assert lines[3] == "| b | 0/1 | not solved | not solved | 10.0 | - | - | 10.0 | - | - | - |"
+    assert lines[3] == (
+        "| b | 0/1 | not solved | not solved | not solved | not solved | not solved | not solved "
+        "| 10.0 [10.0, 10.0] | - | - | 10.0 | - | - | - |"
+    )
 
 
 def test_speed_ratios_divide_medians_and_name_the_unsolved():
@@ -196,9 +203,12 @@ def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "skipped" in proc.stderr and "unfinished" in proc.stderr
     table = out.with_suffix(".md").read_text()
-    assert "| CartPole-v1 dqn optim.lr=0.001 | 3/3 | 2000 | 2.0 |" in table
+    # frames_to_solve 1000, 2000, 3000: IQM (nothing cut from 3) 2000, interval [1000, 3000]
+    # (each end thrice drawn: p = 1/27 > 2.5 %), median 2000, slowest 3000.
+    assert "| CartPole-v1 dqn optim.lr=0.001 | 3/3 | 2000 [1000, 3000] | 2000 | 3000 |" in table
     assert "| CartPole-v1 dqn optim.lr=0.0005 | 1/2 | not solved |" in table
     assert out.with_suffix(".png").stat().st_size > 1000
+    assert out.with_name("comparison-profiles.png").stat().st_size > 1000
 
 
 def test_benchmark_refuses_a_bad_job_count_before_running_anything(python, tmp_path):

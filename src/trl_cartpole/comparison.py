@@ -2,7 +2,7 @@
 
 ``scripts/plot.py`` and the benchmark tools (``python -m benchmarks``) read runs through these
 functions: runs whose configs differ only in seed and run directory form one group, reported
-by solve rate and medians over its seeds.
+by solve rate, interquartile means with bootstrap intervals, medians and slowest seeds.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from trl_cartpole.config import flat_fields
+from trl_cartpole.interval_estimates import interval_estimate
 
 __all__ = ["expand_sweep_dirs", "group_runs", "load_runs", "markdown_table", "median_to_solve"]
 
@@ -39,23 +40,35 @@ def _median_of(runs: Sequence[dict[str, Any]], key: str, digits: int) -> str:
     return f"{statistics.median(values):.{digits}f}" if values else "-"
 
 
+def _estimate(values: Sequence[float | None], digits: int) -> tuple[str, str, str]:
+    """IQM [95% CI], median and slowest (largest) of frames or seconds to solve."""
+    finite = [math.inf if value is None else value for value in values]
+    estimate = interval_estimate(finite)
+    iqm_text = "not solved" if math.isinf(estimate.value) else str(estimate)
+    return iqm_text, _format(median_to_solve(values), digits), _format(max(finite), digits)
+
+
 def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "preset") -> str:
-    """One row per preset: solve rate, medians to solve, final greedy return, per-seed frames,
-    and the medians of throughput (collection frames/s, updates/s) and peak memory."""
+    """One row per preset: solve rate; frames and seconds to solve as the interquartile mean
+    with its 95 % stratified bootstrap interval, the median and the slowest seed (an unsolved
+    seed counts as infinitely slow); the final greedy return's IQM and interval; per-seed
+    figures; and the medians of wall time, throughput and peak memory
+    (:mod:`trl_cartpole.interval_estimates`)."""
     lines = [
-        f"| {label} | solved | median frames_to_solve | median seconds_to_solve | "
-        "median final 100-ep greedy return | frames_to_solve per seed | seconds per seed | "
+        f"| {label} | solved | frames_to_solve IQM [95% CI] | median | slowest | "
+        "seconds_to_solve IQM [95% CI] | median | slowest | "
+        "final 100-ep greedy return IQM [95% CI] | frames_to_solve per seed | seconds per seed | "
         "median wall seconds | collect frames/s | updates/s | peak RSS MiB |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| --- " * 15 + "|",
     ]
     for algo, runs in results.items():
         frames = [r["frames_to_solve"] for r in runs]
         seconds = [r["seconds_to_solve"] for r in runs]
-        final = statistics.median(r["final_eval_return_mean"] for r in runs)
+        final = interval_estimate([r["final_eval_return_mean"] for r in runs])
         lines.append(
             f"| {algo} | {sum(r['solved'] for r in runs)}/{len(runs)} | "
-            f"{_format(median_to_solve(frames), 0)} | {_format(median_to_solve(seconds), 1)} | "
-            f"{final:.1f} | {', '.join('-' if f is None else str(f) for f in frames)} | "
+            f"{' | '.join(_estimate(frames, 0))} | {' | '.join(_estimate(seconds, 1))} | "
+            f"{final} | {', '.join('-' if f is None else str(f) for f in frames)} | "
             f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} | "
             f"{statistics.median(r['wall_seconds'] for r in runs):.1f} | "
             f"{_median_of(runs, 'collect_frames_per_second', 0)} | "

@@ -8,6 +8,7 @@ pyplot.
 from __future__ import annotations
 
 import io
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -287,6 +288,47 @@ def plot_comparison(
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize="small")
+    fig.tight_layout()
+    _atomic_savefig(fig, path)
+    return path
+
+
+def plot_profiles(
+    solve_frames: dict[str, list[float | None]],
+    final_returns: dict[str, list[float]],
+    path: str | Path,
+) -> Path:
+    """Performance profiles (Agarwal et al. 2021) of each config over its runs, two panels.
+
+    Left: the fraction of runs solved within F frames, for every F (unsolved runs never count).
+    Right: the fraction of runs whose final greedy return exceeds tau, for every tau
+    (:func:`trl_cartpole.interval_estimates.performance_profile`).
+    """
+    from trl_cartpole.interval_estimates import performance_profile
+
+    path = Path(path)
+    fig = Figure(figsize=(12, 4.2))
+    left, right = fig.subplots(1, 2)
+    solved = [f for runs in solve_frames.values() for f in runs if f is not None]
+    frames = np.linspace(0, max(solved, default=1) * 1.05, 300)  # [G]
+    for name, runs in solve_frames.items():
+        finite = [math.inf if f is None else f for f in runs]
+        left.step(
+            frames,
+            1 - performance_profile(finite, frames),
+            where="post",
+            label=f"{name} ({len(runs)} runs)",
+        )
+    left.set(xlabel="Frames", ylabel="Fraction of runs solved", ylim=(-0.02, 1.02))
+    returns = [r for runs in final_returns.values() for r in runs]
+    margin = 0.05 * ((max(returns) - min(returns)) or 1.0)  # start below every run
+    taus = np.linspace(min(returns) - margin, max(returns), 300)  # [G]
+    for name, runs in final_returns.items():
+        right.step(taus, performance_profile(runs, taus), where="post", label=name)
+    right.set(xlabel="Final greedy return tau", ylabel="Fraction of runs > tau", ylim=(-0.02, 1.02))
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize="small")
     fig.tight_layout()
     _atomic_savefig(fig, path)
     return path
