@@ -59,7 +59,38 @@ ENV_TARGETS = {"acrobot": -80.0, "mountaincar": -105.0, "lunarlander": 200.0}
 PEERS = {  # name -> module run as ``python -m`` (see benchmarks.peers)
     "tutorial_loop": "benchmarks.peers.tutorial_loop",
     "sb3_dqn": "benchmarks.peers.sb3_dqn",
+    "tianshou_dqn": "benchmarks.peers.tianshou_dqn",
 }
+# Peers whose packages cannot sit beside the project's (Tianshou 2.0.1 pins pandas<3 and needs
+# numba) run from a virtual environment of their own, made on first use: this project, the
+# same torch build and these packages.
+PEER_VENVS = {"tianshou_dqn": ["tianshou==2.0.1"]}
+PEER_VENV_ROOT = Path("runs") / "peer-venvs"
+
+
+def peer_python(peer: str) -> str:
+    """The interpreter that runs ``peer``: this one, or its own virtual environment's.
+
+    The environment is ``runs/peer-venvs/<peer>``; a ``.complete`` marker is written once its
+    install succeeded, so one cut off midway is made again.
+    """
+    if peer not in PEER_VENVS:
+        return sys.executable
+    venv = (REPOSITORY / PEER_VENV_ROOT / peer).resolve()
+    python = venv / "bin" / "python"
+    if not (venv / ".complete").is_file():
+        import shutil
+
+        import torch
+
+        shutil.rmtree(venv, ignore_errors=True)
+        print(f"making {venv} for {peer} (once; a few minutes)", file=sys.stderr, flush=True)
+        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+        torch_pin = f"torch=={torch.__version__.split('+')[0]}"  # the CPU build on disk
+        install = [str(python), "-m", "pip", "install", "-q", torch_pin, *PEER_VENVS[peer]]
+        subprocess.run([*install, "-e", str(REPOSITORY)], check=True)
+        (venv / ".complete").write_text(" ".join(PEER_VENVS[peer]) + "\n")
+    return str(python)
 
 
 def _subprocess_env() -> dict[str, str]:
@@ -101,7 +132,7 @@ def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ())
 def run_peer(peer: str, seed: int, out: Path, peer_args: Sequence[str] = ()) -> dict[str, Any]:
     """Run the peer ``peer`` (a key of ``PEERS``) with ``seed`` into ``out/<peer>-seed<seed>``."""
     run_dir = (out / f"{peer}-seed{seed}").resolve()
-    command = [sys.executable, "-m", PEERS[peer], "--seed", str(seed), "--run-dir", str(run_dir)]
+    command = [peer_python(peer), "-m", PEERS[peer], "--seed", str(seed), "--run-dir", str(run_dir)]
     return _run_once([*command, *peer_args], run_dir)
 
 

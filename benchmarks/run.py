@@ -1,13 +1,16 @@
 """Median frames and seconds to solve over seeds, per preset, optionally against peer DQNs.
 
     python -m benchmarks run --algos dqn tutorial --seeds 0 1 2 3 4
-        [--peers tutorial_loop sb3_dqn] [--jobs 1] [--out runs/benchmark] [key=value ...]
+        [--peers tutorial_loop sb3_dqn tianshou_dqn] [--jobs 1] [--out runs/benchmark]
+        [key=value ...]
 
 Each (preset, seed) is one ``scripts/train.py`` run, each (peer, seed) one
 ``python -m benchmarks.peers.<peer>`` run, in their own processes (``--jobs`` at a time;
 1, the default, keeps the machine's noise the same for all). Every run evaluates greedily over
 ``--eval-episodes`` episodes every ``--eval-interval`` frames with the training clock stopped
-(``benchmarks.peers.protocol``). The table of medians (solve rate, frames and seconds to
+(``benchmarks.peers.protocol``). ``tianshou_dqn`` runs from its own virtual environment,
+``runs/peer-venvs/tianshou_dqn``, made on its first use (``benchmarks.harness.peer_python``).
+The table of medians (solve rate, frames and seconds to
 solve, collection frames/s, updates/s, peak RSS) is printed and written to ``OUT/results.md``
 and ``OUT/results.json``, followed by the ratios: each peer's median seconds_to_solve over the
 first preset's, and seconds per frame of ``tutorial`` against ``tutorial_loop``.

@@ -40,7 +40,11 @@ def test_later_evaluations_play_new_episodes():
     assert first != second  # the envs' RNGs moved on: new start states
 
 
-@pytest.mark.parametrize("peer", ["tutorial_loop", "sb3_dqn"])
+@pytest.mark.parametrize(
+    "peer",
+    # tianshou_dqn makes its own virtual environment on first use: minutes, so -m slow
+    ["tutorial_loop", "sb3_dqn", pytest.param("tianshou_dqn", marks=pytest.mark.slow)],
+)
 def test_peer_runs_under_the_protocol_and_writes_a_summary(tmp_path, peer):
     if peer == "sb3_dqn":
         pytest.importorskip("stable_baselines3")
