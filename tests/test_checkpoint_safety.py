@@ -12,6 +12,7 @@ import json
 import os
 import pickle
 import shutil
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -123,6 +124,70 @@ def test_a_training_state_with_a_pickle_payload_is_refused_unrun(planted):
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1, proc.stderr[-1500:]
     assert "prefetch.pkl would run code (builtins.exec)" in errors[0]
+    assert not marker.exists()
+
+
+def _archive_with_payload(path: Path, payload: bytes) -> None:
+    """A tensordict archive whose non-tensor leaf's ``other.pickle`` is ``payload``.
+
+    (Built from a harmless leaf, then the pickle swapped: the payload object itself would run
+    when copied, so it never exists here as an object.)
+    """
+    from tensordict import NonTensorData, TensorDict
+
+    TensorDict({"note": NonTensorData(b"harmless")}, batch_size=[]).save(path, archive=True)
+    with zipfile.ZipFile(path) as archive:
+        members = {info.filename: archive.read(info) for info in archive.infolist()}
+    swapped = [name for name in members if name.endswith("other.pickle")]
+    assert swapped, sorted(members)
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, payload if name in swapped else data)
+
+
+def test_a_zip_archive_or_a_symbolic_link_in_a_checkpoint_is_refused_unrun(planted, tmp_path):
+    from trl_cartpole.checkpoint import load_policy
+    from trl_cartpole.errors import ConfigError
+
+    run_dir, marker = planted
+    best = run_dir / "checkpoints" / "best"
+    component = next(best.glob("components/*-policy"))
+    # tensordict's archive format: the adapter loads state.tdz when state/ is absent, and
+    # unpickles the non-tensor leaf inside it.
+    shutil.move(component / "state", tmp_path / "state-moved")
+    _archive_with_payload(component / "state.tdz", pickle.dumps({"data": _WritesAFile(marker)}))
+    _rewrite_integrity(best)
+    proc = run_script("evaluate.py", f"checkpoint={run_dir}", "episodes=2")
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(errors) == 1, proc.stderr[-1500:]
+    assert "state.tdz would run code (a zip archive" in errors[0]
+    # A symbolic link a loader would follow out of the checkpoint.
+    (component / "state.tdz").unlink()
+    (component / "state").symlink_to(tmp_path / "state-moved", target_is_directory=True)
+    _rewrite_integrity(best)
+    with pytest.raises(ConfigError, match="would run code \\(a symbolic link to"):
+        load_policy(best, None)
+    assert not marker.exists()
+
+
+def test_unpickling_during_a_load_is_refused_whatever_path_led_there(tmp_path):
+    from tensordict import NonTensorData, TensorDict, load
+
+    from trl_cartpole.errors import ConfigError
+    from trl_cartpole.pickle_scan import no_unpickling
+
+    marker = tmp_path / "payload-ran"
+    TensorDict({"note": NonTensorData(b"harmless")}, batch_size=[]).memmap(
+        tmp_path / "td"
+    )  # pickled
+    (tmp_path / "td" / "note" / "other.pickle").write_bytes(
+        pickle.dumps({"data": _WritesAFile(marker)})
+    )
+    with (
+        pytest.raises(ConfigError, match="a pickle tensordict was about to load"),
+        no_unpickling(tmp_path / "td"),
+    ):
+        load(tmp_path / "td")
     assert not marker.exists()
 
 

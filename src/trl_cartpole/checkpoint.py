@@ -30,7 +30,7 @@ from trl_cartpole.config import Config, flat_fields, to_config
 from trl_cartpole.console import python_command, shown_path
 from trl_cartpole.errors import ConfigError, TrainingInterrupted
 from trl_cartpole.files import write_json_atomic
-from trl_cartpole.pickle_scan import refuse_code
+from trl_cartpole.pickle_scan import no_unpickling, refuse_code
 from trl_cartpole.progress import Progress
 from trl_cartpole.validation import validate
 
@@ -112,8 +112,11 @@ def load_training_state(path: str | Path, **components: Any) -> dict[str, Any]:
     """Load every component saved by :func:`save_training_state` in place; return the metadata."""
     verify_checkpoint(path)
     try:
-        Checkpoint(rng=GlobalRNGState(), **components).load(path)
+        with no_unpickling(path):
+            Checkpoint(rng=GlobalRNGState(), **components).load(path)
         return Checkpoint.manifest(path)["metadata"]
+    except ConfigError:
+        raise
     except Exception as error:  # torch, pickle, zip and JSON errors of a damaged checkpoint
         first_line = (str(error).splitlines() or [type(error).__name__])[0]
         raise ConfigError(
@@ -272,7 +275,8 @@ def load_policy(path: str | Path, actor: nn.Module) -> nn.Module:
     """Load policy weights saved by :func:`save_policy` into ``actor`` (in place)."""
     verify_checkpoint(path)
     try:
-        Checkpoint(policy=actor).load(path, components=["policy"])
+        with no_unpickling(path):
+            Checkpoint(policy=actor).load(path, components=["policy"])
     except (CheckpointError, RuntimeError, KeyError) as error:
         first_line = str(error).splitlines()[0]
         raise ConfigError(

@@ -1,33 +1,40 @@
-"""Refuse a checkpoint that holds a pickle able to run code, before anything in it is loaded.
+"""Refuse a checkpoint that could run code when loaded, and forbid unpickling while loading.
 
 A checkpoint is a directory of JSON files and raw tensor files, but two libraries underneath
 still unpickle on load: TorchRL's replay buffer reads ``prefetch.pkl`` with ``pickle.load``,
-and tensordict reads a non-tensor leaf's ``other.pickle`` (tensordict 0.14 only warns). A
-pickle runs whatever callable it names, so a checkpoint from anywhere else could run code on
-``resume=``, ``evaluate.py``, ``render.py`` or ``export.py`` (the hazard that made
+and tensordict reads a non-tensor leaf's ``other.pickle`` (tensordict 0.14 only warns), from a
+directory or from inside a zip archive (``state.tdz``, or any file where a directory was
+expected). A pickle runs whatever callable it names, so a checkpoint from anywhere else could
+run code on ``resume=``, ``evaluate.py``, ``render.py`` or ``export.py`` (the hazard that made
 ``torch.load`` default to ``weights_only=True``). The integrity record does not help: whoever
-alters a checkpoint rewrites it too.
+alters a checkpoint rewrites it too. Three guards:
 
-:func:`refuse_code` reads every pickle in a checkpoint with :mod:`pickletools` (which parses
-without executing) and refuses one that uses any opcode able to fetch or call an object
-(``GLOBAL``, ``STACK_GLOBAL``, ``REDUCE``, ``BUILD``, ``INST``, ``OBJ``, ``NEWOBJ``, the
-extension-registry and persistent-id opcodes): with only the remaining opcodes a pickle can
-build dicts, lists, tuples, strings and numbers, nothing else. TorchRL's own ``prefetch.pkl``
-(``{'version': 1, 'capacity': 0, 'queue': ()}`` without prefetching) passes. It also refuses a
-tensordict ``meta.json`` that names a class to import (``_tensorclass_type``), which this
-project never writes. ``.pt`` files are read by ``torch.load(weights_only=True)``, safe by
-design, and are not scanned.
+- :func:`refuse_code`, before anything is loaded, refuses a checkpoint holding a symbolic link
+  (a loader would follow it out of the checkpoint), a zip archive (tensordict's archive format,
+  which this project never writes), or a pickle that uses any opcode able to fetch or call an
+  object (``GLOBAL``, ``STACK_GLOBAL``, ``REDUCE``, ``BUILD``, ``INST``, ``OBJ``, ``NEWOBJ``,
+  the extension-registry and persistent-id opcodes), read with :mod:`pickletools`, which parses
+  without executing: with the remaining opcodes a pickle builds only dicts, lists, tuples,
+  strings and numbers. TorchRL's own ``prefetch.pkl`` (``{'version': 1, 'capacity': 0,
+  'queue': ()}`` without prefetching) passes.
+- :func:`no_unpickling`, around the load itself, turns tensordict's warning that it is about to
+  unpickle a non-tensor leaf into a refusal, whatever path led there.
+- ``.pt`` files are read by ``torch.load(weights_only=True)``, safe by design.
 """
 
 from __future__ import annotations
 
-import json
+import contextlib
+import os
 import pickletools
+import warnings
+import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 
 from trl_cartpole.errors import ConfigError
 
-__all__ = ["executable_opcode", "refuse_code"]
+__all__ = ["executable_opcode", "no_unpickling", "refuse_code"]
 
 PICKLE_SUFFIXES = (".pkl", ".pickle")
 # Every opcode that can look up a global, call an object or hand data to a hook.
@@ -71,28 +78,51 @@ def executable_opcode(data: bytes) -> str | None:
     return None
 
 
+def _what_runs_code(file: Path) -> str | None:
+    if file.is_symlink():
+        return f"a symbolic link to {os.readlink(file)}, which a loader would follow"
+    if not file.is_file():
+        return None
+    if zipfile.is_zipfile(file):
+        return "a zip archive, whose pickled leaves tensordict would load"
+    if file.name.endswith(PICKLE_SUFFIXES):
+        return executable_opcode(file.read_bytes())
+    return None
+
+
 def refuse_code(path: str | Path) -> None:
     """Raise a one-line :class:`ConfigError` if the checkpoint at ``path`` could run code."""
     path = Path(path)
-    for file in sorted(path.rglob("*")):
-        if not file.is_file():
-            continue
-        found = None
-        if file.name.endswith(PICKLE_SUFFIXES):
-            found = executable_opcode(file.read_bytes())
-        elif file.name == "meta.json" and "_tensorclass_type" in _read_json(file):
-            found = f"the class {_read_json(file)['_tensorclass_type']!r} to import"
-        if found is not None:
-            raise ConfigError(
-                f"checkpoint={str(path)!r} was refused: {file.relative_to(path)} would run code "
-                f"({found}) when loaded, which a trl_cartpole checkpoint never does; it was "
-                "altered or comes from elsewhere. Nothing was loaded; use a checkpoint you wrote"
-            )
+    for root, directories, files in os.walk(path, followlinks=False):
+        for name in [*directories, *files]:
+            file = Path(root) / name
+            found = _what_runs_code(file)
+            if found is not None:
+                raise _refusal(path, file.relative_to(path), found)
 
 
-def _read_json(file: Path) -> dict:
-    try:
-        value = json.loads(file.read_bytes())
-    except ValueError:
-        return {}
-    return value if isinstance(value, dict) else {}
+def _refusal(path: Path, file: Path | str, found: str) -> ConfigError:
+    return ConfigError(
+        f"checkpoint={str(path)!r} was refused: {file} would run code ({found}) when loaded, "
+        "which a trl_cartpole checkpoint never does; it was altered or comes from elsewhere. "
+        "Nothing was loaded; use a checkpoint you wrote"
+    )
+
+
+# tensordict's FutureWarning just before it unpickles a non-tensor leaf (allow_pickle=None)
+UNPICKLE_WARNING = "TensorDict.load_memmap is loading a pickled non-tensor field"
+
+
+@contextlib.contextmanager
+def no_unpickling(path: str | Path) -> Iterator[None]:
+    """Load inside this: tensordict's unpickling of a non-tensor leaf becomes a refusal."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=UNPICKLE_WARNING, category=FutureWarning)
+        try:
+            yield
+        except FutureWarning as warning:
+            if UNPICKLE_WARNING not in str(warning):
+                raise
+            raise _refusal(
+                Path(path), "a non-tensor leaf", "a pickle tensordict was about to load"
+            ) from None

@@ -16,7 +16,12 @@ from torchrl.envs import TransformedEnv
 from torchrl.modules import DistributionalQValueActor, QValueActor
 
 from trl_cartpole.build import build_actor, build_env
-from trl_cartpole.checkpoint import load_policy, read_checkpoint_config, read_observation_norm
+from trl_cartpole.checkpoint import (
+    load_policy,
+    read_checkpoint_config,
+    read_observation_norm,
+    verify_checkpoint,
+)
 from trl_cartpole.config import Config
 from trl_cartpole.console import quiet_libraries
 from trl_cartpole.errors import ConfigError
@@ -70,6 +75,7 @@ def load_trained_policy(
     Raises a one-line ``ConfigError`` for a path that is not a checkpoint of this project.
     """
     path = policy_checkpoint(checkpoint)
+    verify_checkpoint(path)  # before its config names modules to import and envs to build
     cfg = read_checkpoint_config(path)
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
