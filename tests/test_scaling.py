@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import secrets
-import shutil
 import signal
 import socket
 import subprocess
@@ -64,15 +63,19 @@ def test_ray_actors_are_sent_the_learners_weights():
 
 
 def test_a_local_ray_instance_is_started_apart_from_any_other_on_the_machine():
-    """A temporary directory of its own: ray.init does not join the cluster a ``ray start``
-    recorded in /tmp/ray/ray_current_cluster (machine-wide state) instead of starting one."""
-    first, second = ray_init_config(None, 2), ray_init_config(None, 2)
-    assert first["address"] is None and first["num_cpus"] >= 2
-    assert Path(first["_temp_dir"]).is_dir() and first["_temp_dir"] != second["_temp_dir"]
-    assert not Path(first["_temp_dir"], "ray_current_cluster").exists()
-    assert "_temp_dir" not in ray_init_config("10.0.0.1:6379", 2)  # a cluster keeps its own
-    for config in (first, second):
-        shutil.rmtree(config["_temp_dir"])
+    """``address="local"``: Ray starts a new instance, never joining RAY_ADDRESS or the cluster
+    a ``ray start`` recorded in /tmp/ray/ray_current_cluster (machine-wide state)."""
+    from ray._private.services import canonicalize_bootstrap_address
+
+    config = ray_init_config(None, 2)
+    assert config["address"] == "local" and config["num_cpus"] >= 2
+    os.environ["RAY_ADDRESS"] = "10.0.0.1:6379"  # (conftest removes it again after the session)
+    try:
+        assert canonicalize_bootstrap_address(config["address"]) is None  # None: start one here
+        assert canonicalize_bootstrap_address(None) == "10.0.0.1:6379"  # what None would join
+    finally:
+        del os.environ["RAY_ADDRESS"]
+    assert ray_init_config("10.0.0.2:6379", 2)["address"] == "10.0.0.2:6379"
 
 
 @pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])

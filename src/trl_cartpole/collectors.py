@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import os
 import socket
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -108,19 +107,18 @@ def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
 
     A local instance declares at least one CPU per worker (more workers than cores then share
     the cores rather than wait for a free one) and asks for the loopback address, which Ray
-    may still rewrite to the machine's own (docs/scaling.md). It gets a temporary directory of
-    its own: without one, ``ray.init`` joins whatever cluster the last ``ray start`` on this
-    machine recorded in ``/tmp/ray/ray_current_cluster`` instead of starting Ray here
-    (``RAY_ADDRESS``, when set, still wins: Ray's rule).
+    may still rewrite to the machine's own (docs/scaling.md). ``address="local"`` is Ray's way
+    to always start a new instance: with ``address=None``, ``ray.init`` would instead join
+    ``RAY_ADDRESS`` or whatever cluster the last ``ray start`` on this machine recorded in
+    ``/tmp/ray/ray_current_cluster``.
     """
     quiet = {"log_to_driver": False, "logging_level": "warning", "include_dashboard": False}
     if address is not None:
         return {"address": address, **quiet}
     return {
-        "address": None,
+        "address": "local",
         "num_cpus": max(workers, os.cpu_count() or 1),
         "_node_ip_address": "127.0.0.1",
-        "_temp_dir": tempfile.mkdtemp(prefix="ray-"),
         **quiet,
     }
 
