@@ -92,10 +92,11 @@ def test_headless_live_plot_rewrites_the_png_at_each_evaluation(compose, tmp_pat
 
 
 def test_a_resumed_run_rewinds_its_own_wandb_run_to_the_checkpoint(tmp_path, monkeypatch):
-    """W&B's counterpart of purge_step: the same W&B run, rewound with ``resume_from``.
+    """W&B's counterpart of purge_step: the same W&B run, rewound with ``resume_from`` to the
+    W&B step the checkpoint recorded.
 
     (W&B applies the rewind on its server, at upload or ``wandb sync``: not testable here, so
-    this checks what the logger asks of W&B; the recorded run was checked by hand.)
+    this checks what the logger asks of W&B.)
     """
     import sys
     import types
@@ -105,12 +106,16 @@ def test_a_resumed_run_rewinds_its_own_wandb_run_to_the_checkpoint(tmp_path, mon
     created = []
     monkeypatch.setitem(sys.modules, "wandb", types.ModuleType("wandb"))
     monkeypatch.setattr(telemetry, "WandbLogger", lambda **kwargs: created.append(kwargs))
-    run_dir = tmp_path / "CartPole-v1-dqn-seed0-20261123-120000"
+    run_dir, other_dir = tmp_path / "0-CartPole-v1-dqn-seed0", tmp_path / "sweep2"
+    run_dir.mkdir(), other_dir.mkdir()
     make_logger("wandb", run_dir)
-    make_logger("wandb", run_dir, resumed_at=4096)
-    make_logger("wandb", tmp_path / "another-run")
-    fresh, resumed, other = created
-    assert fresh["id"] == resumed["id"] != other["id"]  # one W&B run per run directory
-    assert "resume_from" not in fresh
-    assert resumed["resume_from"] == f"{fresh['id']}?_step=4096" and resumed["resume"] is None
+    make_logger("wandb", run_dir, resumed_at=4096, logger_step=57)
+    make_logger("wandb", run_dir, resumed_at=4096)  # a checkpoint without the W&B step
+    (other_dir / "0-CartPole-v1-dqn-seed0").mkdir()
+    make_logger("wandb", other_dir / "0-CartPole-v1-dqn-seed0")  # same name, other sweep
+    fresh, rewound, continued, other = created
+    assert fresh["id"] == rewound["id"] == continued["id"] != other["id"]
+    assert fresh["resume"] == "never" and "resume_from" not in fresh
+    assert rewound["resume_from"] == f"{fresh['id']}?_step=57" and rewound["resume"] is None
+    assert continued["resume"] == "allow" and "resume_from" not in continued
     assert fresh["settings"] == {"silent": True}  # no W&B banner on the console

@@ -322,9 +322,10 @@ def _assemble(
     threshold: float | None,
 ) -> Components:
     """Everything after the envs and the run directory: networks, buffer, learner, collector..."""
-    frames_done = 0
+    frames_done, logger_step = 0, None
     if resume is not None:  # rows logged after the checkpoint will be logged again
-        frames_done = Checkpoint.manifest(resume)["metadata"]["counters"]["frames"]
+        counters = Checkpoint.manifest(resume)["metadata"]["counters"]
+        frames_done, logger_step = counters["frames"], counters.get("logger_step")
         truncate_csv_metrics(run_dir, frames_done)
     write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
 
@@ -357,6 +358,7 @@ def _assemble(
             cfg.logger.project,
             cfg.logger.wandb_offline,
             resumed_at=None if resume is None else frames_done,
+            logger_step=logger_step,
         ),
         LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None,
         progress_bar=cfg.logger.progress_bar,

@@ -9,8 +9,8 @@ duration plot at each evaluation, and keeps the history the final plots and the 
 
 from __future__ import annotations
 
-import hashlib
 import resource
+import secrets
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -74,9 +74,17 @@ class ResumedTensorboardLogger(TensorboardLogger):
         return SummaryWriter(log_dir=log_dir, purge_step=self.purge_step)
 
 
-def wandb_run_id(run_dir: str | Path) -> str:
-    """The W&B run id of a run directory: the same id again when the run is resumed."""
-    return hashlib.sha256(Path(run_dir).resolve().name.encode()).hexdigest()[:16]
+WANDB_RUN_ID = "wandb-run-id"  # in the run directory: the W&B run its resumes continue
+
+
+def wandb_run_id(run_dir: str | Path, resumed: bool) -> str:
+    """The W&B run id of a run directory: new for a fresh run, the stored one when resumed."""
+    path = Path(run_dir) / WANDB_RUN_ID
+    if resumed and path.is_file():
+        return path.read_text().strip()
+    run_id = secrets.token_hex(8)
+    write_text_atomic(path, run_id + "\n")
+    return run_id
 
 
 def make_logger(
@@ -85,15 +93,17 @@ def make_logger(
     project: str = "trl_cartpole",
     wandb_offline: bool = True,
     resumed_at: int | None = None,
+    logger_step: int | None = None,
 ) -> Logger | None:
     """Return TorchRL's ``CSVLogger``, ``TensorboardLogger`` or ``WandbLogger`` for ``run_dir``.
 
     ``CSVLogger`` writes one ``metrics/scalars/<name>.csv`` per scalar, each row ``step,value``
     with ``step`` the frame count; ``TensorboardLogger`` writes event files under
     ``run_dir/metrics``; ``WandbLogger`` logs to ``project`` (offline by default, files under
-    ``run_dir/wandb``, one W&B run per run directory). ``backend="none"`` returns ``None``.
-    ``resumed_at`` (the frame of the checkpoint a resumed run starts from) makes TensorBoard drop
-    what was logged after it, and rewinds the W&B run to it (``resume_from``).
+    ``run_dir/wandb``, one W&B run per run directory, its id in ``run_dir/wandb-run-id``).
+    ``backend="none"`` returns ``None``. ``resumed_at`` (the frame of the checkpoint a resumed
+    run starts from) makes TensorBoard drop what was logged after it; ``logger_step`` (the W&B
+    step the checkpoint recorded, :meth:`Telemetry.logger_step`) rewinds the W&B run to it.
     """
     if backend == "none":
         return None
@@ -116,11 +126,15 @@ def make_logger(
             raise ConfigError(
                 "logger.backend=wandb needs wandb: pip install -e '.[wandb]'"
             ) from None
-        run_id = wandb_run_id(run_dir)
-        # A resumed run rewinds its W&B run to the checkpoint's frame (W&B's resume_from),
-        # so the steps the stopped run logged after it are replaced, not doubled.
-        rewind = f"{run_id}?_step={resumed_at}"
-        resume = {} if resumed_at is None else {"resume": None, "resume_from": rewind}
+        run_id = wandb_run_id(run_dir, resumed=resumed_at is not None)
+        # A resumed run continues its W&B run, rewound (W&B's resume_from) to the W&B step the
+        # checkpoint recorded, so the rows the stopped run logged after it are replaced.
+        if resumed_at is None:
+            resume = {"resume": "never"}
+        elif logger_step is None:  # a checkpoint without it: continue, without a rewind
+            resume = {"resume": "allow"}
+        else:
+            resume = {"resume": None, "resume_from": f"{run_id}?_step={logger_step}"}
         return WandbLogger(
             exp_name=Path(run_dir).name,
             offline=wandb_offline,
@@ -318,6 +332,12 @@ class Telemetry:
         if self.logger is not None and not self._closed:
             self.logger.close()
         self._closed = True
+
+    def logger_step(self) -> int | None:
+        """W&B's own step counter (its rows so far), for a resumed run's rewind; else None."""
+        if not isinstance(self.logger, WandbLogger):
+            return None
+        return getattr(self.logger.experiment, "step", None)
 
     def state_dict(self) -> dict[str, Any]:
         return asdict(self.history)
