@@ -232,7 +232,15 @@ class _Holder:
 
 
 def _steps(gymnasium_env, actions) -> list:
-    return [gymnasium_env.step(action)[:4] for action in actions]
+    """Step through ``actions``; a single env is reset at its episode's end (the vector env
+    resets itself), its start state drawn from its RNG."""
+    out = []
+    for action in actions:
+        obs, reward, terminated, truncated, _ = gymnasium_env.step(action)
+        out.append((obs, reward, terminated, truncated))
+        if np.ndim(terminated) == 0 and (terminated or truncated):
+            out.append((gymnasium_env.reset()[0],))
+    return out
 
 
 @pytest.mark.parametrize("num_envs", [1, 3])

@@ -4,9 +4,11 @@ Needs the ``tune`` extra (``pip install -e ".[tune]"``). The study is stored in 
 (``sqlite:///runs/tune/<study>/study.db`` by default: a stopped study resumes, and the
 processes of ``jobs`` share it; any database URL Optuna takes, e.g. PostgreSQL, for workers on
 several machines). Sampling is TPE (``optuna.samplers.TPESampler``), pruning Optuna's
-``MedianPruner`` (a trial stops when its running score is below the median of the earlier
-trials at the same step, after 5 trials and 2 evaluations). Trials are counted to ``trials``
-finished (complete or pruned) across all processes; parallel workers may finish a few more.
+``MedianPruner`` (once 5 trials are complete, a trial stops when its running score is below
+the median of the earlier trials' at the same step, from its first evaluation on). A trial
+whose run fails (a non-finite loss, a sampled combination the config refuses) is recorded as
+failed and the study goes on. Trials are counted to ``trials`` finished (complete, pruned or
+failed) across all processes; parallel workers may finish a few more.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from trl_cartpole.cli import compose_config
-from trl_cartpole.errors import ConfigError
+from trl_cartpole.errors import ConfigError, TrainingFailed
 from trl_cartpole.tuning import load_search_space, suggest, trial_score, write_preset
 
 try:
@@ -31,7 +33,7 @@ except ImportError:  # the tune extra
 
 __all__ = ["StudyResult", "run_study"]
 
-FINISHED = ("COMPLETE", "PRUNED")
+FINISHED = ("COMPLETE", "PRUNED", "FAIL")
 
 
 @dataclass
@@ -99,8 +101,12 @@ def _work(spec: dict[str, Any]) -> None:
             study.stop()
 
     def tell(study: Any, trial: Any) -> None:
-        pruned = trial.state == optuna.trial.TrialState.PRUNED
-        value = f"pruned at step {trial.last_step}" if pruned else f"score {trial.value:.1f}"
+        if trial.state == optuna.trial.TrialState.PRUNED:
+            value = f"pruned at step {trial.last_step}"
+        elif trial.state == optuna.trial.TrialState.FAIL:
+            value = "failed (its error is logged above)"
+        else:
+            value = f"score {trial.value:.1f}"
         print(
             f"trial {trial.number}: {value} ({len(_finished(study))}/{spec['trials']})",
             file=sys.stderr,
@@ -108,7 +114,7 @@ def _work(spec: dict[str, Any]) -> None:
         )
 
     if len(_finished(study)) < spec["trials"]:
-        study.optimize(objective, callbacks=[tell, enough], catch=())
+        study.optimize(objective, callbacks=[tell, enough], catch=(TrainingFailed, ConfigError))
 
 
 def run_study(
@@ -160,16 +166,30 @@ def run_study(
     else:  # processes, not threads: each trains with its own interpreter and torch threads
         context = multiprocessing.get_context("spawn")
         workers = [context.Process(target=_work, args=(spec,)) for _ in range(jobs)]
-        for worker in workers:
-            worker.start()
-        for worker in workers:
-            worker.join()
+        try:
+            for worker in workers:
+                worker.start()
+            for worker in workers:
+                worker.join()
+        finally:  # a stopped study stops its workers too
+            for worker in workers:
+                if worker.is_alive():
+                    worker.terminate()
+                    worker.join()
+        failed = [worker.exitcode for worker in workers if worker.exitcode != 0]
+        if failed:
+            raise ConfigError(
+                f"{len(failed)} of {jobs} tuning workers exited with status {failed[0]}; "
+                "run with --jobs 1 to see the error"
+            )
     study = optuna.load_study(study_name=study_name, storage=_storage(storage))
     finished = _finished(study)
     pruned = sum(t.state == optuna.trial.TrialState.PRUNED for t in finished)
+    failed = sum(t.state == optuna.trial.TrialState.FAIL for t in finished)
     if not any(t.state == optuna.trial.TrialState.COMPLETE for t in finished):
         raise ConfigError(
-            f"study {study_name!r} has no complete trial ({pruned} pruned); run more trials"
+            f"study {study_name!r} has no complete trial ({pruned} pruned, {failed} failed); "
+            "run more trials or widen the search space"
         )
     best = study.best_trial
     base_file = Path(config_dir) / "env" / f"{preset}.yaml"
@@ -185,7 +205,8 @@ def run_study(
     path = write_preset(out, base, best.params, header)
     _save_plots(study, study_dir)
     lines = [
-        f"study {study_name} ({storage}): {len(finished)} trials finished, {pruned} pruned",
+        f"study {study_name} ({storage}): {len(finished)} trials finished, {pruned} pruned, "
+        f"{failed} failed",
         f"best trial {best.number}: score {best.value:.1f}",
         *(f"  {name} = {value}" for name, value in best.params.items()),
         f"plots: {study_dir / 'history.png'}, {study_dir / 'importances.png'}",
