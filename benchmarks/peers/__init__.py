@@ -3,7 +3,9 @@
 - :mod:`~benchmarks.peers.tutorial_loop`: the PyTorch DQN tutorial's loop in plain PyTorch.
 - :mod:`~benchmarks.peers.sb3_dqn`: Stable-Baselines3 DQN with rl-zoo's CartPole settings
   (the ``bench`` extra).
+- :mod:`~benchmarks.peers.tianshou_dqn`: Tianshou 2 DQN with its own CartPole example's
+  settings, from a virtual environment of its own (``benchmarks.harness.peer_python``).
 
-Both evaluate through :mod:`~benchmarks.peers.protocol`, so their ``summary.json`` reads like
+All evaluate through :mod:`~benchmarks.peers.protocol`, so their ``summary.json`` reads like
 a ``train()`` run's.
 """
