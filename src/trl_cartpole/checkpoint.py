@@ -189,6 +189,8 @@ def verify_checkpoint(path: str | Path) -> None:
     (:func:`trl_cartpole.pickle_scan.refuse_code`): nothing is loaded from it.
     """
     path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"checkpoint={str(path)!r} does not exist; pass a checkpoint directory")
     record = path / INTEGRITY
     if not record.is_file():
         raise ConfigError(
