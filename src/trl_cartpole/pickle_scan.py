@@ -83,7 +83,9 @@ def _what_runs_code(file: Path) -> str | None:
         return f"a symbolic link to {os.readlink(file)}, which a loader would follow"
     if not file.is_file():
         return None
-    if zipfile.is_zipfile(file):
+    # (A .memmap file is only ever mapped as raw numbers; not checked, so that a tensor whose
+    # bytes happen to end like a zip directory is never taken for one.)
+    if not file.name.endswith(".memmap") and zipfile.is_zipfile(file):
         return "a zip archive, whose pickled leaves tensordict would load"
     if file.name.endswith(PICKLE_SUFFIXES):
         return executable_opcode(file.read_bytes())
