@@ -11,6 +11,7 @@ stops while evaluating; the run is solved when the greedy mean first reaches Gym
 from __future__ import annotations
 
 import argparse
+import copy
 import statistics
 import time
 from collections.abc import Callable
@@ -18,18 +19,34 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from trl_cartpole.envs import make_sync_vector_env, solve_threshold
 from trl_cartpole.files import write_json_atomic
 from trl_cartpole.progress import Stopwatch
 from trl_cartpole.telemetry import peak_rss_mb
 
-__all__ = ["GreedyEvaluation", "PeerRun", "parse_peer_args"]
+__all__ = ["GreedyEvaluation", "PeerRun", "greedy_act", "parse_peer_args", "weights_snapshot"]
 
 SEED_OFFSET = 1_000_000  # as EvalConfig.seed_offset
 
 # obs [E, obs_dim] float32 -> greedy actions [E] int
 Act = Callable[[np.ndarray], np.ndarray]
+
+
+def greedy_act(q_values: Callable[[torch.Tensor], torch.Tensor]) -> Act:
+    """The greedy policy of ``q_values`` (observations [E, obs_dim] -> action values [E, A])."""
+
+    @torch.no_grad()
+    def act(obs: np.ndarray) -> np.ndarray:  # obs [E, obs_dim] -> greedy actions [E]
+        return q_values(torch.from_numpy(obs)).argmax(1).numpy()
+
+    return act
+
+
+def weights_snapshot(network: torch.nn.Module) -> Callable[[], dict[str, torch.Tensor]]:
+    """A copy of ``network``'s weights, taken when called (the best evaluation's, for a peer)."""
+    return lambda: copy.deepcopy(network.state_dict())
 
 
 class GreedyEvaluation:

@@ -14,12 +14,9 @@ clock stopped) and stops the run once solved.
 
 from __future__ import annotations
 
-import copy
-
-import numpy as np
 import torch
 
-from benchmarks.peers.protocol import PeerRun, parse_peer_args
+from benchmarks.peers.protocol import PeerRun, greedy_act, parse_peer_args, weights_snapshot
 
 ZOO_TIMESTEPS = 50_000
 ZOO_SETTINGS = {
@@ -59,12 +56,7 @@ def main() -> None:
         **ZOO_SETTINGS,
     )
 
-    @torch.no_grad()
-    def act(obs: np.ndarray) -> np.ndarray:  # obs [E, obs_dim] -> greedy actions [E]
-        return model.q_net(torch.from_numpy(obs)).argmax(1).numpy()
-
-    def snapshot() -> dict[str, torch.Tensor]:
-        return copy.deepcopy(model.q_net.state_dict())
+    act, snapshot = greedy_act(model.q_net), weights_snapshot(model.q_net)
 
     class ProtocolCallback(BaseCallback):
         def _on_step(self) -> bool:

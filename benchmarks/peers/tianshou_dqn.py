@@ -17,12 +17,10 @@ that the protocol's greedy evaluation takes the place of Tianshou's test collect
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import torch
 
-from benchmarks.peers.protocol import PeerRun, parse_peer_args
+from benchmarks.peers.protocol import PeerRun, greedy_act, parse_peer_args, weights_snapshot
 
 EXAMPLE = {  # examples/discrete/discrete_dqn.py
     "lr": 1e-3,
@@ -84,12 +82,8 @@ def main() -> None:
     )
     collector.reset()
 
-    @torch.no_grad()
-    def act(obs: np.ndarray) -> np.ndarray:  # obs [E, obs_dim] -> greedy actions [E]
-        return net(torch.from_numpy(obs))[0].argmax(1).numpy()
-
-    def snapshot() -> dict[str, torch.Tensor]:
-        return copy.deepcopy(net.state_dict())
+    # Tianshou's Net returns (action values, hidden state)
+    act, snapshot = greedy_act(lambda obs: net(obs)[0]), weights_snapshot(net)
 
     frames = updates = 0
     next_eval = args.eval_interval

@@ -13,7 +13,6 @@ and the protocol's periodic greedy evaluation with the clock stopped.
 
 from __future__ import annotations
 
-import copy
 import math
 import random
 from collections import deque, namedtuple
@@ -23,7 +22,7 @@ import numpy as np
 import torch
 from torch import nn, optim
 
-from benchmarks.peers.protocol import PeerRun, parse_peer_args
+from benchmarks.peers.protocol import PeerRun, greedy_act, parse_peer_args, weights_snapshot
 
 BATCH_SIZE = 128
 GAMMA = 0.99
@@ -119,12 +118,7 @@ def main() -> None:
         optimizer.step()
         updates += 1
 
-    @torch.no_grad()
-    def act(obs: np.ndarray) -> np.ndarray:  # obs [E, 4] -> greedy actions [E]
-        return policy_net(torch.from_numpy(obs)).argmax(1).numpy()
-
-    def snapshot() -> dict[str, torch.Tensor]:
-        return copy.deepcopy(policy_net.state_dict())
+    act, snapshot = greedy_act(policy_net), weights_snapshot(policy_net)
 
     frames = 0
     state = torch.tensor(state, dtype=torch.float32).unsqueeze(0)
