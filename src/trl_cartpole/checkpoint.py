@@ -319,8 +319,9 @@ class Checkpointer:
     def save(self, path: Path, progress: Progress, keep_last: int | None = None) -> Path:
         counters = {"frames": progress.frames, "updates": progress.updates}
         telemetry = self.components.get("telemetry")
-        if telemetry is not None and telemetry.logger_step() is not None:
-            counters["logger_step"] = telemetry.logger_step()  # a W&B resume rewinds to it
+        logger_step = None if telemetry is None else telemetry.logger_step()
+        if logger_step is not None:
+            counters["logger_step"] = logger_step  # a W&B resume rewinds to it
         buffer = self.components.get("replay_buffer")
         # An n-step buffer may still be empty (its windows are not complete yet): nothing to save.
         components = {

@@ -137,10 +137,8 @@ def run_study(
     space_path = Path(space_path or Path(config_dir) / "tune" / f"{preset}.yaml")
     space = load_search_space(space_path)
     study_name = study_name or preset
-    if storage is None:
-        study_dir = Path("runs") / "tune" / study_name
-        storage = f"sqlite:///{study_dir / 'study.db'}"
-    elif storage.startswith("sqlite:///"):  # the plots go beside the database
+    storage = storage or f"sqlite:///{Path('runs') / 'tune' / study_name / 'study.db'}"
+    if storage.startswith("sqlite:///"):  # the plots go beside the database
         study_dir = Path(storage.removeprefix("sqlite:///")).parent
     else:
         study_dir = Path("runs") / "tune" / study_name
