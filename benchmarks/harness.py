@@ -29,6 +29,7 @@ from trl_cartpole.comparison import (
 )
 
 __all__ = [
+    "ENV_MEDIAN_TARGETS",
     "ENV_TARGETS",
     "PEERS",
     "expand_sweep_dirs",
@@ -53,7 +54,10 @@ VARIANT_PRESETS = ("dqn", "double", "dueling", "noisy", "prioritized", "nstep", 
 
 # The env presets of configs/env/ with a target (docs/environments.md): the median over seeds of
 # the best policy's final 100-episode greedy return must reach it.
+# The final greedy return every seed of an env preset must reach, and (LunarLander) the median
+# over seeds it must reach too (docs/environments.md).
 ENV_TARGETS = {"acrobot": -80.0, "mountaincar": -105.0, "lunarlander": 200.0}
+ENV_MEDIAN_TARGETS = {"lunarlander": 240.0}
 
 
 PEERS = {  # name -> module run as ``python -m`` (see benchmarks.peers)

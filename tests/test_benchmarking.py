@@ -9,6 +9,7 @@ import subprocess
 import numpy as np
 
 from benchmarks.ablate import BEGIN, write_between_markers
+from benchmarks.envs import table as env_table
 from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
 from benchmarks.profile import phase_table
 from trl_cartpole.plotting import hold_last, plot_seed_groups
@@ -62,6 +63,36 @@ def test_markdown_table_rows():
         "| b | 0/1 | not solved | not solved | not solved | not solved | not solved | not solved "
         "| 10.0 [10.0, 10.0] | - | - | 10.0 | - | - | - |"
     )
+
+
+def test_env_table_needs_every_seed_at_the_target_and_lunarlanders_median():
+    def runs(finals):
+        return [
+            {
+                "final_eval_return_mean": final,
+                "env_id": "Env-v0",
+                "frames": 1000,
+                "train_seconds": 10.0,
+                "wall_seconds": 12.0,
+            }
+            for final in finals
+        ]
+
+    text = env_table(
+        {
+            "acrobot": runs([-70.0, -75.0, -79.0, -81.0, -72.0]),  # one seed below -80
+            "mountaincar": runs([-100.0, -104.0, -99.0, -101.0, -102.0]),
+            "lunarlander": runs([230.0, 210.0, 250.0, 260.0, 235.0]),  # median 235 < 240
+        }
+    ).splitlines()
+    acrobot, mountaincar, lunarlander = (row.split(" | ") for row in text[2:])
+    # IQM of 5 scores: floor(5 / 4) = 1 cut at each end, the mean of the middle 3
+    assert acrobot[3].startswith(f"{(-79 - 75 - 72) / 3:.1f} [") and "(5 seeds)" in acrobot[3]
+    assert acrobot[4:6] == ["-75.0", "-81.0"]  # median, worst seed
+    assert acrobot[7] == "no (4/5 seeds)"
+    assert mountaincar[7] == "yes (5/5 seeds)"
+    assert lunarlander[2] == "every seed >= 200, median >= 240"
+    assert lunarlander[7] == "no (5/5 seeds)"
 
 
 def test_speed_ratios_divide_medians_and_name_the_unsolved():
