@@ -50,7 +50,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
         default="median",
         choices=["median", "none"],
         help="median: stop a trial whose running score is below the median of earlier trials "
-        "at the same step (after 5 trials)",
+        "at the same step (after 5 trials, from a quarter of the frame budget on)",
     )
     args, overrides = parser.parse_known_args(argv)
     unknown = [arg for arg in overrides if "=" not in arg]

@@ -5,7 +5,8 @@ Needs the ``tune`` extra (``pip install -e ".[tune]"``). The study is stored in 
 processes of ``jobs`` share it; any database URL Optuna takes, e.g. PostgreSQL, for workers on
 several machines). Sampling is TPE (``optuna.samplers.TPESampler``), pruning Optuna's
 ``MedianPruner`` (once 5 trials are complete, a trial stops when its running score is below
-the median of the earlier trials' at the same step, from its first evaluation on). A trial
+the median of the earlier trials' at the same step, from a quarter of its frame budget on: the
+first evaluations, right after the random warm-up, say little about where a run ends). A trial
 whose run fails (a non-finite loss, a sampled combination the config refuses) is recorded as
 failed and the study goes on. Trials are counted to ``trials`` finished (complete, pruned or
 failed) across all processes; parallel workers may finish a few more.
@@ -54,13 +55,18 @@ def _storage(url: str) -> Any:
     return url
 
 
-def _pruner(name: Any) -> Any:
-    """``median``, ``none``, or an ``optuna.pruners`` object (one process only)."""
+def _pruner(name: Any, warmup_steps: int = 0) -> Any:
+    """``median``, ``none``, or an ``optuna.pruners`` object (one process only).
+
+    ``median`` prunes no trial at a step (frames) below ``warmup_steps``.
+    """
     if not isinstance(name, str):
         return name
     if name == "none":
         return optuna.pruners.NopPruner()
-    return optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=0, n_min_trials=1)
+    return optuna.pruners.MedianPruner(
+        n_startup_trials=5, n_warmup_steps=warmup_steps, n_min_trials=1
+    )
 
 
 def _finished(study: Any) -> list[Any]:
@@ -75,7 +81,7 @@ def _work(spec: dict[str, Any]) -> None:
         study_name=spec["study_name"],
         storage=_storage(spec["storage"]),
         sampler=optuna.samplers.TPESampler(),
-        pruner=_pruner(spec["pruner"]),
+        pruner=_pruner(spec["pruner"], spec["prune_after_frames"]),
     )
     space = spec["space"]
     study_dir = Path(spec["study_dir"])
@@ -150,6 +156,7 @@ def run_study(
         "study_name": study_name,
         "storage": storage,
         "pruner": pruner,
+        "prune_after_frames": cfg.collector.total_frames // 4,
         "space": space,
         "study_dir": str(study_dir),
         "config_dir": str(config_dir),
