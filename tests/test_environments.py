@@ -78,9 +78,11 @@ def test_env_presets_compose_and_build(compose, preset, env_id, obs_dim, actions
 
 def test_env_preset_wins_over_the_algo_defaults_it_sets(compose):
     cfg = to_config(compose("env=lunarlander"))
-    assert cfg.loss.gamma == 0.99 and cfg.network.hidden_sizes == [256, 256]
+    # the default (algo=dqn) has batch 512, lr 4e-3 and 128-128
+    assert cfg.buffer.batch_size == 64 and cfg.optim.lr == 6.2e-4
+    assert cfg.network.hidden_sizes == [256, 256]
     cfg = to_config(compose("env=lunarlander", "algo=dueling"))  # a variant switch combines
-    assert cfg.network.head == "dueling" and cfg.loss.gamma == 0.99
+    assert cfg.network.head == "dueling" and cfg.buffer.batch_size == 64
     cfg = to_config(compose("env=acrobot", "algo=noisy"))
     assert cfg.exploration.schedule == "none" and cfg.network.hidden_sizes == [256, 256]
 
