@@ -52,7 +52,7 @@ def table(results: dict[str, list[dict]]) -> str:
         seeds_met = sum(final >= ENV_TARGETS[preset] for final in finals)
         rows.append(
             f"| {preset} | {runs[0]['env_id']} | {target_text(preset)} | "
-            f"{interval_estimate(finals)} ({len(finals)} seeds) | "
+            f"{interval_estimate(finals)} ({len(finals)} seed{'s' if len(finals) > 1 else ''}) | "
             f"{statistics.median(finals):.1f} | {min(finals):.1f} | "
             f"{', '.join(f'{value:.1f}' for value in finals)} | "
             f"{'yes' if target_met(preset, finals) else 'no'} "

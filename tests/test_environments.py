@@ -269,9 +269,11 @@ def test_benchmark_envs_trains_a_preset_and_tabulates_it(tmp_path):
     summary = json.loads((tmp_path / "acrobot" / "dqn-seed0" / "summary.json").read_text())
     row = next(line for line in proc.stdout.splitlines() if line.startswith("| acrobot |"))
     cells = [cell.strip() for cell in row.strip("|").split("|")]
-    assert cells[1:3] == ["Acrobot-v1", ">= -80"]
-    assert float(cells[3]) == round(summary["final_eval_return_mean"], 1)
-    assert cells[5] == ("yes" if summary["final_eval_return_mean"] >= -80 else "no")
+    final = summary["final_eval_return_mean"]
+    assert cells[1:3] == ["Acrobot-v1", "every seed >= -80"]
+    assert cells[3].endswith("(1 seed)")  # the interquartile mean of one seed is that seed
+    assert float(cells[4]) == float(cells[5]) == round(final, 1)  # median, worst seed
+    assert cells[7] == ("yes (1/1 seeds)" if final >= -80 else "no (0/1 seeds)")
     assert (tmp_path / "acrobot.png").stat().st_size > 0
 
 
