@@ -4,12 +4,19 @@ from __future__ import annotations
 
 import json
 
+import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.data import OneHot
 
+from trl_cartpole.compat import gym_env
 from trl_cartpole.envs import make_env
-from trl_cartpole.evaluation import EpsilonGreedy, evaluate
+from trl_cartpole.evaluation import (
+    EpsilonGreedy,
+    evaluate,
+    evaluate_on_vector_env,
+    evaluate_with_rollout,
+)
 from trl_cartpole.models import make_q_actor
 
 from .conftest import run_script
@@ -35,6 +42,34 @@ def test_epsilon_zero_is_the_greedy_evaluation_and_one_is_random():
     uniform = evaluate(actor, env(), epsilon=1.0)
     assert greedy.returns == again.returns
     assert greedy.returns != uniform.returns
+
+
+@pytest.mark.parametrize(
+    ("env_id", "observation_norm"),
+    [("CartPole-v1", None), ("MountainCar-v0", {"loc": [-0.5, 0.0], "scale": [0.5, 0.05]})],
+)
+def test_direct_vector_env_evaluation_plays_the_episodes_torchrl_rollout_plays(
+    env_id, observation_norm
+):
+    def env():  # a fresh env: both paths start from the same seeded reset
+        return make_env(env_id, seed=7, num_envs=12, observation_norm=observation_norm)
+
+    torch.manual_seed(0)
+    actor = make_q_actor(env().observation_spec, env().action_spec)
+    with torch.no_grad():  # a sharper random policy: episodes of different lengths
+        for parameter in actor.parameters():
+            parameter.mul_(3)
+    direct, rollout = env(), env()
+    fast = evaluate(actor, direct, max_steps=300)
+    slow = evaluate_with_rollout(actor, rollout, max_steps=300, epsilon=0.0)
+    assert fast.returns == slow.returns
+    assert fast.lengths == slow.lengths
+    assert fast.initial_values == pytest.approx(slow.initial_values)
+    assert len(set(fast.initial_values)) == 12  # twelve different start states
+    # the next evaluation continues the envs' random streams: new start states
+    assert evaluate_on_vector_env(actor, direct, gym_env(direct), 300).initial_values != (
+        fast.initial_values
+    )
 
 
 def test_evaluate_cli_epsilon_is_reported(smoke_checkpoint, tmp_path):

@@ -14,12 +14,27 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import gymnasium as gym
+import numpy as np
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
-from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
+from torchrl.envs import (
+    DoubleToFloat,
+    DTypeCastTransform,
+    EnvBase,
+    ExplorationType,
+    ObservationNorm,
+    RewardSum,
+    StepCounter,
+    TransformedEnv,
+    set_exploration_type,
+)
+from torchrl.envs.transforms import VecGymEnvTransform
 from torchrl.modules import EGreedyModule
 
+from trl_cartpole.compat import gym_env
+from trl_cartpole.envs import OBSERVATION_KEY
 from trl_cartpole.models import expected_action_values
 from trl_cartpole.progress import Progress
 
@@ -30,6 +45,8 @@ __all__ = [
     "Evaluation",
     "Evaluator",
     "evaluate",
+    "evaluate_on_vector_env",
+    "evaluate_with_rollout",
     "first_episode_mask",
 ]
 
@@ -81,7 +98,72 @@ class EpsilonGreedy(TensorDictModuleBase):
             return self.egreedy(tensordict)
 
 
-@torch.no_grad()
+# the transforms make_env puts on a vector env: the direct path below knows what each one does
+_KNOWN_TRANSFORMS = (
+    VecGymEnvTransform,  # the autoreset bridge: the direct path reads Gymnasium's own autoreset
+    StepCounter,  # episode statistics: counted here
+    RewardSum,
+    DoubleToFloat,  # casts to float32: done here
+    DTypeCastTransform,
+    ObservationNorm,  # applied here, as the TorchRL transform it is
+)
+
+
+def _vector_env_behind(env: EnvBase) -> gym.vector.VectorEnv | None:
+    """The Gymnasium vector env behind ``env``, if :func:`evaluate` may step it directly."""
+    if not isinstance(env, TransformedEnv):
+        return None
+    if not all(isinstance(t, _KNOWN_TRANSFORMS) for t in env.transform):
+        return None
+    vector_env = getattr(env.base_env, "_env", None)
+    if not isinstance(vector_env, gym.vector.VectorEnv):
+        return None
+    if vector_env.metadata.get("autoreset_mode") != gym.vector.AutoresetMode.SAME_STEP:
+        return None
+    return gym_env(env)
+
+
+@torch.inference_mode()
+def evaluate_on_vector_env(
+    actor: TensorDictModuleBase, env: TransformedEnv, vector_env: gym.vector.VectorEnv, max_steps
+) -> EvalResult:
+    """One greedy episode per env, stepping the Gymnasium vector env with no TensorDict env.
+
+    The same episodes as ``env.rollout`` from a fresh ``reset()``, about 4x cheaper per step on
+    20 CartPole envs: TorchRL's env step (its wrapper and transforms) is skipped, the actor is
+    called on a ``TensorDict`` of the observation only. Each call continues the envs' seeded
+    random streams (Gymnasium's ``reset()`` without a seed).
+    """
+    norms = [t for t in env.transform if isinstance(t, ObservationNorm)]
+    num_envs = vector_env.num_envs
+    returns = np.zeros(num_envs)  # [E]
+    lengths = np.zeros(num_envs, dtype=np.int64)  # [E]
+    running = np.ones(num_envs, dtype=bool)  # [E] still in its first episode
+    initial_q = None
+    obs, _ = vector_env.reset()  # obs: [E, obs_dim]
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(max_steps):
+            td = TensorDict(
+                {OBSERVATION_KEY: torch.as_tensor(obs, dtype=torch.float32)}, batch_size=[num_envs]
+            )
+            for norm in norms:
+                td = norm(td)
+            q = expected_action_values(actor, actor(td)["action_value"])  # [E, num_actions]
+            if initial_q is None:
+                initial_q = q
+            obs, reward, terminated, truncated, _ = vector_env.step(q.argmax(-1).numpy())
+            returns += reward * running
+            lengths += running
+            running &= ~(terminated | truncated)
+            if not running.any():
+                break
+    return EvalResult(
+        returns=returns.tolist(),
+        lengths=lengths.tolist(),
+        initial_values=initial_q.max(-1).values.tolist(),
+    )
+
+
 def evaluate(
     actor: TensorDictModuleBase, env: EnvBase, max_steps: int = 10_000, epsilon: float = 0.0
 ) -> EvalResult:
@@ -92,7 +174,22 @@ def evaluate(
     episode counts. ``actor`` must write ``action_value`` (a ``QValueActor`` or a
     ``DistributionalQValueActor``). With ``epsilon > 0`` each action is replaced by a uniform
     random one with that probability (the Atari protocol's epsilon = 0.05 evaluation).
+
+    A greedy evaluation on a :func:`make_env` vector env steps the Gymnasium vector env
+    directly (:func:`evaluate_on_vector_env`); a single env, another env, or ``epsilon > 0``
+    go through TorchRL's ``env.rollout``.
     """
+    vector_env = _vector_env_behind(env)
+    if vector_env is not None and epsilon == 0:
+        return evaluate_on_vector_env(actor, env, vector_env, max_steps)
+    return evaluate_with_rollout(actor, env, max_steps, epsilon)
+
+
+@torch.no_grad()
+def evaluate_with_rollout(
+    actor: TensorDictModuleBase, env: EnvBase, max_steps: int, epsilon: float
+) -> EvalResult:
+    """:func:`evaluate` through TorchRL's ``env.rollout`` (any env, any epsilon)."""
     policy = actor
     if epsilon > 0:
         policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec, epsilon))
