@@ -91,6 +91,18 @@ def test_headless_live_plot_rewrites_the_png_at_each_evaluation(compose, tmp_pat
     assert not list(tmp_path.glob(".*.tmp"))  # written atomically
 
 
+def test_live_plot_skips_redraws_closer_than_its_interval(tmp_path):
+    now = [100.0]
+    plot = LiveDurationPlot(tmp_path / "durations.png", min_seconds=5.0, clock=lambda: now[0])
+    curves = LearningCurves([32, 64], [10, 20], [64], [12.5], 475.0)
+    assert plot.update(curves)  # the first update always draws
+    now[0] = 104.9
+    assert not plot.update(curves)
+    now[0] = 105.0
+    assert plot.update(curves)
+    assert (tmp_path / "durations.png").exists()
+
+
 def test_a_resumed_run_rewinds_its_own_wandb_run_to_the_checkpoint(tmp_path, monkeypatch):
     """W&B's counterpart of purge_step: the same W&B run, rewound with ``resume_from`` to the
     W&B step the checkpoint recorded.

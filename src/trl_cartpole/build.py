@@ -360,7 +360,9 @@ def _assemble(
             resumed_at=None if resume is None else frames_done,
             logger_step=logger_step,
         ),
-        LiveDurationPlot(run_dir / "durations.png", title) if cfg.logger.live_plot else None,
+        LiveDurationPlot(run_dir / "durations.png", title, min_seconds=cfg.logger.live_plot_seconds)
+        if cfg.logger.live_plot
+        else None,
         progress_bar=cfg.logger.progress_bar,
         description=cfg.env.id,
         total_frames=whole_batches(cfg.collector.total_frames, cfg.collector.frames_per_batch),

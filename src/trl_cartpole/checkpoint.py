@@ -61,6 +61,7 @@ RESUMABLE_FIELDS = (
     "logger.progress_bar",
     "logger.verbose",
     "logger.live_plot",
+    "logger.live_plot_seconds",
     "logger.plots",
     "collector.ray_address",  # a restarted cluster may listen elsewhere
     TRUST_PICKLE,  # read from the resuming command only, never from the checkpoint

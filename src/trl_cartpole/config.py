@@ -140,7 +140,8 @@ class LoggerConfig:
     progress_bar: bool = True  # a progress bar on a terminal (a line per evaluation otherwise)
     verbose: bool = False  # also show the libraries' INFO lines and warnings
     plots: bool = True  # durations.png and dashboard.png at the end of the run
-    live_plot: bool = True  # redraw the duration plot at each evaluation (notebook/window/PNG)
+    live_plot: bool = True  # redraw the duration plot at evaluations (notebook/window/PNG)
+    live_plot_seconds: float = 5.0  # at most one live redraw per this many seconds of wall time
 
 
 @dataclass

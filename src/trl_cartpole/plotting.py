@@ -11,7 +11,8 @@ import io
 import math
 import os
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -129,18 +130,34 @@ NON_INTERACTIVE_BACKENDS = {"agg", "cairo", "pdf", "pgf", "ps", "svg", "template
 
 
 class LiveDurationPlot:
-    """The PyTorch DQN tutorial's live duration plot, redrawn at every :meth:`update`.
+    """The PyTorch DQN tutorial's live duration plot, redrawn by :meth:`update`.
 
     In a notebook the cell output is replaced by the new figure (``IPython.display``), with a
     display a matplotlib window is redrawn, and headless the PNG at ``path`` is rewritten.
+    A redraw costs about 0.1 s (docs/choices.md): an update less than ``min_seconds`` (of
+    ``clock``) after the last redraw is skipped; the end of the run draws the final plot.
     """
 
-    def __init__(self, path: str | Path, title: str = "", target: str | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        title: str = "",
+        target: str | None = None,
+        min_seconds: float = 0.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.path, self.title = Path(path), title
         self.target = target or live_plot_target()
+        self.min_seconds, self.clock = min_seconds, clock
+        self._last_redraw: float | None = None
         self._window = None
 
-    def update(self, curves: LearningCurves) -> None:
+    def update(self, curves: LearningCurves) -> bool:
+        """Redraw with ``curves``, unless the last redraw is too recent; True if redrawn."""
+        now = self.clock()
+        if self._last_redraw is not None and now - self._last_redraw < self.min_seconds:
+            return False
+        self._last_redraw = now
         if self.target == "file":
             plot_durations(curves, self.path, self.title)
         elif self.target == "notebook":
@@ -161,6 +178,7 @@ class LiveDurationPlot:
             self._window.clf()
             draw_durations(self._window.subplots(), curves, self.title)
             plt.pause(0.001)
+        return True
 
 
 def plot_dashboard(
