@@ -12,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from benchmarks import ablate, envs, profile, run, scaling, update_cost
+from benchmarks import ablate, envs, profile, run, scaling, update_cost, wall
 from benchmarks.harness import sweep_arguments
 
 SUBCOMMANDS = {
@@ -22,6 +22,7 @@ SUBCOMMANDS = {
     "scaling": scaling,
     "update-cost": update_cost,
     "profile": profile,
+    "wall": wall,
 }
 
 

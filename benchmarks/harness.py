@@ -97,7 +97,7 @@ def peer_python(peer: str) -> str:
     return str(python)
 
 
-def _subprocess_env() -> dict[str, str]:
+def subprocess_env() -> dict[str, str]:
     """This environment with the repository root on ``PYTHONPATH``, so ``benchmarks`` imports."""
     paths = [str(REPOSITORY), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
     return {**os.environ, "PYTHONPATH": os.pathsep.join(paths)}
@@ -113,7 +113,7 @@ def _run_once(command: list[str], run_dir: Path) -> dict[str, Any]:
             check=True,
             stdout=subprocess.DEVNULL,
             cwd=REPOSITORY,
-            env=_subprocess_env(),
+            env=subprocess_env(),
         )
     return json.loads(summary_path.read_text())
 

@@ -12,6 +12,7 @@ from benchmarks.ablate import BEGIN, write_between_markers
 from benchmarks.envs import table as env_table
 from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
 from benchmarks.profile import phase_table
+from benchmarks.wall import wall_table
 from trl_cartpole.plotting import hold_last, plot_seed_groups
 
 from .conftest import ROOT, SCRIPTS
@@ -130,7 +131,7 @@ def _benchmarks(python, *args, **kwargs) -> subprocess.CompletedProcess:
 def test_every_subcommand_shows_help_with_the_shared_arguments(python):
     proc = _benchmarks(python, "--help")
     assert proc.returncode == 0, proc.stderr
-    subcommands = ["run", "ablate", "envs", "scaling", "update-cost", "profile"]
+    subcommands = ["run", "ablate", "envs", "scaling", "update-cost", "profile", "wall"]
     assert all(name in proc.stdout for name in subcommands)
     for name in subcommands:
         proc = _benchmarks(python, name, "--help")
@@ -165,6 +166,17 @@ def test_phase_table_gives_medians_over_seeds_and_shares_of_training_time():
         "| **training** | 12.00 | 100 % |",
         "| evaluation, checkpoints, start-up (not training) | 3.00 | - |",
     ]
+
+
+def test_wall_table_splits_the_wall_time_and_gives_the_median_ratio():
+    # import, wall, training, rest, start-up and exit, ratio = wall / (training + import)
+    rows = {0: (4.0, 20.0, 12.0, 3.0, 5.0, 20.0 / 16.0), 1: (4.0, 26.0, 16.0, 4.0, 6.0, 1.3)}
+    lines = wall_table(rows).splitlines()
+    assert lines[2] == "| 0 | 4.00 | 20.00 | 12.00 | 3.00 | 5.00 | 1.25 |"
+    assert lines[4] == "| median | 4.00 | 23.00 | 14.00 | 3.50 | 5.50 | 1.27 |"
+    assert lines[-1] == "median ratio 1.27 (target <= 1.3: met)"
+    slow = {0: (4.0, 30.0, 12.0, 3.0, 15.0, 30.0 / 16.0)}
+    assert wall_table(slow).endswith("median ratio 1.88 (target <= 1.3: not met)")
 
 
 def test_update_cost_prints_a_row_per_preset(python, tmp_path):

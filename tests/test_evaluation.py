@@ -45,17 +45,22 @@ def test_epsilon_zero_is_the_greedy_evaluation_and_one_is_random():
 
 
 @pytest.mark.parametrize(
-    ("env_id", "observation_norm"),
-    [("CartPole-v1", None), ("MountainCar-v0", {"loc": [-0.5, 0.0], "scale": [0.5, 0.05]})],
+    ("env_id", "observation_norm", "actor_kwargs"),
+    [
+        ("CartPole-v1", None, {}),  # the Q-network called on the observation tensor
+        ("CartPole-v1", None, {"noisy": True, "head": "dueling"}),
+        ("CartPole-v1", None, {"support": torch.linspace(0.0, 200.0, 51)}),  # C51
+        ("MountainCar-v0", {"loc": [-0.5, 0.0], "scale": [0.5, 0.05]}, {}),  # the whole actor
+    ],
 )
 def test_direct_vector_env_evaluation_plays_the_episodes_torchrl_rollout_plays(
-    env_id, observation_norm
+    env_id, observation_norm, actor_kwargs
 ):
     def env():  # a fresh env: both paths start from the same seeded reset
         return make_env(env_id, seed=7, num_envs=12, observation_norm=observation_norm)
 
     torch.manual_seed(0)
-    actor = make_q_actor(env().observation_spec, env().action_spec)
+    actor = make_q_actor(env().observation_spec, env().action_spec, **actor_kwargs)
     with torch.no_grad():  # a sharper random policy: episodes of different lengths
         for parameter in actor.parameters():
             parameter.mul_(3)
