@@ -23,7 +23,7 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
-__all__ = ["make_dqn_loss", "make_target_updater", "priority_from_loss"]
+__all__ = ["FusedSoftUpdate", "make_dqn_loss", "make_target_updater", "priority_from_loss"]
 
 
 def make_dqn_loss(
@@ -77,6 +77,24 @@ def priority_from_loss(
     return written if isinstance(loss, DistributionalDQNLoss) else written.sqrt()
 
 
+class FusedSoftUpdate(SoftUpdate):
+    """TorchRL's ``SoftUpdate``, theta' <- theta' + tau (theta - theta'), in one fused call.
+
+    ``SoftUpdate.step`` lerps the target parameters tensordict by tensordict, about 0.2-0.3 ms
+    per step for the default 128-128 network; one ``torch._foreach_lerp_`` over all of them
+    does the same arithmetic (``Tensor.lerp_`` per tensor) in about 0.06 ms
+    (docs/performance.md). The sources and targets are the ones ``SoftUpdate.init_`` selected,
+    in the same order.
+    """
+
+    def step(self) -> None:
+        if not self.initialized:
+            return super().step()  # raises: init_() first
+        sources = [p.data for p in self._sources.values(True, True)]
+        targets = [p.data for p in self._targets.values(True, True)]
+        torch._foreach_lerp_(targets, sources, 1 - self.eps)
+
+
 def make_target_updater(
     loss: DQNLoss | DistributionalDQNLoss,
     kind: str = "hard",
@@ -88,12 +106,13 @@ def make_target_updater(
     The defaults are the default config's (``loss.target_update``, ``loss.tau``,
     ``loss.hard_update_interval``).
 
-    Call ``.step()`` once per gradient update. The hard update copies the online weights on
+    The soft update is :class:`FusedSoftUpdate`, a ``SoftUpdate``. Call ``.step()`` once per
+    gradient update. The hard update copies the online weights on
     every ``hard_update_interval``-th call: TorchRL's ``HardUpdate`` copies on call
     ``value_network_update_interval + 1``, so it is given ``hard_update_interval - 1``.
     """
     if kind == "soft":
-        return SoftUpdate(loss, tau=tau)
+        return FusedSoftUpdate(loss, tau=tau)
     if kind == "hard":
         return HardUpdate(loss, value_network_update_interval=hard_update_interval - 1)
     raise ValueError(f"loss.target_update={kind!r}; choose 'soft' or 'hard'")
