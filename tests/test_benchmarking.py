@@ -199,6 +199,9 @@ def test_update_cost_prints_a_row_per_preset(python, tmp_path):
         if line.startswith("| dqn") or line.startswith("| rainbow")
     ]
     assert len(rows) == 2 and all(float(row.split("|")[-2]) > 0 for row in rows)
+    raw = [line for line in proc.stdout.splitlines() if line.startswith("| raw PyTorch")]
+    assert len(raw) == 1 and float(raw[0].split("|")[-2]) > 0
+    assert "framework tax (dqn / raw): " in proc.stdout
 
 
 def _fake_run(root, name, seed, lr, frames_to_solve):
