@@ -154,7 +154,10 @@ def _action_values(
 
 @torch.inference_mode()
 def evaluate_on_vector_env(
-    actor: TensorDictModuleBase, env: TransformedEnv, vector_env: gym.vector.VectorEnv, max_steps
+    actor: TensorDictModuleBase,
+    env: TransformedEnv,
+    vector_env: gym.vector.VectorEnv,
+    max_steps: int,
 ) -> EvalResult:
     """One greedy episode per env, stepping the Gymnasium vector env with no TensorDict env.
 
