@@ -101,6 +101,15 @@ def test_live_plot_skips_redraws_closer_than_its_interval(tmp_path):
     now[0] = 105.0
     assert plot.update(curves)
     assert (tmp_path / "durations.png").exists()
+    assert not plot.flush()  # nothing skipped since the last redraw
+    now[0] = 106.0
+    assert not plot.update(
+        LearningCurves([32, 64, 96], [10, 20, 30], [64, 96], [12.5, 40.0], 475.0)
+    )
+    (tmp_path / "durations.png").unlink()
+    assert plot.flush()  # the skipped update is drawn at the end of the run
+    assert (tmp_path / "durations.png").exists()
+    assert not plot.flush()
 
 
 def test_a_resumed_run_rewinds_its_own_wandb_run_to_the_checkpoint(tmp_path, monkeypatch):

@@ -24,6 +24,7 @@ from torchrl.envs import (
     DTypeCastTransform,
     EnvBase,
     ExplorationType,
+    GymWrapper,
     ObservationNorm,
     RewardSum,
     StepCounter,
@@ -115,12 +116,14 @@ def _vector_env_behind(env: EnvBase) -> gym.vector.VectorEnv | None:
         return None
     if not all(isinstance(t, _KNOWN_TRANSFORMS) for t in env.transform):
         return None
-    vector_env = getattr(env.base_env, "_env", None)
+    if not isinstance(env.base_env, GymWrapper):
+        return None
+    vector_env = gym_env(env)
     if not isinstance(vector_env, gym.vector.VectorEnv):
         return None
     if vector_env.metadata.get("autoreset_mode") != gym.vector.AutoresetMode.SAME_STEP:
         return None
-    return gym_env(env)
+    return vector_env
 
 
 def _action_values(

@@ -135,7 +135,8 @@ class LiveDurationPlot:
     In a notebook the cell output is replaced by the new figure (``IPython.display``), with a
     display a matplotlib window is redrawn, and headless the PNG at ``path`` is rewritten.
     A redraw costs about 0.1 s (docs/choices.md): an update less than ``min_seconds`` (of
-    ``clock``) after the last redraw is skipped; the end of the run draws the final plot.
+    ``clock``) after the last redraw is skipped and kept; :meth:`flush` (at the end of the run)
+    draws the last one skipped, so the final picture is the same as without skipping.
     """
 
     def __init__(
@@ -150,14 +151,29 @@ class LiveDurationPlot:
         self.target = target or live_plot_target()
         self.min_seconds, self.clock = min_seconds, clock
         self._last_redraw: float | None = None
+        self._skipped: LearningCurves | None = None  # the newest update not drawn yet
         self._window = None
 
     def update(self, curves: LearningCurves) -> bool:
         """Redraw with ``curves``, unless the last redraw is too recent; True if redrawn."""
         now = self.clock()
         if self._last_redraw is not None and now - self._last_redraw < self.min_seconds:
+            self._skipped = curves
             return False
         self._last_redraw = now
+        self._draw(curves)
+        return True
+
+    def flush(self) -> bool:
+        """Draw the last skipped update, if any; True if drawn."""
+        if self._skipped is None:
+            return False
+        self._last_redraw = self.clock()
+        self._draw(self._skipped)
+        return True
+
+    def _draw(self, curves: LearningCurves) -> None:
+        self._skipped = None
         if self.target == "file":
             plot_durations(curves, self.path, self.title)
         elif self.target == "notebook":
@@ -178,7 +194,6 @@ class LiveDurationPlot:
             self._window.clf()
             draw_durations(self._window.subplots(), curves, self.title)
             plt.pause(0.001)
-        return True
 
 
 def plot_dashboard(

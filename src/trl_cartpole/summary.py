@@ -36,6 +36,7 @@ def finish(c: Components) -> dict[str, Any]:
     c.release_collector()
     if evaluator.last_eval_frame != progress.frames:
         evaluator.run(progress, redraw=False)
+    c.telemetry.flush_live_plot()
     evaluator.load_best()
     final_env = build_env(
         cfg, cfg.seed + 2 * cfg.eval.seed_offset, cfg.eval.final_episodes, c.observation_norm

@@ -315,6 +315,11 @@ class Telemetry:
         if self.live_plot is not None:
             self.live_plot.update(self.curves(evaluations))
 
+    def flush_live_plot(self) -> None:
+        """Draw the live plot's last skipped redraw (the end of a run)."""
+        if self.live_plot is not None:
+            self.live_plot.flush()
+
     def _show_postfix(self) -> None:
         if self.bar is not None:
             shown = {key: f"{key} {value}" for key, value in self.postfix.items()}
