@@ -67,7 +67,7 @@ def test_markdown_table_rows():
 
 
 def test_env_table_needs_every_seed_at_the_target_and_lunarlanders_median():
-    def runs(finals):
+    def runs(finals, curve_returns=(-500.0, -90.0, -78.0)):  # evaluations at 2, 5 and 9 s
         return [
             {
                 "final_eval_return_mean": final,
@@ -75,6 +75,7 @@ def test_env_table_needs_every_seed_at_the_target_and_lunarlanders_median():
                 "frames": 1000,
                 "train_seconds": 10.0,
                 "wall_seconds": 12.0,
+                "eval_curve": {"seconds": [2.0, 5.0, 9.0], "returns": list(curve_returns)},
             }
             for final in finals
         ]
@@ -94,6 +95,13 @@ def test_env_table_needs_every_seed_at_the_target_and_lunarlanders_median():
     assert mountaincar[7] == "yes (5/5 seeds)"
     assert lunarlander[2] == "every seed >= 200, median >= 240"
     assert lunarlander[7] == "no (5/5 seeds)"
+    # training seconds to the first evaluation at or above the target: -80 (Acrobot) at 9 s,
+    # -105 (MountainCar) at 5 s, 200 (LunarLander) never
+    assert [acrobot[9], mountaincar[9], lunarlander[9]] == ["9", "5", "never"]
+    reached_at = {9.0: (-500.0, -90.0, -78.0), 5.0: (-500.0, -79.0, -90.0), None: (-99.0,) * 3}
+    seeds = [runs([-70.0], reached_at[at])[0] for at in (9.0, 5.0, None, None, None)]
+    median_of = [env_table({"acrobot": seeds[:n]}).splitlines()[2].split(" | ")[9] for n in (3, 5)]
+    assert median_of == ["9", "never"]  # 5, 9, never: 9; 5, 9, never x3: never (slowest)
 
 
 def test_speed_ratios_divide_medians_and_name_the_unsolved():
