@@ -110,6 +110,15 @@ def test_combinations_the_code_cannot_honour_are_refused(compose, overrides, mes
         validate(to_config(compose(*overrides)))
 
 
+def test_compile_without_a_cpp_compiler_is_refused_before_the_run(compose, monkeypatch, tmp_path):
+    cfg = to_config(compose("compile=true"))
+    monkeypatch.setenv("CXX", str(tmp_path / "no-such-compiler"))
+    with pytest.raises(ConfigError, match=r"compile=true needs a C\+\+ compiler .*compile=false"):
+        validate(cfg)
+    monkeypatch.setenv("CXX", "python3")  # any program on PATH passes: the check is for presence
+    assert validate(cfg).compile
+
+
 @pytest.mark.parametrize(
     ("override", "expected"),
     [

@@ -7,6 +7,9 @@ and how to fix it, before anything is built or written.
 from __future__ import annotations
 
 import importlib.util
+import os
+import shutil
+import sys
 from typing import Any
 
 import torch
@@ -115,6 +118,8 @@ def validate(cfg: Config) -> Config:
         if not ok:
             raise ConfigError(message)
     check_device(cfg.device)
+    if cfg.compile:
+        check_compiler(cfg.device)
     _check_combination(cfg)
     check_network_choices(cfg.network.head, cfg.network.activation)
     resolve_env_id(cfg.env.id, cfg.env.imports)
@@ -143,6 +148,21 @@ def check_device(device: str) -> None:
         raise ConfigError(f"device={device!r} but MPS is not available here; use device=cpu")
     elif parsed.type not in ("cpu", "cuda", "mps"):
         raise ConfigError(f"device={device!r} is not supported; use cpu or cuda[:N]")
+
+
+def check_compiler(device: str) -> None:
+    """``compile=true`` on the CPU needs the C++ compiler torch's Inductor calls (``$CXX``).
+
+    Without one, the first update would fail after the random frames were already collected.
+    """
+    if torch.device(device).type != "cpu":
+        return
+    compiler = os.environ.get("CXX", "clang++" if sys.platform == "darwin" else "g++")
+    if shutil.which(compiler) is None:
+        raise ConfigError(
+            f"compile=true needs a C++ compiler for torch.compile on the CPU, and {compiler!r} "
+            "(the CXX variable, or its default) is not found; install one or pass compile=false"
+        )
 
 
 def _envs_per_batch(cfg: Config) -> int:
