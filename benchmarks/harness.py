@@ -12,9 +12,11 @@ import argparse
 import json
 import math
 import os
+import shutil
 import statistics
 import subprocess
 import sys
+import threading
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -70,31 +72,38 @@ PEERS = {  # name -> module run as ``python -m`` (see benchmarks.peers)
 # same torch build and these packages.
 PEER_VENVS = {"tianshou_dqn": ["tianshou==2.0.1"]}
 PEER_VENV_ROOT = Path("runs") / "peer-venvs"
+_PEER_VENV_LOCK = threading.Lock()  # --jobs 2 starts two runs of a peer at once: make it once
 
 
 def peer_python(peer: str) -> str:
     """The interpreter that runs ``peer``: this one, or its own virtual environment's.
 
     The environment is ``runs/peer-venvs/<peer>``; a ``.complete`` marker is written once its
-    install succeeded, so one cut off midway is made again.
+    install succeeded, so one cut off midway is made again. Runs of the benchmark's worker
+    threads that ask at the same time wait for the first to make it.
     """
     if peer not in PEER_VENVS:
         return sys.executable
     venv = (REPOSITORY / PEER_VENV_ROOT / peer).resolve()
     python = venv / "bin" / "python"
-    if not (venv / ".complete").is_file():
-        import shutil
-
-        import torch
-
-        shutil.rmtree(venv, ignore_errors=True)
-        print(f"making {venv} for {peer} (once; a few minutes)", file=sys.stderr, flush=True)
-        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-        torch_pin = f"torch=={torch.__version__.split('+')[0]}"  # the CPU build on disk
-        install = [str(python), "-m", "pip", "install", "-q", torch_pin, *PEER_VENVS[peer]]
-        subprocess.run([*install, "-e", str(REPOSITORY)], check=True)
-        (venv / ".complete").write_text(" ".join(PEER_VENVS[peer]) + "\n")
+    with _PEER_VENV_LOCK:
+        if not (venv / ".complete").is_file():
+            _make_peer_venv(peer, venv)
     return str(python)
+
+
+def _make_peer_venv(peer: str, venv: Path) -> None:
+    """Make ``venv`` afresh: this project, the same torch build and ``PEER_VENVS[peer]``."""
+    import torch
+
+    python = venv / "bin" / "python"
+    shutil.rmtree(venv, ignore_errors=True)
+    print(f"making {venv} for {peer} (once; a few minutes)", file=sys.stderr, flush=True)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    torch_pin = f"torch=={torch.__version__.split('+')[0]}"  # the CPU build on disk
+    install = [str(python), "-m", "pip", "install", "-q", torch_pin, *PEER_VENVS[peer]]
+    subprocess.run([*install, "-e", str(REPOSITORY)], check=True)
+    (venv / ".complete").write_text(" ".join(PEER_VENVS[peer]) + "\n")
 
 
 def subprocess_env() -> dict[str, str]:

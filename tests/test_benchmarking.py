@@ -270,3 +270,36 @@ def test_benchmark_refuses_a_bad_job_count_before_running_anything(python, tmp_p
     assert proc.returncode == 2
     assert "--jobs 0: run at least one process at a time" in proc.stderr
     assert not any(tmp_path.iterdir())  # no run started
+
+
+def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkeypatch):
+    """``--jobs 2`` starts two runs of a peer at the same moment: before the lock, both removed
+    and re-made its virtual environment, each under the other's pip install."""
+    import threading
+    import time
+
+    from benchmarks import harness
+
+    made = []
+
+    def slow_make(peer, venv):  # stands in for venv + pip: slow enough for the threads to meet
+        made.append(peer)
+        time.sleep(0.2)
+        venv.mkdir(parents=True)
+        (venv / ".complete").write_text("done\n")
+
+    monkeypatch.setattr(harness, "REPOSITORY", tmp_path)
+    monkeypatch.setattr(harness, "_make_peer_venv", slow_make)
+    pythons = []
+    threads = [
+        threading.Thread(target=lambda: pythons.append(harness.peer_python("tianshou_dqn")))
+        for _ in range(2)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert made == ["tianshou_dqn"]
+    expected = tmp_path / "runs" / "peer-venvs" / "tianshou_dqn" / "bin" / "python"
+    assert pythons == [str(expected), str(expected)]
+    assert harness.peer_python("sb3_dqn") == harness.sys.executable  # no venv of its own
