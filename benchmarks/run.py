@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import math
 
 from benchmarks.harness import (
     PEERS,
@@ -35,12 +36,18 @@ SEEDS, OUT = [0, 1, 2, 3, 4], "runs/benchmark"
 
 def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
     """The ratios the table's medians give, one line each."""
-    lines = [
-        f"- {peer} and {algos[0]}: neither solved most seeds"
-        if ratio is None
-        else f"- {peer} needs {ratio:.1f}x the seconds to solve of {algos[0]} (medians)"
-        for peer, ratio in speed_ratios(results, algos[0], peers).items()
-    ]
+    ours = algos[0]
+    lines = []
+    for peer, ratio in speed_ratios(results, ours, peers).items():
+        if ratio is None:
+            lines.append(f"- {peer} and {ours}: neither solved most seeds")
+        elif math.isinf(ratio):
+            solved = sum(bool(run["solved"]) for run in results[peer])
+            lines.append(
+                f"- {peer} solved {solved} of {len(results[peer])} seeds: no median to compare"
+            )
+        else:
+            lines.append(f"- {peer} needs {ratio:.1f}x the seconds to solve of {ours} (medians)")
     if "tutorial" in results and "tutorial_loop" in results:
         ours, theirs = (
             seconds_per_frame(results["tutorial"]),

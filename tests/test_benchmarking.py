@@ -12,6 +12,7 @@ from benchmarks.ablate import BEGIN, write_between_markers
 from benchmarks.envs import table as env_table
 from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
 from benchmarks.profile import phase_table
+from benchmarks.run import ratio_lines
 from benchmarks.wall import wall_table
 from trl_cartpole.plotting import hold_last, plot_seed_groups
 
@@ -114,6 +115,10 @@ def test_speed_ratios_divide_medians_and_name_the_unsolved():
     assert ratios["peer"] == 20.0 / 4.0  # medians: 20 s vs 4 s (unsolved counts as slowest)
     assert math.isinf(ratios["stuck"])
     assert speed_ratios(results, "stuck", ["peer", "stuck"]) == {"peer": 0.0, "stuck": None}
+    assert ratio_lines(results, ["ours"], ["peer", "stuck"]) == [
+        "- peer needs 5.0x the seconds to solve of ours (medians)",
+        "- stuck solved 0 of 3 seeds: no median to compare",  # not "infx"
+    ]
 
 
 def test_seed_group_plot_and_doc_markers(tmp_path):
