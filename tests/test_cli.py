@@ -20,7 +20,7 @@ from trl_cartpole.build import prepare_run_dir
 from trl_cartpole.cli import compose_run_config
 from trl_cartpole.cli_help import field_help
 from trl_cartpole.config import Config
-from trl_cartpole.console import ending, verdict
+from trl_cartpole.console import DYNAMO_PROFILER_LOGGER, ending, quiet_libraries, verdict
 from trl_cartpole.progress import Progress
 from trl_cartpole.telemetry import BAR_FORMAT, Telemetry
 
@@ -205,3 +205,30 @@ def test_help_reads_each_fields_own_comment_inherited_fields_included():
     assert rows["colour"] == ("str", "#fff", 'a colour, not the comment "#fff"')
     assert rows["width"] == ("int", "3", "the block above a field that has no comment of its own")
     assert rows["height"] == ("int", "4", "trailing wins over the block above")
+
+
+def test_a_compiled_updates_habitual_notes_are_kept_off_the_console(caplog):
+    """``compile=true`` made torch log "Profiler record function ... will be ignored" and
+    tensordict warn that a Dynamo setting is deprecated, once per run; other warnings stay."""
+    import logging
+    import warnings
+
+    dynamo = logging.getLogger(DYNAMO_PROFILER_LOGGER)
+    deprecated = "torch._dynamo.config.inline_inbuilt_nn_modules is deprecated and does nothing"
+
+    def emit() -> tuple[list[str], list[str]]:
+        caplog.clear()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with quiet_libraries():
+                dynamo.warning("Profiler record function %s will be ignored", "record_function")
+                dynamo.warning("Graph break: something a user may need")
+                warnings.warn(deprecated, FutureWarning, stacklevel=1)
+                warnings.warn("a FutureWarning of another kind", FutureWarning, stacklevel=1)
+        return [r.getMessage() for r in caplog.records], [str(w.message) for w in caught]
+
+    logged, warned = emit()
+    assert logged == ["Graph break: something a user may need"]
+    assert warned == ["a FutureWarning of another kind"]
+    dynamo.warning("Profiler record function %s will be ignored", "outside")  # filter removed
+    assert caplog.records[-1].getMessage().endswith("outside will be ignored")

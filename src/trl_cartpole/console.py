@@ -13,6 +13,7 @@ import logging
 import shlex
 import shutil
 import sys
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,18 +22,38 @@ from typing import Any
 __all__ = ["ending", "python_command", "quiet_libraries", "shown_path", "verdict"]
 
 LIBRARY_LOGGERS = ("torchrl", "tensordict")
+# What ``compile=true`` prints once per run and means nothing to a user: torch's Dynamo skips
+# the ``record_function`` profiler ranges TorchRL's losses open (logged as a warning), and
+# tensordict reads a Dynamo setting torch has deprecated (a FutureWarning).
+DYNAMO_PROFILER_LOGGER = "torch._dynamo.variables.ctx_manager"
+DYNAMO_PROFILER_MESSAGE = "Profiler record function"
+TENSORDICT_DYNAMO_WARNING = r".*inline_inbuilt_nn_modules is deprecated"
+
+
+def _not_profiler_note(record: logging.LogRecord) -> bool:
+    return not str(record.msg).startswith(DYNAMO_PROFILER_MESSAGE)
 
 
 @contextmanager
 def quiet_libraries(verbose: bool = False) -> Iterator[None]:
-    """Inside the block, TorchRL's and tensordict's loggers show warnings only (all if verbose)."""
+    """Inside the block, TorchRL's and tensordict's loggers show warnings only (all if verbose),
+    and the two habitual notes of a compiled update are not shown (unless verbose)."""
     loggers = [logging.getLogger(name) for name in LIBRARY_LOGGERS]
     levels = [logger.level for logger in loggers]
     for logger in loggers:
         logger.setLevel(logging.INFO if verbose else logging.WARNING)
+    dynamo = logging.getLogger(DYNAMO_PROFILER_LOGGER)
+    if not verbose:
+        dynamo.addFilter(_not_profiler_note)
     try:
-        yield
+        with warnings.catch_warnings():
+            if not verbose:
+                warnings.filterwarnings(
+                    "ignore", message=TENSORDICT_DYNAMO_WARNING, category=FutureWarning
+                )
+            yield
     finally:
+        dynamo.removeFilter(_not_profiler_note)
         for logger, level in zip(loggers, levels, strict=True):
             logger.setLevel(level)
 
