@@ -232,3 +232,17 @@ def test_a_compiled_updates_habitual_notes_are_kept_off_the_console(caplog):
     assert warned == ["a FutureWarning of another kind"]
     dynamo.warning("Profiler record function %s will be ignored", "outside")  # filter removed
     assert caplog.records[-1].getMessage().endswith("outside will be ignored")
+    # logger.verbose=true inside the script's quiet block (train() nests one): all shown
+    caplog.clear()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with quiet_libraries():
+            with quiet_libraries(verbose=True):
+                dynamo.warning("Profiler record function %s will be ignored", "verbose")
+                warnings.warn(deprecated, FutureWarning, stacklevel=1)
+            dynamo.warning("Profiler record function %s will be ignored", "outer again")
+            warnings.warn(deprecated, FutureWarning, stacklevel=1)
+    assert [r.getMessage() for r in caplog.records] == [
+        "Profiler record function verbose will be ignored"
+    ]
+    assert [str(w.message) for w in caught] == [deprecated]

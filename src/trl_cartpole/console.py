@@ -42,18 +42,21 @@ def quiet_libraries(verbose: bool = False) -> Iterator[None]:
     levels = [logger.level for logger in loggers]
     for logger in loggers:
         logger.setLevel(logging.INFO if verbose else logging.WARNING)
+    # blocks nest (the script's around train()'s): the inner one decides, the outer one's
+    # state comes back on exit
     dynamo = logging.getLogger(DYNAMO_PROFILER_LOGGER)
-    if not verbose:
-        dynamo.addFilter(_not_profiler_note)
+    was_filtered = _not_profiler_note in dynamo.filters
+    (dynamo.addFilter if not verbose else dynamo.removeFilter)(_not_profiler_note)
     try:
         with warnings.catch_warnings():
-            if not verbose:
-                warnings.filterwarnings(
-                    "ignore", message=TENSORDICT_DYNAMO_WARNING, category=FutureWarning
-                )
+            warnings.filterwarnings(
+                "default" if verbose else "ignore",
+                message=TENSORDICT_DYNAMO_WARNING,
+                category=FutureWarning,
+            )
             yield
     finally:
-        dynamo.removeFilter(_not_profiler_note)
+        (dynamo.addFilter if was_filtered else dynamo.removeFilter)(_not_profiler_note)
         for logger, level in zip(loggers, levels, strict=True):
             logger.setLevel(level)
 
