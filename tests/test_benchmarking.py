@@ -5,9 +5,12 @@ from __future__ import annotations
 import json
 import math
 import subprocess
+import threading
+import time
 
 import numpy as np
 
+from benchmarks import harness
 from benchmarks.ablate import BEGIN, write_between_markers
 from benchmarks.envs import table as env_table
 from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
@@ -280,11 +283,6 @@ def test_benchmark_refuses_a_bad_job_count_before_running_anything(python, tmp_p
 def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkeypatch):
     """``--jobs 2`` starts two runs of a peer at the same moment: before the lock, both removed
     and re-made its virtual environment, each under the other's pip install."""
-    import threading
-    import time
-
-    from benchmarks import harness
-
     made = []
 
     def slow_make(peer, venv):  # stands in for venv + pip: slow enough for the threads to meet
