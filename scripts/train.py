@@ -32,7 +32,7 @@ def main(argv: list[str]) -> None:
     # imported after the help check, so that --help answers at once
     from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
     from trl_cartpole.sweeps import is_multirun, run_sweep
-    from trl_cartpole.train import train
+    from trl_cartpole.training import train
 
     if is_multirun(argv):
         summaries = run_sweep(CONFIG_DIR, argv)

@@ -75,7 +75,7 @@ def python() -> str:
 @pytest.fixture(scope="session")
 def smoke_checkpoint(tmp_path_factory) -> Path:
     """The best-policy checkpoint of a 300-frame default run (trained once per session)."""
-    from trl_cartpole.train import train
+    from trl_cartpole.training import train
 
     run_dir = tmp_path_factory.mktemp("smoke-checkpoint")
     train(

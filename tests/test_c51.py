@@ -83,7 +83,7 @@ def test_tied_expected_values_give_one_greedy_action():
 
     env = make_env("CartPole-v1", seed=0)
     support = torch.linspace(0, 100, 51)
-    actor = make_q_actor(env.observation_spec, env.action_spec, [8], support=support)
+    actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[8], support=support)
     with torch.no_grad():
         for parameter in actor.parameters():
             parameter.zero_()  # every action gets the same distribution: an exact tie

@@ -73,9 +73,9 @@ def _steps(envs: int, steps: int) -> TensorDict:
 
 
 def test_n_step_window_is_what_the_multistep_transform_holds_back():
-    uniform = make_replay_buffer(100, 4, n_steps=1)
+    uniform = make_replay_buffer(max_size=100, batch_size=4, n_steps=1)
     assert compat.replay_transform(uniform) is None and compat.n_step_window(uniform) is None
-    buffer = make_replay_buffer(100, 4, n_steps=3, gamma=0.9)
+    buffer = make_replay_buffer(max_size=100, batch_size=4, n_steps=3, gamma=0.9)
     extend_with_batch(buffer, _steps(envs=2, steps=5))
     assert len(buffer) == 2 * (5 - 3)  # windows complete for the first 2 steps of each env
     window = compat.n_step_window(buffer)

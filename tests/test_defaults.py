@@ -11,6 +11,7 @@ import inspect
 
 import pytest
 import torch
+from torchrl.objectives import HardUpdate
 
 from trl_cartpole.buffers import make_replay_buffer
 from trl_cartpole.build import build_actor, build_env, build_exploration, build_replay_buffer
@@ -19,19 +20,17 @@ from trl_cartpole.config import Config
 from trl_cartpole.envs import make_env
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.losses import make_dqn_loss, make_target_updater
-from trl_cartpole.models import make_q_actor
+from trl_cartpole.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.update import make_optimizer, make_update
 
 # factory -> {argument: config field}
 FACTORY_FIELDS = {
     make_env: {"env_name": "env.id", "max_episode_steps": "env.max_episode_steps"},
     make_q_actor: {
-        "hidden_sizes": "network.hidden_sizes",
-        "activation": "network.activation",
+        "num_cells": "network.hidden_sizes",
         "head": "network.head",
         "noisy": "network.noisy",
         "noisy_std": "network.noisy_std",
-        "device": "device",
     },
     make_exploration: {
         "schedule": "exploration.schedule",
@@ -49,16 +48,7 @@ FACTORY_FIELDS = {
         "n_steps": "buffer.n_steps",
         "gamma": "loss.gamma",
     },
-    make_dqn_loss: {
-        "gamma": "loss.gamma",
-        "loss_function": "loss.loss_function",
-        "double_dqn": "loss.double_dqn",
-    },
-    make_target_updater: {
-        "kind": "loss.target_update",
-        "tau": "loss.tau",
-        "hard_update_interval": "loss.hard_update_interval",
-    },
+    make_dqn_loss: {"delay_value": None},  # the target network (TorchRL's default too)
     make_optimizer: {
         "lr": "optim.lr",
         "amsgrad": "optim.amsgrad",
@@ -76,7 +66,9 @@ FACTORY_FIELDS = {
 }
 
 
-def _schema_default(dotted: str):
+def _schema_default(dotted: str | None):
+    if dotted is None:  # a TorchRL default the config has no field for
+        return True
     value = Config()
     for part in dotted.split("."):
         value = getattr(value, part)
@@ -90,6 +82,24 @@ def test_factory_defaults_equal_the_default_config(factory):
         default = parameters[argument].default
         default = tuple(default) if isinstance(default, list) else default
         assert default == _schema_default(field), f"{factory.__name__}({argument}) vs {field}"
+
+
+def test_the_defaults_resolved_inside_the_factories_are_the_configs():
+    """Defaults that are None in a signature (they depend on other arguments) resolve here."""
+    cfg = Config()
+    env = build_env(cfg, seed=0, num_envs=1)
+    actor = make_q_actor(env.observation_spec, env.action_spec)
+    activations = {type(m) for m in actor.modules()} & set(ACTIVATIONS.values())
+    assert activations == {ACTIVATIONS[cfg.network.activation]}
+    loss = make_dqn_loss(actor)
+    assert loss.value_estimator.gamma.item() == pytest.approx(cfg.loss.gamma)
+    assert loss.loss_function == cfg.loss.loss_function
+    assert loss.double_dqn is cfg.loss.double_dqn
+    # the config's target update is hard, a copy every loss.hard_update_interval updates
+    updater = make_target_updater(loss)
+    assert cfg.loss.target_update == "hard" and isinstance(updater, HardUpdate)
+    assert updater.value_network_update_interval == cfg.loss.hard_update_interval - 1
+    assert make_target_updater(loss, kind="soft").eps == pytest.approx(1 - cfg.loss.tau)
 
 
 def test_default_factories_build_the_default_configs_actor_exploration_and_buffer():

@@ -27,7 +27,7 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.evaluation import evaluate
 from trl_cartpole.models import make_q_actor, make_q_actor_for_env
 from trl_cartpole.policy_io import evaluate_checkpoint
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 
 from .conftest import ROOT, SMOKE_OVERRIDES, run_script
 

@@ -85,7 +85,7 @@ def _onnx_values(path, observations: np.ndarray) -> torch.Tensor:
 @pytest.fixture(scope="module")
 def normalized_run(tmp_path_factory):
     """A 300-frame run with ``env.normalize_observations=true`` (its run directory)."""
-    from trl_cartpole.train import train
+    from trl_cartpole.training import train
 
     run_dir = tmp_path_factory.mktemp("normalized-run")
     overrides = ["env.normalize_observations=true", "env.normalization_frames=300"]

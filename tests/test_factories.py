@@ -79,7 +79,7 @@ def test_unknown_head_lists_known_names(env):
 
 
 def test_exponential_schedule_matches_tutorial_formula(env):
-    module = make_exploration(env.action_spec, "exponential", 0.9, 0.05, 1000)
+    module = make_exploration(env.action_spec, 0.9, 0.05, 1000, schedule="exponential")
     assert isinstance(module, ExponentialEGreedyModule)
     assert isinstance(module, EGreedyModule)
     assert module.eps.item() == pytest.approx(0.9)
@@ -94,7 +94,7 @@ def test_exponential_schedule_matches_tutorial_formula(env):
 
 
 def test_linear_schedule_is_torchrl_annealing(env):
-    module = make_exploration(env.action_spec, "linear", 1.0, 0.05, 100)
+    module = make_exploration(env.action_spec, 1.0, 0.05, 100)
     assert type(module) is EGreedyModule
     module.step(50)
     assert module.eps.item() == pytest.approx(1.0 - 50 * 0.95 / 100, abs=1e-5)
@@ -107,11 +107,11 @@ def test_exploration_eps_one_is_uniform_and_zero_is_greedy(env):
     actor = make_q_actor(env.observation_spec, env.action_spec)
     td = TensorDict({"observation": torch.zeros(2000, 4)}, batch_size=[2000])
     greedy = actor(td.clone())["action"][0].argmax().item()
-    always_random = make_exploration(env.action_spec, "linear", 1.0, 1.0, 1)
+    always_random = make_exploration(env.action_spec, 1.0, 1.0, 1)
     chosen = always_random(actor(td.clone()))["action"].argmax(-1)
     share_greedy = (chosen == greedy).float().mean().item()
     assert 0.45 < share_greedy < 0.55
-    never_random = make_exploration(env.action_spec, "linear", 0.0, 0.0, 1)
+    never_random = make_exploration(env.action_spec, 0.0, 0.0, 1)
     chosen = never_random(actor(td.clone()))["action"].argmax(-1)
     assert (chosen == greedy).all()
 
@@ -131,15 +131,15 @@ def test_loss_and_target_updaters(env):
     actor = make_q_actor(env.observation_spec, env.action_spec)
     loss = make_dqn_loss(actor, gamma=0.9)
     assert isinstance(loss, DQNLoss)
-    assert isinstance(make_target_updater(loss, "soft", tau=0.1), SoftUpdate)
-    assert isinstance(make_target_updater(loss, "hard", hard_update_interval=3), HardUpdate)
+    assert isinstance(make_target_updater(loss, tau=0.1), SoftUpdate)
+    assert isinstance(make_target_updater(loss, hard_update_interval=3), HardUpdate)
 
 
 def test_soft_update_moves_target_by_tau(env):
     """theta' <- tau * theta + (1 - tau) * theta'."""
     actor = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
     loss = make_dqn_loss(actor)
-    updater = make_target_updater(loss, "soft", tau=0.25)
+    updater = make_target_updater(loss, tau=0.25)
     target = loss.target_value_network_params
     online = loss.value_network_params
     target.apply(lambda t: t.data.fill_(0.0))
@@ -152,12 +152,14 @@ def test_soft_update_moves_target_by_tau(env):
 def test_fused_soft_update_moves_the_target_exactly_as_torchrl_soft_update(env):
     def loss_and_updater(make_updater):  # the same online and target weights each time
         torch.manual_seed(0)
-        loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec, [16, 16]))
+        loss = make_dqn_loss(
+            make_q_actor(env.observation_spec, env.action_spec, num_cells=[16, 16])
+        )
         updater = make_updater(loss)  # (its init_ copies the online weights to the target)
         loss.target_value_network_params.apply(lambda t: t.data.normal_())
         return loss, updater
 
-    fused_loss, fused = loss_and_updater(lambda loss: make_target_updater(loss, "soft", 0.05))
+    fused_loss, fused = loss_and_updater(lambda loss: make_target_updater(loss, tau=0.05))
     torchrl_loss, reference = loss_and_updater(lambda loss: SoftUpdate(loss, tau=0.05))
     assert isinstance(fused, FusedSoftUpdate)
     before = [t.clone() for t in fused_loss.target_value_network_params.values(True, True)]
@@ -182,7 +184,7 @@ def test_fused_soft_update_moves_the_target_exactly_as_torchrl_soft_update(env):
 def test_hard_update_copies_every_interval(env):
     actor = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
     loss = make_dqn_loss(actor)
-    updater = make_target_updater(loss, "hard", hard_update_interval=3)
+    updater = make_target_updater(loss, hard_update_interval=3)
     target = loss.target_value_network_params
     loss.value_network_params.apply(lambda t: t.data.fill_(1.0))
     target.apply(lambda t: t.data.fill_(0.0))
@@ -212,14 +214,14 @@ def test_collector_yields_batches_of_frames_per_batch(env):
 
 
 def test_minibatches_of_one_draw_are_uniform_and_prioritized_ones_are_drawn_one_by_one():
-    uniform = make_replay_buffer(1000, 8, n_steps=1)
+    uniform = make_replay_buffer(max_size=1000, batch_size=8, n_steps=1)
     uniform.extend(TensorDict(x=torch.arange(100.0)[:, None], batch_size=[100]))
     torch.manual_seed(0)
     batches = list(sample_minibatches(uniform, 5))
     assert [b.shape for b in batches] == [torch.Size([8])] * 5
     drawn = torch.cat([b["x"] for b in batches]).flatten()  # 40 indices with replacement
     assert drawn.min() >= 0 and drawn.max() < 100 and len(drawn.unique()) > 20
-    prioritized = make_replay_buffer(1000, 8, prioritized=True, n_steps=1)
+    prioritized = make_replay_buffer(max_size=1000, batch_size=8, prioritized=True, n_steps=1)
     prioritized.extend(TensorDict(x=torch.arange(100.0)[:, None], batch_size=[100]))
     batches = list(sample_minibatches(prioritized, 3))
     assert len(batches) == 3 and all("priority_weight" in b for b in batches)

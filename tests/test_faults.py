@@ -20,7 +20,7 @@ from torchrl.checkpoint import Checkpoint, CheckpointRotation
 
 from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config
 from trl_cartpole.errors import ConfigError, TrainingFailed
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 
 from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 
 FRAME_BUDGET = 40_000
 

@@ -9,7 +9,7 @@ from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.plotting import LearningCurves, LiveDurationPlot, live_plot_target
 from trl_cartpole.telemetry import make_logger
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 
 from .conftest import SMOKE_OVERRIDES
 

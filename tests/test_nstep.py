@@ -54,7 +54,7 @@ TERMINATED = [True, True, True, False, False, False]
 
 
 def _filled_buffer():
-    buffer = make_replay_buffer(32, 4, n_steps=N, gamma=GAMMA)
+    buffer = make_replay_buffer(max_size=32, batch_size=4, n_steps=N, gamma=GAMMA)
     trajectory = _trajectory()
     buffer.extend(trajectory[:2])  # windows cross the collector's batches
     buffer.extend(trajectory[2:])
@@ -76,7 +76,9 @@ def test_td_target_bootstraps_with_gamma_to_the_window_length():
     net = nn.Linear(1, 2, bias=False)  # Q(s) = [s, 2 s]: max_a Q(s', a) = 2 s'
     with torch.no_grad():
         net.weight.copy_(torch.tensor([[1.0], [2.0]]))
-    loss = make_dqn_loss(QValueActor(net, in_keys=["observation"], spec=OneHot(2)), GAMMA, "l2")
+    loss = make_dqn_loss(
+        QValueActor(net, in_keys=["observation"], spec=OneHot(2)), gamma=GAMMA, loss_function="l2"
+    )
     stored = _filled_buffer()[:]
     loss(stored)
     # y_t = R_t + gamma^k (1 - terminated) 2 s'; the taken action 0 has Q(s_t, 0) = t.

@@ -62,7 +62,9 @@ def _setup():
         net.weight.copy_(W)
     actor = QValueActor(net, in_keys=["observation"], spec=OneHot(2))
     loss = make_dqn_loss(actor, gamma=GAMMA, loss_function="l2")
-    buffer = make_replay_buffer(16, 4, prioritized=True, alpha=ALPHA, beta=BETA, eps=EPS, n_steps=1)
+    buffer = make_replay_buffer(
+        max_size=16, batch_size=4, prioritized=True, alpha=ALPHA, beta=BETA, eps=EPS, n_steps=1
+    )
     buffer.extend(_transitions())
     # lr = 0: the weights stay W, so every TD error can be checked against the hand values.
     update = make_update(loss, torch.optim.SGD(net.parameters(), lr=0.0), grad_clip="none")

@@ -31,7 +31,7 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.sweeps import expand_grid
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 from trl_cartpole.validation import validate
 
 # Two workers of 16 envs: the default's 32 envs, split.
@@ -84,7 +84,7 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
     cfg = to_config(compose("env.num_envs=4", "collector.workers=2", "buffer.n_steps=1"))
     env = make_env_from_config(cfg.env, 0)
     actor = make_q_actor_for_env(env, cfg.network, "cpu")
-    exploration = make_exploration(env.action_spec, "linear", 1.0, 1.0, 1000, "cpu")  # eps 1
+    exploration = make_exploration(env.action_spec, 1.0, 1.0, 1000, device="cpu")  # eps 1
     policy = TensorDictSequential(actor, exploration)
     collector = make_collector(worker_env_constructors(cfg), policy, 32, 32 * 40, 0, sync=sync)
     mismatches = []

@@ -51,7 +51,7 @@ def test_the_torchrl_dqn_example_trains_on_our_factories():
     )
     replay_buffer = make_replay_buffer(max_size=1000, batch_size=32, n_steps=1, pin_memory=False)
     loss_module = make_dqn_loss(model, gamma=0.99, loss_function="l2")
-    target_net_updater = make_target_updater(loss_module, "hard", hard_update_interval=10)
+    target_net_updater = make_target_updater(loss_module, value_network_update_interval=9)
     optimizer = make_optimizer(loss_module.parameters(), lr=2.5e-4)
     for built, kind in [
         (model, QValueActor),

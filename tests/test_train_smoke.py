@@ -11,7 +11,7 @@ import torch
 from trl_cartpole.checkpoint import load_policy
 from trl_cartpole.envs import make_env
 from trl_cartpole.models import make_q_actor
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 
 from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 

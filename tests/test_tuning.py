@@ -40,7 +40,7 @@ def test_a_search_space_is_checked_and_lists_pass_as_written(tmp_path):
 
 def test_a_tiny_study_prunes_resumes_and_writes_a_preset_that_trains(tmp_path, monkeypatch):
     from trl_cartpole.study import run_study
-    from trl_cartpole.train import train
+    from trl_cartpole.training import train
 
     monkeypatch.chdir(tmp_path)  # the study's directory: runs/tune/<study>
     configs = tmp_path / "configs"

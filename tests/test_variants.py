@@ -16,7 +16,7 @@ from trl_cartpole.envs import make_env
 from trl_cartpole.losses import make_dqn_loss
 from trl_cartpole.models import make_q_actor, make_q_network
 from trl_cartpole.policy_io import evaluate_checkpoint
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 
 from .conftest import SMOKE_OVERRIDES
 

@@ -9,7 +9,7 @@ import torch
 from trl_cartpole.buffers import NStepTransform, extend_with_batch, make_replay_buffer
 from trl_cartpole.build import TRANSITION_KEYS
 from trl_cartpole.envs import make_env
-from trl_cartpole.train import train
+from trl_cartpole.training import train
 
 from .conftest import SMOKE_OVERRIDES
 
@@ -23,7 +23,7 @@ def _rollout(num_envs: int, steps: int):
 
 def test_uniform_buffer_stores_every_env_step_once():
     rollout = _rollout(3, 20)  # [3, 20]
-    buffer = make_replay_buffer(100, 8, n_steps=1)
+    buffer = make_replay_buffer(max_size=100, batch_size=8, n_steps=1)
     extend_with_batch(buffer, rollout)
     assert len(buffer) == 60
     stored = buffer.storage[:60]
@@ -32,7 +32,7 @@ def test_uniform_buffer_stores_every_env_step_once():
 
 def test_nstep_windows_never_cross_from_one_env_into_another():
     rollout = _rollout(3, 40)  # [3, 40]: windows of 3 are complete for 37 steps of each env
-    buffer = make_replay_buffer(500, 8, n_steps=3, gamma=0.9)
+    buffer = make_replay_buffer(max_size=500, batch_size=8, n_steps=3, gamma=0.9)
     extend_with_batch(buffer, rollout)
     assert len(buffer) == 3 * 37
     stored = buffer.storage[: 3 * 37].reshape(3, 37)

@@ -35,7 +35,7 @@ _EXPORTS = {
     "evaluate": "trl_cartpole.evaluation",
     "build_components": "trl_cartpole.build",
     "load_trained_policy": "trl_cartpole.policy_io",
-    "train": "trl_cartpole.train",
+    "train": "trl_cartpole.training",
 }
 
 __all__ = sorted(_EXPORTS)

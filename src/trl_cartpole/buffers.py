@@ -19,24 +19,36 @@ import warnings
 from collections.abc import Iterator
 from typing import Any
 
+import torch
 from tensordict import TensorDictBase
 from torchrl.data import (
     LazyTensorStorage,
+    ReplayBuffer,
     TensorDictPrioritizedReplayBuffer,
     TensorDictReplayBuffer,
 )
-from torchrl.data.replay_buffers import RandomSampler
-from torchrl.envs import MultiStepTransform
+from torchrl.data.replay_buffers import RandomSampler, Sampler, Storage
+from torchrl.envs import Compose, MultiStepTransform, Transform
 
 from trl_cartpole.compat import install_segment_trees_if_missing, replay_transform
+from trl_cartpole.config import LossConfig
 
 __all__ = [
+    "N_STEP_GAMMA_KEY",
     "NStepTransform",
     "annealed_beta",
     "extend_with_batch",
     "make_replay_buffer",
+    "n_step_gamma",
     "sample_minibatches",
 ]
+
+
+# The default config's loss.gamma: the discount of both the n-step buffer and the loss.
+DEFAULT_GAMMA = LossConfig.gamma
+# Each sample of an n-step buffer carries its discount under this key ([*B, 1], added when
+# sampling, not stored), so a loss built apart from the buffer can check that it agrees.
+N_STEP_GAMMA_KEY = "n_step_gamma"
 
 
 class NStepTransform(MultiStepTransform):
@@ -45,7 +57,8 @@ class NStepTransform(MultiStepTransform):
     ``("next", "terminated")`` follows the window's last step (it is left out of the done
     keys the transform keeps at step t), and ``steps_to_next_obs`` is shaped ``[*B, 1]`` like
     the reward, so ``DistributionalDQNLoss`` broadcasts gamma ** k over the atoms (TorchRL
-    writes it ``[*B]``; ``DQNLoss`` reshapes it either way).
+    writes it ``[*B]``; ``DQNLoss`` reshapes it either way). A sampled batch is marked with the
+    discount (``N_STEP_GAMMA_KEY``), which :func:`~trl_cartpole.losses.make_dqn_loss` checks.
     """
 
     def __init__(self, n_steps: int, gamma: float) -> None:
@@ -59,38 +72,82 @@ class NStepTransform(MultiStepTransform):
             out = out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
         return out
 
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Mark a sampled batch ``[*B]`` with this transform's discount ``[*B, 1]``."""
+        gamma = torch.full((*tensordict.batch_size, 1), float(self.gamma), dtype=torch.float64)
+        tensordict.set(N_STEP_GAMMA_KEY, gamma.to(tensordict.device or "cpu"))
+        return tensordict
+
+
+def n_step_gamma(buffer: ReplayBuffer) -> float | None:
+    """The discount of ``buffer``'s n-step transform (None for a one-step buffer)."""
+    transform = replay_transform(buffer)
+    if transform is None:
+        return None
+    steps = [t for t in transform if isinstance(t, MultiStepTransform)]
+    return float(steps[0].gamma) if steps else None
+
 
 def make_replay_buffer(
-    max_size: int = 50_000,
-    batch_size: int = 512,
-    device: str = "cpu",
     *,
+    storage: Storage | None = None,
+    sampler: Sampler | None = None,
+    batch_size: int = 512,
+    transform: Transform | None = None,
+    max_size: int = 50_000,
+    device: str | torch.device = "cpu",
     prioritized: bool = False,
     alpha: float = 0.6,
     beta: float = 0.4,
     eps: float = 1e-6,
     n_steps: int = 3,
-    gamma: float = 0.995,
+    gamma: float = DEFAULT_GAMMA,
     **buffer_kwargs: Any,
 ) -> TensorDictReplayBuffer:
-    """Return a replay buffer of capacity ``max_size`` sampling ``batch_size`` transitions.
+    """Return TorchRL's ``TensorDictReplayBuffer`` (``TensorDictPrioritizedReplayBuffer``).
 
-    The defaults are the default config's (``buffer`` section; ``gamma`` is ``loss.gamma``).
-    The names are TorchRL's: ``max_size`` of ``LazyTensorStorage``; ``alpha``, ``beta`` and
-    ``eps`` of ``TensorDictPrioritizedReplayBuffer``; ``n_steps`` and ``gamma`` of
-    ``MultiStepTransform``. ``buffer_kwargs`` go to the buffer's constructor
-    (``prefetch``, ...).
+    The arguments are TorchRL's, with their meanings; ``buffer_kwargs`` go to the buffer's
+    constructor (``prefetch``, ``pin_memory``, ``priority_key``, ...). Defaults, ours beside
+    TorchRL's:
 
-    The storage allocates lazily on the first ``extend`` from the collected batch's layout, so
-    the same factory serves any env. Uniform sampling is with replacement (``RandomSampler``),
-    as TorchRL's DQN example does. With ``prioritized``, update the priorities after each
-    gradient step with ``buffer.update_priority(batch["index"], priority)``. With
-    ``n_steps > 1`` each ``extend`` stores the transitions whose n-step window is complete; the
-    last ``n_steps`` frames wait for the next ``extend``.
+    - ``storage``: ``LazyTensorStorage(max_size, device=device)`` (TorchRL: ``ListStorage``);
+      it allocates on the first ``extend`` from the batch's layout, so it serves any env.
+      ``max_size`` (50 000) and ``device`` ("cpu") are ``LazyTensorStorage``'s.
+    - ``sampler``: ``RandomSampler()``, uniform with replacement, as TorchRL and its DQN
+      example. With ``prioritized`` the buffer is ``TensorDictPrioritizedReplayBuffer``
+      (Schaul et al. 2016, proportional) with TorchRL's ``alpha``, ``beta`` and ``eps``
+      (0.6, 0.4, 1e-6; TorchRL requires alpha and beta and defaults eps to 1e-8); it brings its
+      own sampler, so ``sampler`` is refused with it.
+    - ``batch_size``: 512 (TorchRL: None, given at ``sample``).
+    - ``transform``: none of its own. ``n_steps > 1`` (3 by default; TorchRL has no n-step
+      default) prepends TorchRL's ``MultiStepTransform(n_steps, gamma)`` as
+      :class:`NStepTransform`: R_t^(n) = sum_{j<k} gamma^j r_{t+j} (Sutton 1988), with the
+      default config's ``gamma`` (0.995). ``n_steps=1`` stores one-step transitions.
+
+    Give the loss the same discount: ``make_dqn_loss(actor, replay_buffer=buffer)``.
+
+    With ``prioritized``, update the priorities after each gradient step with
+    ``buffer.update_priority(batch["index"], priority)``. With ``n_steps > 1`` each ``extend``
+    stores the transitions whose n-step window is complete (extend with ``[T]`` or ``[envs, T]``
+    in time order); the last ``n_steps`` frames wait for the next ``extend``.
+
+    Example::
+
+        >>> from trl_cartpole import make_replay_buffer
+        >>> buffer = make_replay_buffer(max_size=10_000, batch_size=64, n_steps=1)
+        >>> type(buffer).__name__, buffer.batch_size
+        ('TensorDictReplayBuffer', 64)
     """
-    storage = LazyTensorStorage(max_size, device=device)
-    transform = NStepTransform(n_steps, gamma) if n_steps > 1 else None
+    storage = LazyTensorStorage(max_size, device=device) if storage is None else storage
+    n_step = NStepTransform(n_steps, gamma) if n_steps > 1 else None
+    transforms = [t for t in (n_step, transform) if t is not None]
+    combined = Compose(*transforms) if transforms else None
     if prioritized:
+        if sampler is not None:
+            raise ValueError(
+                "prioritized=True brings its own PrioritizedSampler; pass sampler= or "
+                "prioritized=True, not both"
+            )
         install_segment_trees_if_missing()
         return TensorDictPrioritizedReplayBuffer(
             alpha=alpha,
@@ -98,14 +155,14 @@ def make_replay_buffer(
             eps=eps,
             storage=storage,
             batch_size=batch_size,
-            transform=transform,
+            transform=combined,
             **buffer_kwargs,
         )
     return TensorDictReplayBuffer(
         storage=storage,
-        sampler=RandomSampler(),
+        sampler=RandomSampler() if sampler is None else sampler,
         batch_size=batch_size,
-        transform=transform,
+        transform=combined,
         **buffer_kwargs,
     )
 

@@ -162,10 +162,10 @@ def build_exploration(cfg: Config, env: TransformedEnv) -> EGreedyModule | None:
     explore = cfg.exploration
     return make_exploration(
         env.action_spec,
-        explore.schedule,
         eps_init=explore.eps_start,
         eps_end=explore.eps_end,
         annealing_num_steps=explore.decay_frames,
+        schedule=explore.schedule,
         device=cfg.device,
     )
 
@@ -174,9 +174,9 @@ def build_replay_buffer(cfg: Config) -> TensorDictReplayBuffer:
     """The replay buffer of ``cfg.buffer`` (n-step returns discounted by ``cfg.loss.gamma``)."""
     buffer = cfg.buffer
     return make_replay_buffer(
-        buffer.size,
-        buffer.batch_size,
-        cfg.device,
+        max_size=buffer.size,
+        batch_size=buffer.batch_size,
+        device=cfg.device,
         prioritized=buffer.prioritized,
         alpha=buffer.alpha,
         beta=buffer.beta,
@@ -188,10 +188,23 @@ def build_replay_buffer(cfg: Config) -> TensorDictReplayBuffer:
 
 def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayBuffer) -> Learner:
     """``DQNLoss`` (or C51's), its target updater, AdamW and the gradient step of ``cfg``."""
-    loss = make_dqn_loss(actor, cfg.loss.gamma, cfg.loss.loss_function, cfg.loss.double_dqn)
-    target_updater = make_target_updater(
-        loss, cfg.loss.target_update, cfg.loss.tau, cfg.loss.hard_update_interval
-    )
+    loss_cfg = cfg.loss
+    if cfg.network.distributional:  # C51's loss has neither switch (validate refuses them)
+        loss = make_dqn_loss(actor, gamma=loss_cfg.gamma, replay_buffer=buffer)
+    else:
+        loss = make_dqn_loss(
+            actor,
+            gamma=loss_cfg.gamma,
+            loss_function=loss_cfg.loss_function,
+            double_dqn=loss_cfg.double_dqn,
+            replay_buffer=buffer,
+        )
+    if loss_cfg.target_update == "soft":
+        target_updater = make_target_updater(loss, tau=loss_cfg.tau)
+    else:
+        target_updater = make_target_updater(
+            loss, hard_update_interval=loss_cfg.hard_update_interval
+        )
     optimizer = make_optimizer(
         actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad, cfg.optim.weight_decay
     )

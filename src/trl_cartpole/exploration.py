@@ -11,6 +11,8 @@ import torch
 from torchrl.data import TensorSpec
 from torchrl.modules import EGreedyModule
 
+from trl_cartpole.aliases import resolve_alias
+
 __all__ = ["ExponentialEGreedyModule", "make_exploration"]
 
 
@@ -41,31 +43,49 @@ class ExponentialEGreedyModule(EGreedyModule):
 
 
 def make_exploration(
-    action_spec: TensorSpec,
-    schedule: str = "linear",
+    spec: TensorSpec | None = None,
     eps_init: float = 1.0,
     eps_end: float = 0.05,
     annealing_num_steps: int = 3000,
-    device: str = "cpu",
+    *,
+    schedule: str = "linear",
+    device: str | torch.device | None = None,
+    action_spec: TensorSpec | None = None,
     **egreedy_kwargs: Any,
 ) -> EGreedyModule | None:
-    """Return the epsilon-greedy module; the loop must call ``.step(frames)`` after each batch.
+    """Return TorchRL's ``EGreedyModule``; the loop calls ``.step(frames)`` after each batch.
 
-    The defaults are the default config's ``exploration`` section (``eps_start`` and
-    ``decay_frames`` there are ``eps_init`` and ``annealing_num_steps`` here, TorchRL's
-    ``EGreedyModule`` names); ``egreedy_kwargs`` go to its constructor (``action_key``,
-    ``action_mask_key``, ...).
+    The arguments are ``EGreedyModule``'s, in its order and with its meanings;
+    ``egreedy_kwargs`` go to its constructor (``action_key``, ``action_mask_key``, ...).
+    Defaults, ours (the default config's ``exploration`` section) beside TorchRL's:
+    ``eps_init`` 1.0 (TorchRL 1.0), ``eps_end`` 0.05 (0.1), ``annealing_num_steps`` 3000
+    (1000), ``device`` the spec's (TorchRL's too). ``action_spec`` is this project's
+    earlier name for ``spec``, kept as an alias.
 
-    ``schedule="none"`` returns None (the policy is the greedy actor itself).
+    ``schedule`` picks the module:
 
-    ``schedule="linear"`` is TorchRL's ``EGreedyModule``: eps falls by
-    ``(eps_init - eps_end) / annealing_num_steps`` per frame down to ``eps_end``.
-    ``schedule="exponential"`` is :class:`ExponentialEGreedyModule`, with
-    ``annealing_num_steps`` its time constant.
+    - ``"linear"``: TorchRL's ``EGreedyModule``: eps falls by
+      ``(eps_init - eps_end) / annealing_num_steps`` per frame down to ``eps_end``;
+    - ``"exponential"``: :class:`ExponentialEGreedyModule` (an ``EGreedyModule``), the PyTorch
+      DQN tutorial's schedule, with ``annealing_num_steps`` its time constant;
+    - ``"none"``: returns None (noisy networks explore through their weights; the policy is
+      the greedy actor itself).
+
+    Example::
+
+        >>> from trl_cartpole import make_env, make_exploration
+        >>> explore = make_exploration(make_env("CartPole-v1").action_spec, 1.0, 0.05, 100)
+        >>> explore.step(50)
+        >>> round(explore.eps.item(), 3)
+        0.525
     """
+    spec = resolve_alias("spec", spec, "action_spec", action_spec)
+    if spec is None:
+        raise TypeError("make_exploration() needs spec (the env's action_spec)")
     if schedule == "none":
         return None
-    spec = action_spec.to(device)
+    if device is not None:
+        spec = spec.to(device)
     if schedule == "exponential":
         return ExponentialEGreedyModule(
             spec, eps_init, eps_end, annealing_num_steps, device=device, **egreedy_kwargs

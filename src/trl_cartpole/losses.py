@@ -14,54 +14,142 @@ projected onto the support, and the cross-entropy to it.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
 from tensordict import TensorDictBase
+from torch import nn
+from torchrl.data import ReplayBuffer
 from torchrl.envs import ExplorationType
 from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
-__all__ = ["FusedSoftUpdate", "make_dqn_loss", "make_target_updater", "priority_from_loss"]
+from trl_cartpole.buffers import DEFAULT_GAMMA, N_STEP_GAMMA_KEY, n_step_gamma
+from trl_cartpole.config import LossConfig
+
+__all__ = [
+    "FusedSoftUpdate",
+    "check_discounts",
+    "make_dqn_loss",
+    "make_target_updater",
+    "priority_from_loss",
+]
+
+# The default config's loss section: one set of defaults (tests/test_defaults.py).
+DEFAULT_LOSS_FUNCTION = LossConfig.loss_function
+DEFAULT_TAU = LossConfig.tau
+DEFAULT_HARD_UPDATE_INTERVAL = LossConfig.hard_update_interval
 
 
 def make_dqn_loss(
-    actor: QValueActor | DistributionalQValueActor,
-    gamma: float = 0.995,
-    loss_function: str = "smooth_l1",
-    double_dqn: bool = False,
+    value_network: QValueActor | DistributionalQValueActor,
+    *,
+    gamma: float | None = None,
+    loss_function: str | None = None,
+    delay_value: bool = True,
+    double_dqn: bool | None = None,
+    replay_buffer: ReplayBuffer | None = None,
     **loss_kwargs: Any,
 ) -> DQNLoss | DistributionalDQNLoss:
-    """Return the loss for ``actor`` with a delayed (target) copy of it and a TD(0) target.
+    """Return TorchRL's ``DQNLoss`` (or ``DistributionalDQNLoss``) for ``value_network``.
 
-    The defaults are the default config's ``loss`` section; ``loss_kwargs`` go to the TorchRL
-    loss's constructor (``action_space``, ``reduction``, ...).
+    The arguments are ``DQNLoss``'s, with its meanings; ``loss_kwargs`` go to its constructor
+    (``action_space``, ``priority_key``, ``reduction``, ...). Defaults, ours beside TorchRL's:
 
-    A ``DistributionalQValueActor`` gets ``DistributionalDQNLoss``, which has neither
-    ``loss_function`` nor ``double_dqn`` (it is always double); ``config.validate`` refuses
-    settings it would ignore. Importance weights in the batch (``"priority_weight"``) are
-    applied by both: loss = sum_i w_i l_i / sum_i w_i.
+    - ``gamma``: the replay buffer's n-step discount when ``replay_buffer`` is given, else the
+      default config's ``loss.gamma`` (0.995); TorchRL's value estimator defaults to 0.99. It
+      is set with ``loss.make_value_estimator(gamma=...)``, TorchRL's way.
+    - ``loss_function``: ``"smooth_l1"`` (Huber, as the PyTorch DQN tutorial); TorchRL's
+      ``"l2"``.
+    - ``delay_value``: ``True`` (a target network), as TorchRL.
+    - ``double_dqn``: ``False``, as TorchRL.
+
+    One discount: an n-step buffer (:func:`~trl_cartpole.buffers.make_replay_buffer`) sums
+    rewards with its own gamma, and the loss bootstraps with gamma ** k, so the two must agree.
+    Pass ``replay_buffer`` and the loss takes the buffer's gamma (a different ``gamma`` raises
+    ``ValueError`` naming both); without it, the loss checks the first n-step batch it sees
+    and raises the same error there.
+
+    A ``DistributionalDQNLoss`` (for a ``DistributionalQValueActor``) has no ``loss_function``
+    and no ``double_dqn`` (it is always double): passing either raises ``ValueError``.
+    Importance weights in the batch (``"priority_weight"``) are applied by both: loss = sum_i
+    w_i l_i / sum_i w_i.
 
     TorchRL runs a loss's forward under its ``deterministic_sampling_mode``
-    (``DETERMINISTIC``), which would switch ``NoisyLinear`` noise off; for an actor with noisy
+    (``DETERMINISTIC``), which would switch ``NoisyLinear`` noise off; for a network with noisy
     layers it is set to ``RANDOM``, so the networks train through their noise (Fortunato et al.
     2018, algorithm 1).
+
+    Example::
+
+        >>> from trl_cartpole import make_dqn_loss, make_env, make_q_actor
+        >>> env = make_env("CartPole-v1")
+        >>> actor = make_q_actor(env.observation_spec, env.action_spec)
+        >>> loss = make_dqn_loss(actor, gamma=0.99, double_dqn=True)
+        >>> type(loss).__name__, loss.double_dqn
+        ('DQNLoss', True)
     """
-    if isinstance(actor, DistributionalQValueActor):
-        loss = DistributionalDQNLoss(actor, gamma=gamma, delay_value=True, **loss_kwargs)
+    buffer_gamma = None if replay_buffer is None else n_step_gamma(replay_buffer)
+    if gamma is None:
+        gamma = DEFAULT_GAMMA if buffer_gamma is None else buffer_gamma
+    elif buffer_gamma is not None:
+        check_discounts(gamma, buffer_gamma)
+    if isinstance(value_network, DistributionalQValueActor):
+        ignored = [
+            name
+            for name, value in (("loss_function", loss_function), ("double_dqn", double_dqn))
+            if value is not None
+        ]
+        if ignored:
+            raise ValueError(
+                f"{' and '.join(ignored)}: DistributionalDQNLoss has no such argument (C51's "
+                "target is always double, its loss a cross-entropy); leave it out"
+            )
+        loss = DistributionalDQNLoss(
+            value_network, gamma=gamma, delay_value=delay_value, **loss_kwargs
+        )
     else:
         loss = DQNLoss(
-            actor,
-            loss_function=loss_function,
-            delay_value=True,
-            double_dqn=double_dqn,
+            value_network,
+            loss_function=DEFAULT_LOSS_FUNCTION if loss_function is None else loss_function,
+            delay_value=delay_value,
+            double_dqn=bool(double_dqn),
             **loss_kwargs,
         )
         loss.make_value_estimator(gamma=gamma)
-    if any(isinstance(module, NoisyLinear) for module in actor.modules()):
+    if any(isinstance(module, NoisyLinear) for module in value_network.modules()):
         loss.deterministic_sampling_mode = ExplorationType.RANDOM
+    if replay_buffer is None:  # the buffer is not known: check the first n-step batch instead
+        _check_first_batch_discount(loss, gamma)
     return loss
+
+
+def check_discounts(loss_gamma: float, buffer_gamma: float) -> None:
+    """Raise ``ValueError`` unless the loss's and the n-step buffer's discounts are equal."""
+    if not math.isclose(loss_gamma, buffer_gamma, rel_tol=0.0, abs_tol=1e-9):
+        raise ValueError(
+            f"the loss's gamma={loss_gamma} differs from the replay buffer's n-step "
+            f"gamma={buffer_gamma}: the TD target would mix two discounts; build both with "
+            "the same gamma (make_dqn_loss(..., replay_buffer=buffer) takes the buffer's)"
+        )
+
+
+def _check_first_batch_discount(loss: nn.Module, gamma: float) -> None:
+    """Check the n-step discount of the first batch the loss sees, then remove the check.
+
+    An n-step buffer built by ``make_replay_buffer`` marks each sample with its discount
+    (``N_STEP_GAMMA_KEY``); a batch without the mark (a one-step buffer) passes.
+    """
+
+    def check(module: nn.Module, args: tuple[Any, ...]) -> None:
+        handle.remove()
+        batch = args[0] if args else None
+        if isinstance(batch, TensorDictBase) and N_STEP_GAMMA_KEY in batch.keys():  # noqa: SIM118
+            check_discounts(gamma, batch.get(N_STEP_GAMMA_KEY).reshape(-1)[0].item())
+
+    handle = loss.register_forward_pre_hook(check)
 
 
 def priority_from_loss(
@@ -96,23 +184,68 @@ class FusedSoftUpdate(SoftUpdate):
 
 
 def make_target_updater(
-    loss: DQNLoss | DistributionalDQNLoss,
-    kind: str = "hard",
-    tau: float = 0.02,
-    hard_update_interval: int = 50,
+    loss_module: DQNLoss | DistributionalDQNLoss,
+    *,
+    eps: float | None = None,
+    tau: float | None = None,
+    value_network_update_interval: int | None = None,
+    hard_update_interval: int | None = None,
+    kind: str | None = None,
 ) -> TargetNetUpdater:
-    """Return ``SoftUpdate`` (theta' <- tau theta + (1 - tau) theta') or ``HardUpdate``.
+    """Return TorchRL's ``SoftUpdate`` or ``HardUpdate`` of ``loss_module``'s target network.
 
-    The defaults are the default config's (``loss.target_update``, ``loss.tau``,
-    ``loss.hard_update_interval``).
+    The arguments are TorchRL's, with its meanings; which updater is built follows from them:
 
-    The soft update is :class:`FusedSoftUpdate`, a ``SoftUpdate``. Call ``.step()`` once per
-    gradient update. The hard update copies the online weights on
-    every ``hard_update_interval``-th call: TorchRL's ``HardUpdate`` copies on call
-    ``value_network_update_interval + 1``, so it is given ``hard_update_interval - 1``.
+    - ``eps`` or ``tau`` (``SoftUpdate``): theta' <- tau theta + (1 - tau) theta' at each
+      ``.step()``, with ``eps = 1 - tau`` (Lillicrap et al. 2016). Built as
+      :class:`FusedSoftUpdate`, a ``SoftUpdate`` doing the same arithmetic in one fused call.
+    - ``value_network_update_interval`` (``HardUpdate``): counted as TorchRL counts, so the
+      copy happens on every ``(value_network_update_interval + 1)``-th ``.step()``
+      (``value_network_update_interval=3`` copies at steps 4, 8, 12).
+    - ``hard_update_interval``: this project's alias (the config's ``loss.hard_update_interval``)
+      for a copy on every ``hard_update_interval``-th step (3: steps 3, 6, 9), i.e.
+      ``value_network_update_interval = hard_update_interval - 1``.
+    - ``kind`` (``"soft"`` or ``"hard"``): pick the updater with the default config's
+      setting for the rest (``tau=0.02``; a copy every 50 updates).
+
+    With none of them: the default config's, a ``HardUpdate`` copying every 50 updates
+    (``value_network_update_interval=49``). TorchRL has no default updater; its ``SoftUpdate``
+    needs ``eps`` or ``tau`` and ``HardUpdate`` defaults to ``value_network_update_interval=1000``.
+    Call ``.step()`` once per gradient update.
+
+    Example::
+
+        >>> from trl_cartpole import make_dqn_loss, make_env, make_q_actor, make_target_updater
+        >>> env = make_env("CartPole-v1")
+        >>> loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
+        >>> make_target_updater(loss, tau=0.01).eps
+        0.99
+        >>> make_target_updater(loss, value_network_update_interval=3).value_network_update_interval
+        3
     """
-    if kind == "soft":
-        return FusedSoftUpdate(loss, tau=tau)
-    if kind == "hard":
-        return HardUpdate(loss, value_network_update_interval=hard_update_interval - 1)
-    raise ValueError(f"loss.target_update={kind!r}; choose 'soft' or 'hard'")
+    soft = eps is not None or tau is not None
+    hard = value_network_update_interval is not None or hard_update_interval is not None
+    if kind not in (None, "soft", "hard"):
+        raise ValueError(f"kind={kind!r}; choose 'soft' or 'hard'")
+    if (soft and hard) or (kind == "soft" and hard) or (kind == "hard" and soft):
+        raise ValueError(
+            "a target updater is either soft (eps or tau: SoftUpdate) or hard "
+            "(value_network_update_interval or hard_update_interval: HardUpdate), not both"
+        )
+    if value_network_update_interval is not None and hard_update_interval is not None:
+        raise ValueError(
+            "value_network_update_interval and hard_update_interval name the same setting "
+            "(hard_update_interval = value_network_update_interval + 1); pass one"
+        )
+    if soft or kind == "soft":
+        if eps is None and tau is None:
+            tau = DEFAULT_TAU
+        return FusedSoftUpdate(loss_module, eps=eps, tau=tau)
+    if value_network_update_interval is None:
+        interval = (
+            DEFAULT_HARD_UPDATE_INTERVAL if hard_update_interval is None else hard_update_interval
+        )
+        if interval < 1:
+            raise ValueError(f"hard_update_interval={interval} must be >= 1")
+        value_network_update_interval = interval - 1
+    return HardUpdate(loss_module, value_network_update_interval=value_network_update_interval)

@@ -12,6 +12,7 @@ top of the torso. Two switches apply to every head:
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
@@ -28,9 +29,11 @@ from torchrl.modules import (
     reset_noise,
 )
 
+from trl_cartpole.aliases import resolve_alias
 from trl_cartpole.compat import use_first_greedy_action
 from trl_cartpole.config import NetworkConfig
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.validation import ACTIVATION_NAMES, HEAD_NAMES, check_network_choices
 
 __all__ = [
     "ACTIVATIONS",
@@ -101,85 +104,141 @@ def _dueling_head(
 
 
 HEADS: dict[str, Callable[..., nn.Module]] = {"plain": _plain_head, "dueling": _dueling_head}
-
-
-def check_network_choices(head: str, activation: str) -> None:
-    """Raise :class:`ConfigError` unless ``head`` and ``activation`` are known names."""
-    if head not in HEADS:
-        known = sorted(HEADS)
-        raise ConfigError(f"network.head={head!r} is not a known head; choose one of {known}")
-    if activation not in ACTIVATIONS:
-        raise ConfigError(
-            f"network.activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)}"
-        )
+# the names the config accepts are checked before torch is imported (trl_cartpole.validation)
+assert set(HEADS) == set(HEAD_NAMES) and set(ACTIVATIONS) == set(ACTIVATION_NAMES)
 
 
 def make_q_network(
     obs_dim: int,
     num_actions: int,
-    hidden_sizes: Sequence[int] = (128, 128),
-    activation: str = "relu",
+    num_cells: Sequence[int] | int = (128, 128),
+    activation_class: type[nn.Module] = nn.ReLU,
     head: str = "plain",
     noisy: bool = False,
     noisy_std: float = 0.5,
     atoms: int | None = None,
+    *,
+    hidden_sizes: Sequence[int] | None = None,
+    **mlp_kwargs: Any,
 ) -> nn.Module:
     """Return ``[*B, obs_dim] -> [*B, num_actions]`` (or ``[*B, atoms, num_actions]`` logits).
 
-    The torso is an MLP over ``hidden_sizes`` (activation after every hidden layer); the head
-    from ``HEADS`` maps its last hidden layer to the output.
+    The torso is TorchRL's ``MLP`` over the widths ``num_cells`` (an activation after every
+    hidden layer; an int with ``depth=`` in ``mlp_kwargs`` is ``depth`` layers of that width, as
+    ``MLP`` reads it); ``mlp_kwargs`` go to ``MLP`` (``norm_class``, ``dropout``...). The head
+    from ``HEADS`` maps its last hidden layer to the output. ``hidden_sizes`` is an alias of
+    ``num_cells``.
     """
-    check_network_choices(head, activation)
+    check_network_choices(head, None)
+    widths = _widths(num_cells if hidden_sizes is None else hidden_sizes, mlp_kwargs)
     linear = partial(NoisyLinear, std_init=noisy_std) if noisy else nn.Linear
     torso = MLP(
         in_features=obs_dim,
-        out_features=hidden_sizes[-1],
-        num_cells=list(hidden_sizes[:-1]),
-        activation_class=ACTIVATIONS[activation],
+        out_features=widths[-1],
+        num_cells=widths[:-1],
+        activation_class=activation_class,
         activate_last_layer=True,
         layer_class=linear,
+        **mlp_kwargs,
     )
-    return nn.Sequential(torso, HEADS[head](hidden_sizes[-1], num_actions, atoms or 1, linear))
+    return nn.Sequential(torso, HEADS[head](widths[-1], num_actions, atoms or 1, linear))
+
+
+def _widths(num_cells: Sequence[int] | int, mlp_kwargs: dict[str, Any]) -> list[int]:
+    """The hidden layers' widths: ``num_cells``, or ``depth`` times an int ``num_cells``."""
+    depth = mlp_kwargs.pop("depth", None)
+    if isinstance(num_cells, int):
+        return [num_cells] * (1 if depth is None else depth)
+    if depth is not None and depth != len(num_cells):
+        raise ValueError(f"depth={depth} but num_cells has {len(num_cells)} widths")
+    if not num_cells:
+        raise ValueError("num_cells is empty: the Q-network needs at least one hidden layer")
+    return list(num_cells)
+
+
+# The keywords of TorchRL's MLP that make_q_actor hands to the torso (the rest go to the actor).
+_MLP_KEYWORDS = frozenset(inspect.signature(MLP.__init__).parameters) - {"self"}
 
 
 def make_q_actor(
     observation_spec: TensorSpec,
-    action_spec: TensorSpec,
-    hidden_sizes: Sequence[int] = (128, 128),
-    activation: str = "relu",
+    spec: TensorSpec | None = None,
+    *,
+    num_cells: Sequence[int] | int = (128, 128),
+    activation_class: type[nn.Module] = nn.ReLU,
     head: str = "plain",
-    device: str = "cpu",
+    device: str | torch.device | None = None,
     noisy: bool = False,
     noisy_std: float = 0.5,
     support: torch.Tensor | None = None,
     in_keys: Sequence[str] = ("observation",),
-    **actor_kwargs: Any,
+    action_spec: TensorSpec | None = None,
+    hidden_sizes: Sequence[int] | None = None,
+    activation: str | None = None,
+    **kwargs: Any,
 ) -> QValueActor | DistributionalQValueActor:
-    """Return a Q-value actor reading ``in_keys`` and writing the greedy ``"action"``.
+    """Return TorchRL's ``QValueActor`` reading ``in_keys`` and writing the greedy ``"action"``.
 
     ``observation_spec`` is the env's full observation spec (a ``Composite`` holding the one
-    vector entry ``in_keys`` names) and ``action_spec`` its action spec (one discrete action:
-    ``OneHot`` or ``Categorical``); anything else is refused with a one-line
-    :class:`ConfigError`. The defaults are the default config's ``network`` section;
-    ``actor_kwargs`` go to the TorchRL actor (``action_space``, ``action_value_key``, ...).
-    Without ``support`` it is a ``QValueActor`` writing
-    ``action_value`` ``[*B, num_actions]`` and ``chosen_action_value`` ``[*B, 1]``; with a
-    ``support`` ``[atoms]`` of returns it is a ``DistributionalQValueActor`` writing
-    log-probabilities ``action_value`` ``[*B, atoms, num_actions]`` and acting greedily on
-    their expectation.
+    vector entry ``in_keys`` names) and ``spec`` its action spec (one discrete action:
+    ``OneHot`` or ``Categorical``), the actor's ``spec``; anything else is refused with a
+    one-line :class:`ConfigError`. The network is :func:`make_q_network`: TorchRL's ``MLP``
+    torso and a ``head`` from ``HEADS``.
+
+    The arguments are TorchRL's where a TorchRL class has them. ``num_cells`` and
+    ``activation_class`` are ``MLP``'s; any other keyword of ``MLP`` (``depth``,
+    ``norm_class``, ``dropout``, ``activation_kwargs``...) goes to the torso, and any other
+    keyword to the actor (``action_space``, ``action_value_key``, ``safe``...). Defaults,
+    ours (the default config's ``network`` section) beside TorchRL's: ``num_cells`` (128, 128)
+    (``MLP``: 32 per layer), ``activation_class`` ``nn.ReLU`` (``MLP``: ``nn.Tanh``),
+    ``in_keys`` ``["observation"]`` (as ``QValueActor``), ``device`` the spec's.
+    ``head``, ``noisy``, ``noisy_std`` and ``support`` are this project's: the dueling head is
+    :class:`DuelingHead` (TorchRL 0.14 has dueling networks only for images,
+    ``DuelingCnnDQNet``), noisy layers are TorchRL's ``NoisyLinear``. ``action_spec``,
+    ``hidden_sizes`` and ``activation`` (a name: relu, tanh, elu, gelu) are this project's
+    earlier names, kept as aliases.
+
+    Without ``support`` it is a ``QValueActor`` writing ``action_value`` ``[*B, num_actions]``
+    and ``chosen_action_value`` ``[*B, 1]``; with a ``support`` ``[atoms]`` of returns it is a
+    ``DistributionalQValueActor`` writing log-probabilities ``action_value``
+    ``[*B, atoms, num_actions]`` and acting greedily on their expectation.
+
+    Example::
+
+        >>> from trl_cartpole import make_env, make_q_actor
+        >>> env = make_env("CartPole-v1")
+        >>> actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[64, 64],
+        ...                      head="dueling")
+        >>> actor(env.reset())["action_value"].shape
+        torch.Size([2])
     """
-    obs_dim, num_actions = _input_size(observation_spec, in_keys), _action_count(action_spec)
+    spec = resolve_alias("spec", spec, "action_spec", action_spec)
+    if spec is None:
+        raise TypeError("make_q_actor() needs spec (the env's action_spec)")
+    if activation is not None:
+        check_network_choices(head, activation)
+        activation_class = ACTIVATIONS[activation]
+    mlp_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in _MLP_KEYWORDS}
+    obs_dim, num_actions = _input_size(observation_spec, in_keys), _action_count(spec)
     atoms = None if support is None else support.numel()
     module = make_q_network(
-        obs_dim, num_actions, hidden_sizes, activation, head, noisy, noisy_std, atoms
-    ).to(device)
-    spec = action_spec.to(device)
+        obs_dim,
+        num_actions,
+        num_cells if hidden_sizes is None else hidden_sizes,
+        activation_class,
+        head,
+        noisy,
+        noisy_std,
+        atoms,
+        **mlp_kwargs,
+    )
+    if device is not None:
+        module, spec = module.to(device), spec.to(device)
     in_keys = list(in_keys)
     if support is None:
-        return QValueActor(module, in_keys=in_keys, spec=spec, **actor_kwargs)
-    actor = DistributionalQValueActor(
-        module, support=support.to(device), in_keys=in_keys, spec=spec, **actor_kwargs
-    )
+        return QValueActor(module, in_keys=in_keys, spec=spec, **kwargs)
+    support = support if device is None else support.to(device)
+    actor = DistributionalQValueActor(module, support=support, in_keys=in_keys, spec=spec, **kwargs)
     return use_first_greedy_action(actor)
 
 
@@ -224,10 +283,10 @@ def make_q_actor_for_env(
     return make_q_actor(
         env.observation_spec,
         env.action_spec,
-        network.hidden_sizes,
-        network.activation,
-        network.head,
-        device,
+        num_cells=network.hidden_sizes,
+        activation_class=ACTIVATIONS[network.activation],
+        head=network.head,
+        device=device,
         noisy=network.noisy,
         noisy_std=network.noisy_std,
         support=support,

@@ -65,7 +65,7 @@ def expand_grid(overrides: Sequence[str]) -> list[list[str]]:
 
 def sweep_job(cfg: DictConfig) -> dict[str, Any]:
     """One job of the sweep: train into Hydra's job directory; return the run's summary."""
-    from trl_cartpole.train import train  # import in the job's process only
+    from trl_cartpole.training import train  # import in the job's process only
 
     cfg.run_dir = HydraConfig.get().runtime.output_dir
     return train(cfg)

@@ -138,7 +138,7 @@ def trial_score(
     running score; seed ``k``'s evaluations are steps ``k * total_frames + frames``.
     """
     from trl_cartpole.cli import compose_config
-    from trl_cartpole.train import train
+    from trl_cartpole.training import train
 
     scores = []
     for index, seed in enumerate(seeds):

@@ -12,14 +12,15 @@ import shutil
 import sys
 from typing import Any
 
-import torch
-
 from trl_cartpole.config import Config
-from trl_cartpole.envs import resolve_env_id
+from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.models import check_network_choices
 
-__all__ = ["validate"]
+__all__ = ["ACTIVATION_NAMES", "HEAD_NAMES", "check_network_choices", "validate"]
+
+# network.head and network.activation: the keys of trl_cartpole.models.HEADS and ACTIVATIONS
+HEAD_NAMES = ("dueling", "plain")
+ACTIVATION_NAMES = ("elu", "gelu", "relu", "tanh")
 
 _CHOICES = {
     "exploration.schedule": ("exponential", "linear", "none"),
@@ -39,7 +40,11 @@ def _get(cfg: Config, dotted: str) -> Any:
 
 
 def validate(cfg: Config) -> Config:
-    """Check ranges and cross-field rules; raise :class:`ConfigError` on the first failure."""
+    """Check ranges and cross-field rules; raise :class:`ConfigError` on the first failure.
+
+    Imports neither torch nor TorchRL for a CPU config (Gymnasium only, for the env id), so a
+    command line is checked in well under a second.
+    """
     for key, options in _CHOICES.items():
         if _get(cfg, key) not in options:
             raise ConfigError(
@@ -126,8 +131,28 @@ def validate(cfg: Config) -> Config:
     return cfg
 
 
+def check_network_choices(head: str, activation: str | None) -> None:
+    """Raise :class:`ConfigError` unless ``head`` and ``activation`` (if given) are known names."""
+    if head not in HEAD_NAMES:
+        raise ConfigError(
+            f"network.head={head!r} is not a known head; choose one of {sorted(HEAD_NAMES)}"
+        )
+    if activation is not None and activation not in ACTIVATION_NAMES:
+        raise ConfigError(
+            f"network.activation={activation!r} is unknown; choose one of "
+            f"{sorted(ACTIVATION_NAMES)}"
+        )
+
+
 def check_device(device: str) -> None:
-    """Raise a one-line :class:`ConfigError` unless ``device`` exists on this machine."""
+    """Raise a one-line :class:`ConfigError` unless ``device`` exists on this machine.
+
+    ``cpu`` is answered without importing torch (so a typo elsewhere is answered at once).
+    """
+    if device == "cpu":
+        return
+    import torch
+
     try:
         parsed = torch.device(device)
     except (RuntimeError, ValueError):
@@ -155,7 +180,7 @@ def check_compiler(device: str) -> None:
 
     Without one, the first update would fail after the random frames were already collected.
     """
-    if torch.device(device).type != "cpu":
+    if device.split(":", 1)[0] != "cpu":
         return
     compiler = os.environ.get("CXX", "clang++" if sys.platform == "darwin" else "g++")
     if shutil.which(compiler) is None:

@@ -1,0 +1,134 @@
+"""Gymnasium env ids and spaces: resolve an id, its solve threshold, and whether DQN fits it.
+
+Torch-free (Gymnasium only), so a command line's env is checked before torch and TorchRL are
+imported. Env ids: any id Gymnasium has registered (``CartPole-v1``), ``module:Id`` (the
+module's import registers ``Id``, Gymnasium's own convention), ``module:EnvClass`` (a
+``gymnasium.Env`` subclass, registered here as ``module.EnvClass``), or an id registered by a
+module listed in ``env.imports``. :func:`resolve_env_id` turns each into a registered id.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+
+from trl_cartpole.errors import ConfigError
+
+__all__ = ["check_env_fits", "missing_dependency", "resolve_env_id", "solve_threshold"]
+
+# Gymnasium env families whose dependencies come with an extra of this project (pyproject.toml).
+OPTIONAL_EXTRAS = {"gymnasium.envs.box2d": "box2d"}
+
+
+def _import_module(name: str, field: str) -> Any:
+    try:
+        return importlib.import_module(name)
+    except ImportError as error:
+        raise ConfigError(
+            f"{field}: cannot import module {name!r} ({error}); install the package that "
+            "provides it or add its folder to PYTHONPATH"
+        ) from None
+
+
+def resolve_env_id(env_id: str, imports: Sequence[str] = ()) -> str:
+    """Import ``imports``, register a ``module:EnvClass`` entry point; return the registered id.
+
+    Raises :class:`ConfigError` (one line) for a module that cannot be imported, an attribute
+    that is not a ``gymnasium.Env`` subclass, or an id Gymnasium does not know.
+    """
+    for module_name in imports:
+        _import_module(module_name, "env.imports")
+    if ":" in env_id:
+        module_name, name = env_id.split(":", 1)
+        module = _import_module(module_name, f"env.id={env_id!r}")
+        if name in gym.registry:  # registered by the import (Gymnasium's module:Id)
+            env_id = name
+        else:  # an env class, registered under its qualified name so two modules' classes differ
+            target = getattr(module, name, None)
+            if not (isinstance(target, type) and issubclass(target, gym.Env)):
+                raise ConfigError(
+                    f"env.id={env_id!r}: module {module_name!r} neither registers {name!r} nor "
+                    "defines a gymnasium.Env subclass of that name"
+                )
+            qualified = f"{module_name}.{name}"
+            if qualified not in gym.registry:
+                gym.register(id=qualified, entry_point=env_id)
+            env_id = qualified
+    try:
+        gym.spec(env_id)
+    except gym.error.Error as error:
+        raise ConfigError(
+            f"env.id={env_id!r} is not a registered Gymnasium env ({error}); check the spelling "
+            "and version suffix (e.g. CartPole-v1), or name the module that registers it in "
+            "env.imports"
+        ) from None
+    return env_id
+
+
+def solve_threshold(env_id: str, override: float | None = None) -> float | None:
+    """The return that counts as solved: ``override`` or Gymnasium's ``reward_threshold``."""
+    if override is not None:
+        return float(override)
+    threshold = gym.spec(resolve_env_id(env_id)).reward_threshold
+    return None if threshold is None else float(threshold)
+
+
+def missing_dependency(env_id: str, error: Exception) -> ConfigError:
+    """The one-line error for an env whose package is missing, naming the extra to install."""
+    entry_point = str(gym.spec(env_id).entry_point)
+    extra = next(
+        (e for prefix, e in OPTIONAL_EXTRAS.items() if entry_point.startswith(prefix)), None
+    )
+    how = f'pip install -e ".[{extra}]"' if extra else "install the package the message names"
+    reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+    return ConfigError(f"env {env_id!r} needs a package that is not installed ({reason}); {how}")
+
+
+def check_env_fits(
+    observation_space: gym.Space, action_space: gym.Space, env_id: str, pixels: bool = False
+) -> None:
+    """Raise :class:`ConfigError` unless the spaces are one vector and one discrete action.
+
+    Checked on the Gymnasium spaces (of one env, ``single_*_space`` for a vector env) before
+    TorchRL wraps the env, so a space TorchRL cannot batch fails here in one line too. With
+    ``pixels`` (the env is rendered to frames) only the action space is checked.
+    """
+    spaces = gym.spaces
+    if not isinstance(action_space, spaces.Discrete):
+        kind = "continuous" if isinstance(action_space, spaces.Box) else "multi-part"
+        raise ConfigError(
+            f"env {env_id!r} has {kind} actions (a Gymnasium {type(action_space).__name__}); "
+            "DQN needs one discrete action (a Gymnasium Discrete space)"
+        )
+    if pixels:
+        return
+    if isinstance(observation_space, spaces.Dict | spaces.Tuple):
+        parts = (
+            list(observation_space.spaces)
+            if isinstance(observation_space, spaces.Dict)
+            else [type(part).__name__ for part in observation_space.spaces]
+        )
+        raise ConfigError(
+            f"env {env_id!r} has observation entries {parts} (a Gymnasium "
+            f"{type(observation_space).__name__} space); DQN here needs one vector observation "
+            "(a Gymnasium Box of rank 1): flatten it (gymnasium.wrappers.FlattenObservation)"
+        )
+    if isinstance(observation_space, spaces.Discrete | spaces.MultiDiscrete | spaces.MultiBinary):
+        raise ConfigError(
+            f"env {env_id!r} has a discrete observation (a state index, e.g. Taxi or FrozenLake); "
+            "DQN here needs a vector observation (a Gymnasium Box of rank 1)"
+        )
+    shape = tuple(observation_space.shape or ())
+    if len(shape) == 3:
+        raise ConfigError(
+            f"env {env_id!r} has image observations of shape {shape}; DQN here needs one vector "
+            "observation: use the env's vector-state version or flatten it in a Gymnasium wrapper"
+        )
+    if len(shape) != 1 or not isinstance(observation_space, spaces.Box):
+        raise ConfigError(
+            f"env {env_id!r} has an observation of shape {shape}; DQN here needs a vector "
+            "(rank 1): flatten it (gymnasium.wrappers.FlattenObservation) or use a vector-state env"
+        )
