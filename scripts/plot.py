@@ -1,62 +1,11 @@
-"""Compare runs: eval return against frames and seconds, one median line per config.
+"""``python scripts/plot.py [key=value ...]`` is ``trl-cartpole plot``, run from a clone.
 
-    python scripts/plot.py RUN_DIR [RUN_DIR ...] [--out comparison]
-
-A sweep directory (``python scripts/train.py -m ...``) stands for all its runs. Run
-directories (shell globs welcome: ``runs/ablations/*``) whose configs differ only in seed
-and run directory are one config: drawn as the median over its seeds with an interquartile
-band. Writes ``OUT.png`` (two panels: against training frames and against training seconds,
-evaluation excluded), ``OUT-profiles.png`` (performance profiles: the fraction of runs solved
-by each frame count, and with a final return above each value) and ``OUT.md`` (per config: solve
-rate; frames and seconds to solve as interquartile mean with its 95 % stratified bootstrap
-interval, median and slowest seed; the final return's interquartile mean and interval), and
-prints the table.
+``--help`` lists its keys; the code is ``trl_cartpole.commands.plot``.
 """
 
-from __future__ import annotations
-
-import argparse
 import sys
-from pathlib import Path
 
-from trl_cartpole.comparison import group_runs, load_runs, markdown_table
-from trl_cartpole.plotting import plot_comparison, plot_profiles
-
-
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run_dirs", nargs="+", type=Path, help="run or sweep directories (globs)")
-    parser.add_argument("--out", type=Path, default=Path("comparison"), help="output prefix")
-    args = parser.parse_args()
-    groups = group_runs(load_runs(args.run_dirs))
-    if not groups:
-        print("error: none of the directories holds a finished run (summary.json)", file=sys.stderr)
-        return 2
-    curves = {"Frames": {}, "Training seconds": {}}
-    for label, runs in groups.items():
-        evals = [run["summary"]["eval_curve"] for run in runs]
-        curves["Frames"][label] = [(e["frames"], e["returns"]) for e in evals]
-        if all("seconds" in e for e in evals):  # summaries written before it lack it
-            curves["Training seconds"][label] = [(e["seconds"], e["returns"]) for e in evals]
-    if not curves["Training seconds"]:
-        del curves["Training seconds"]
-    threshold = next(iter(groups.values()))[0]["summary"]["solve_threshold"]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    image = plot_comparison(curves, args.out.with_suffix(".png"), threshold)
-    summaries = {label: [run["summary"] for run in runs] for label, runs in groups.items()}
-    profiles = plot_profiles(
-        {label: [s["frames_to_solve"] for s in runs] for label, runs in summaries.items()},
-        {label: [s["final_eval_return_mean"] for s in runs] for label, runs in summaries.items()},
-        args.out.with_name(f"{args.out.name}-profiles.png"),
-    )
-    table = markdown_table(summaries, label="config")
-    args.out.with_suffix(".md").write_text(
-        f"{table}\n\n![comparison]({image.name})\n\n![performance profiles]({profiles.name})\n"
-    )
-    print(table)
-    print(f"written: {image}, {profiles}, {args.out.with_suffix('.md')}")
-    return 0
-
+from trl_cartpole.cli import run_script
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_script("plot", __file__))

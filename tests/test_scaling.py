@@ -348,7 +348,7 @@ def test_a_sweep_trains_every_job_in_its_own_directory_and_plot_compares_them(tm
     ]
     assert len({s["run_dir"] for s in summaries}) == 4
     assert all(Path(s["run_dir"]).parent == sweep_dir for s in summaries)
-    plotted = run_script("plot.py", str(sweep_dir), "--out", str(tmp_path / "comparison"))
+    plotted = run_script("plot.py", str(sweep_dir), f"out={tmp_path / 'comparison'}")
     assert plotted.returncode == 0, plotted.stderr
     table = (tmp_path / "comparison.md").read_text()
     assert "| CartPole-v1 dqn | 0/2 |" in table and "| CartPole-v1 double | 0/2 |" in table

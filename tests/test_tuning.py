@@ -1,4 +1,4 @@
-"""scripts/tune.py: an Optuna study that prunes, resumes from SQLite and writes a preset."""
+"""trl-cartpole tune: an Optuna study that prunes, resumes from SQLite and writes a preset."""
 
 from __future__ import annotations
 
@@ -78,7 +78,7 @@ def test_a_tiny_study_prunes_resumes_and_writes_a_preset_that_trains(tmp_path, m
     assert (tmp_path / "study" / "history.png").is_file()
     # The preset is a train.py preset by name: its tuned lr and the base preset's env.
     text = out.read_text()
-    assert text.startswith("# @package _global_\n# CartPole-v1 tuned by scripts/tune.py")
+    assert text.startswith("# @package _global_\n# CartPole-v1 tuned by trl-cartpole tune")
     cfg = compose_config(
         configs,
         [
@@ -95,17 +95,13 @@ def test_a_tiny_study_prunes_resumes_and_writes_a_preset_that_trains(tmp_path, m
 
 def test_tune_answers_help_and_refuses_a_missing_space(tmp_path):
     proc = run_script("tune.py", "--help", timeout=60)
-    assert proc.returncode == 0 and "--trials" in proc.stdout and "--storage" in proc.stdout
+    assert proc.returncode == 0 and "trials=" in proc.stdout and "storage=" in proc.stdout
     proc = run_script(
         "tune.py",
-        "--trials",
-        "1",
-        "--out",
-        str(tmp_path / "x.yaml"),
-        "--space",
-        str(tmp_path / "none.yaml"),
-        "--storage",
-        f"sqlite:///{tmp_path / 'db' / 'study.db'}",
+        "trials=1",
+        f"out={tmp_path / 'x.yaml'}",
+        f"space={tmp_path / 'none.yaml'}",
+        f"storage=sqlite:///{tmp_path / 'db' / 'study.db'}",
     )
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1 and "does not exist" in errors[0]

@@ -27,7 +27,7 @@ from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
 
 from trl_cartpole.config import Config, flat_fields, to_config
-from trl_cartpole.console import python_command, shown_path
+from trl_cartpole.console import command, shown_path
 from trl_cartpole.errors import ConfigError, TrainingInterrupted
 from trl_cartpole.files import write_json_atomic
 from trl_cartpole.pickle_scan import no_unpickling, refuse_code
@@ -356,7 +356,7 @@ class Checkpointer:
         if stop.requested:
             raise TrainingInterrupted(
                 f"stopped by {signal.Signals(stop.signum).name} at frame {progress.frames}; "
-                f"checkpoint written; resume with: {python_command()} scripts/train.py "
+                f"checkpoint written; resume with: {command('train')} "
                 f"resume={shown_path(self.run_dir)}",
                 stop.signum,
             )

@@ -1,4 +1,8 @@
-"""Command-line plumbing shared by the scripts: compose the Hydra config, report bad input.
+"""The ``trl-cartpole`` command and the plumbing its subcommands share.
+
+``trl-cartpole train|evaluate|render|export|tune|plot key=value ...`` runs
+``trl_cartpole.commands.<name>.main``; ``python scripts/<name>.py`` (a clone's way) runs the same
+function. Every subcommand takes ``key=value`` arguments and ``--help``.
 
 Bad input (an unknown key, a wrong type, an impossible value, an unknown env, a bad
 checkpoint) ends the program with one line on stderr and exit status 2, before any training.
@@ -23,15 +27,19 @@ from omegaconf.errors import OmegaConfBaseException
 
 from trl_cartpole.cli_help import shown_value
 from trl_cartpole.config import flat_fields, register_configs, to_config
-from trl_cartpole.console import python_command, quiet_libraries
+from trl_cartpole.console import command, quiet_libraries, set_scripts_dir
 from trl_cartpole.errors import ConfigError, TrainingFailed, TrainingInterrupted
+from trl_cartpole.presets import PRESETS_DIR, with_search_path
 from trl_cartpole.run_control import install_unbreakable_console
 
 __all__ = [
+    "COMMANDS",
     "changes_from_presets",
     "compose_config",
     "compose_run_config",
+    "main",
     "run_cli",
+    "run_script",
     "split_resume",
 ]
 
@@ -40,11 +48,17 @@ EXIT_FAILED = 1
 EXIT_KEYBOARD_INTERRUPT = 130
 
 
-def compose_config(config_dir: str | Path, overrides: Sequence[str]) -> DictConfig:
-    """Compose ``config_dir/config.yaml`` over the typed schema with command-line overrides."""
+def compose_config(
+    config_dir: str | Path = PRESETS_DIR, overrides: Sequence[str] = ()
+) -> DictConfig:
+    """Compose ``config_dir/config.yaml`` over the typed schema with command-line overrides.
+
+    ``presets=DIR`` among the overrides (and ``TRL_CARTPOLE_PRESETS``) adds a directory of the
+    user's presets to the search path (:mod:`trl_cartpole.presets`).
+    """
     register_configs()
     with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+        return compose(config_name="config", overrides=with_search_path(overrides))
 
 
 # Fields that do not change what is learnt: left out of a run directory's name.
@@ -74,7 +88,9 @@ def changes_from_presets(cfg: DictConfig, presets: DictConfig, limit: int = 60) 
     return text
 
 
-def compose_run_config(config_dir: str | Path, overrides: Sequence[str]) -> DictConfig:
+def compose_run_config(
+    config_dir: str | Path = PRESETS_DIR, overrides: Sequence[str] = ()
+) -> DictConfig:
     """:func:`compose_config`; unless ``run_dir=`` is given, name the run by its changes.
 
     ``runs/CartPole-v1-dqn-double_dqn=true-seed0-<time>``: the fields set on the command line
@@ -83,7 +99,9 @@ def compose_run_config(config_dir: str | Path, overrides: Sequence[str]) -> Dict
     cfg = compose_config(config_dir, overrides)
     if any(arg.startswith("run_dir=") for arg in overrides):
         return cfg
-    groups = [arg for arg in overrides if arg.split("=", 1)[0] in ("algo", "env", "seed")]
+    groups = [
+        arg for arg in overrides if arg.split("=", 1)[0] in ("algo", "env", "seed", "presets")
+    ]
     changes = changes_from_presets(cfg, compose_config(config_dir, groups))
     if changes:
         pattern = OmegaConf.to_container(cfg)["run_dir"]  # unresolved: runs/${env.id}-...
@@ -145,8 +163,50 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     except KeyboardInterrupt:
         print(
             "interrupted outside a safe point (or twice): exited at once; the newest complete "
-            f"checkpoint is intact ({python_command()} scripts/train.py resume=RUN_DIR)",
+            f"checkpoint is intact ({command('train')} resume=RUN_DIR)",
             file=sys.stderr,
         )
         return EXIT_KEYBOARD_INTERRUPT
     return 0
+
+
+# subcommand: what it does (the modules are imported only when chosen, so --help is instant)
+COMMANDS = {
+    "train": "train DQN until it solves its env (CartPole-v1 by default)",
+    "evaluate": "evaluate a trained policy greedily over many episodes",
+    "render": "watch a trained agent: greedy episodes as a GIF/MP4, or live in a window",
+    "export": "export a trained policy as an ONNX model or a torch.export program",
+    "tune": "tune hyperparameters with Optuna and write the best trial as a preset",
+    "plot": "compare runs: eval return against frames and seconds, per config",
+}
+USAGE = "usage: trl-cartpole COMMAND [key=value ...]   (trl-cartpole COMMAND --help for its keys)"
+
+
+def _command_main(name: str) -> Callable[[list[str]], Any]:
+    import importlib
+
+    return importlib.import_module(f"trl_cartpole.commands.{name}").main
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``trl-cartpole COMMAND [key=value ...]``: the installed command (``[project.scripts]``)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    listing = "\n".join(f"  {name:<9} {text}" for name, text in COMMANDS.items())
+    if not argv or argv[0] in ("-h", "--help"):
+        print(f"{USAGE}\n\ncommands:\n{listing}", file=sys.stdout if argv else sys.stderr)
+        return 0 if argv else EXIT_BAD_INPUT
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(
+            f"error: {name!r} is not a trl-cartpole command; choose one of {list(COMMANDS)}",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    set_scripts_dir(None)
+    return run_cli(_command_main(name), rest)
+
+
+def run_script(name: str, script: str | Path) -> int:
+    """``python scripts/NAME.py ...``: subcommand ``name``, its printed commands naming scripts."""
+    set_scripts_dir(Path(script).resolve().parent)
+    return run_cli(_command_main(name))

@@ -142,10 +142,18 @@ def parse_args(schema: type[T], argv: Sequence[str], usage: str) -> T:
     )
 
 
-def preset_lines(config_dir: Path, group: str, width: int = 100) -> list[str]:
-    """One line per preset of ``configs/<group>/``: its name and the first line of its comment."""
-    lines = []
-    for path in sorted((config_dir / group).glob("*.yaml")):
+def preset_lines(config_dirs: Sequence[Path], group: str, width: int = 100) -> list[str]:
+    """One line per preset of ``<dir>/<group>/``: its name and the first line of its comment.
+
+    A preset of a later directory of ``config_dirs`` with the name of an earlier one is not
+    listed again (Hydra takes the first one found on its search path).
+    """
+    lines, seen = [], set()
+    paths = [path for d in config_dirs for path in sorted((Path(d) / group).glob("*.yaml"))]
+    for path in paths:
+        if path.stem in seen:
+            continue
+        seen.add(path.stem)
         comments = [
             line.lstrip("# ").strip()
             for line in path.read_text().splitlines()
@@ -156,11 +164,11 @@ def preset_lines(config_dir: Path, group: str, width: int = 100) -> list[str]:
     return lines
 
 
-def print_train_help(usage: str, config_dir: Path, schema: type) -> None:
-    """``train.py --help``: usage, the presets of each config group, then every field."""
-    out = [usage.strip(), "", "presets (configs/):"]
+def print_train_help(usage: str, config_dirs: Sequence[Path], schema: type) -> None:
+    """``train --help``: usage, the presets of each config group, then every field."""
+    out = [usage.strip(), "", "presets (the package's, then presets= directories):"]
     for group in ("algo", "env"):
-        out.extend(preset_lines(config_dir, group))
+        out.extend(preset_lines(config_dirs, group))
     out += ["", "fields (key=default (type) meaning), each one an override key=value:"]
     out.append(format_fields(field_help(schema)))
     print("\n".join(out), file=sys.stdout)

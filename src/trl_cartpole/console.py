@@ -19,7 +19,20 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ending", "python_command", "quiet_libraries", "shown_path", "verdict"]
+__all__ = [
+    "command",
+    "ending",
+    "python_command",
+    "quiet_libraries",
+    "set_scripts_dir",
+    "shown_path",
+    "verdict",
+]
+
+ENTRY_POINT = "trl-cartpole"
+# Set when a command was started as ``python scripts/NAME.py`` (a clone's way): the commands
+# this process prints then name the scripts too; otherwise they name ``trl-cartpole NAME``.
+_started_from: dict[str, Path | None] = {"scripts": None}
 
 LIBRARY_LOGGERS = ("torchrl", "tensordict")
 # What ``compile=true`` prints once per run and means nothing to a user: torch's Dynamo skips
@@ -75,6 +88,35 @@ def python_command() -> str:
     return shlex.quote(shown_path(executable))
 
 
+def set_scripts_dir(scripts: str | Path | None) -> None:
+    """Print later commands as ``python SCRIPTS/NAME.py`` (None: as ``trl-cartpole NAME``)."""
+    _started_from["scripts"] = None if scripts is None else Path(scripts)
+
+
+def entry_point_command() -> str:
+    """How to call the ``trl-cartpole`` command of this interpreter from here.
+
+    ``trl-cartpole`` when the one on PATH is this environment's; else its path
+    (``.venv/bin/trl-cartpole``); else ``python -m trl_cartpole`` (the package not installed).
+    """
+    beside = Path(sys.executable).absolute().parent / ENTRY_POINT
+    on_path = shutil.which(ENTRY_POINT)
+    if on_path and Path(on_path).absolute() == beside:
+        return ENTRY_POINT
+    if beside.exists():
+        return shlex.quote(shown_path(beside))
+    return f"{python_command()} -m trl_cartpole"
+
+
+def command(name: str) -> str:
+    """The command line that runs subcommand ``name`` (``train``, ``evaluate``...), started
+    the way this process was: ``python scripts/train.py`` or ``trl-cartpole train``."""
+    scripts = _started_from["scripts"]
+    if scripts is not None:
+        return f"{python_command()} {shlex.quote(shown_path(scripts))}/{name}.py"
+    return f"{entry_point_command()} {name}"
+
+
 def shown_path(path: str | Path) -> str:
     """``path`` relative to the current directory when it lies below it, else absolute."""
     path = Path(path).absolute()
@@ -113,13 +155,9 @@ def _outcome(summary: dict[str, Any]) -> str:
     )
 
 
-def ending(summary: dict[str, Any], scripts: str | Path = "scripts") -> str:
-    """The lines a finished run prints: the verdict, the run directory and what to try next.
-
-    ``scripts`` is the directory of the project's scripts (``scripts/train.py``'s own).
-    """
+def ending(summary: dict[str, Any]) -> str:
+    """The lines a finished run prints: the verdict, the run directory and what to try next."""
     run = shlex.quote(shown_path(summary["run_dir"]))
-    python, scripts = python_command(), shlex.quote(shown_path(scripts))
     lines = [
         verdict(summary),
         f"run directory: {run} (durations.png, dashboard.png, summary.json, checkpoints/)",
@@ -127,8 +165,8 @@ def ending(summary: dict[str, Any], scripts: str | Path = "scripts") -> str:
     if summary.get("checkpoint"):
         lines += [
             "next:",
-            f"  {python} {scripts}/evaluate.py checkpoint={run}   # 100 greedy episodes",
-            f"  {python} {scripts}/render.py checkpoint={run}     # a GIF of the agent",
-            f"  {python} {scripts}/export.py checkpoint={run} output=policy.pt2  # or .onnx",
+            f"  {command('evaluate')} checkpoint={run}   # 100 greedy episodes",
+            f"  {command('render')} checkpoint={run}     # a GIF of the agent",
+            f"  {command('export')} checkpoint={run} output=policy.pt2  # or .onnx",
         ]
     return "\n".join(lines)

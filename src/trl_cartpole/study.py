@@ -25,6 +25,7 @@ from typing import Any
 
 from trl_cartpole.cli import compose_config
 from trl_cartpole.errors import ConfigError, TrainingFailed
+from trl_cartpole.presets import preset_dirs
 from trl_cartpole.tuning import load_search_space, suggest, trial_score, write_preset
 
 try:
@@ -137,10 +138,15 @@ def run_study(
 ) -> StudyResult:
     """Run (or continue) a study to ``trials`` finished trials; write the best as a preset."""
     if optuna is None:
-        raise ConfigError("scripts/tune.py needs Optuna: pip install -e '.[tune]'")
+        raise ConfigError("tuning needs Optuna: pip install 'trl_cartpole[tune]'")
     cfg = compose_config(config_dir, list(overrides))
     preset = next((arg.split("=", 1)[1] for arg in overrides if arg.startswith("env=")), "cartpole")
-    space_path = Path(space_path or Path(config_dir) / "tune" / f"{preset}.yaml")
+    if space_path is None:  # the preset's space: the package's, or a presets= directory's
+        candidates = [
+            Path(d) / "tune" / f"{preset}.yaml" for d in [config_dir, *preset_dirs(overrides)]
+        ]
+        space_path = next((path for path in candidates if path.exists()), candidates[0])
+    space_path = Path(space_path)
     space = load_search_space(space_path)
     study_name = study_name or preset
     storage = storage or f"sqlite:///{Path('runs') / 'tune' / study_name / 'study.db'}"
@@ -200,7 +206,7 @@ def run_study(
     base_file = Path(config_dir) / "env" / f"{preset}.yaml"
     base = _preset_body(base_file)
     header = [
-        f"{cfg.env.id} tuned by scripts/tune.py (study {study_name}, trial {best.number}: "
+        f"{cfg.env.id} tuned by trl-cartpole tune (study {study_name}, trial {best.number}: "
         f"score {best.value:.1f})",
         f"base preset env={preset}; tuned over {', '.join(space)}",
         f"score: mean greedy return over the evaluations of {cfg.collector.total_frames} frames, "

@@ -28,6 +28,7 @@ from omegaconf import DictConfig
 
 from trl_cartpole.cli import compose_config
 from trl_cartpole.config import register_configs, to_config
+from trl_cartpole.presets import with_search_path
 from trl_cartpole.validation import validate
 
 __all__ = ["MULTIRUN_FLAGS", "expand_grid", "is_multirun", "run_sweep", "sweep_job"]
@@ -91,6 +92,7 @@ def run_sweep(config_dir: str | Path, overrides: Sequence[str]) -> list[dict[str
             )
     if not any(arg.startswith("logger.progress_bar=") for arg in overrides):
         overrides = [*overrides, "logger.progress_bar=false"]  # parallel bars would interleave
+    overrides = with_search_path(overrides)  # presets=DIR: the user's presets
     register_configs()
     with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
         hydra = GlobalHydra.instance().hydra
