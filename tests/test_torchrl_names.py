@@ -6,6 +6,7 @@ name of the TorchRL class's argument, or a keyword of that class the factory did
 
 from __future__ import annotations
 
+import inspect
 import subprocess
 import sys
 
@@ -19,6 +20,7 @@ from torchrl.data import (
     SamplerWithoutReplacement,
     TensorDictReplayBuffer,
 )
+from torchrl.envs import GymWrapper
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
@@ -30,6 +32,7 @@ from trl_cartpole import (
     make_replay_buffer,
     make_target_updater,
 )
+from trl_cartpole.envs import GYM_WRAPPER_KEYWORDS
 
 
 @pytest.fixture(scope="module")
@@ -174,3 +177,18 @@ def test_a_loss_built_apart_refuses_its_first_batch_from_a_buffer_of_another_dis
     assert torch.isfinite(agreeing(batch)["loss"])
     one_step = make_replay_buffer(batch_size=8, n_steps=1)  # no discount in the buffer
     assert torch.isfinite(make_dqn_loss(actor, gamma=0.5)(_n_step_batch(env, one_step))["loss"])
+
+
+def test_every_gymwrapper_keyword_make_env_routes_is_one_torchrl_reads():
+    """``GYM_WRAPPER_KEYWORDS`` go to ``GymWrapper``: each is read somewhere in its classes."""
+    classes = [klass for klass in GymWrapper.__mro__ if klass.__module__.startswith("torchrl")]
+    parameters = {
+        name
+        for klass in classes
+        for method in ("__init__", "_build_env")  # _build_env reads from_pixels, pixels_only
+        if method in vars(klass)
+        for name in inspect.signature(vars(klass)[method]).parameters
+    }
+    source = "".join(inspect.getsource(klass) for klass in classes)
+    read = [key for key in GYM_WRAPPER_KEYWORDS if key in parameters or f'"{key}"' in source]
+    assert sorted(read) == sorted(GYM_WRAPPER_KEYWORDS)

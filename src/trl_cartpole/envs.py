@@ -76,7 +76,6 @@ GYM_WRAPPER_KEYWORDS = frozenset(
         "spec_locked",
         "auto_reset",
         "run_type_checks",
-        "missing_obs_value",
     }
 )
 
