@@ -239,3 +239,27 @@ def test_a_compiled_updates_habitual_notes_are_kept_off_the_console(caplog):
         "Profiler record function verbose will be ignored"
     ]
     assert [str(w.message) for w in caught] == [deprecated]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["train", "loss.gama=0.9"],
+        ["train", "loss.gamma=2"],
+        ["train", "env=lunarlandr"],
+        ["tune", "trials=1", "out=x.yaml", "optim.lr=-1"],
+        ["evaluate", "checkpont=runs/x"],
+    ],
+    ids=lambda argv: " ".join(argv),
+)
+def test_a_typo_is_refused_before_torch_is_imported(argv, tmp_path):
+    code = (
+        "import sys\nfrom trl_cartpole.cli import main\n"
+        f"code = main({argv!r})\n"
+        "print('torch imported' if 'torch' in sys.modules else 'no torch', code)"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    assert proc.stdout.split() == ["no", "torch", "2"], proc.stdout + proc.stderr
+    assert proc.stderr.startswith("error: ") and proc.stderr.count("\n") == 1

@@ -21,10 +21,13 @@ import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from trl_cartpole.cli import compose_config
 from trl_cartpole.cli_help import parse_args
+from trl_cartpole.config import to_config
 from trl_cartpole.console import command, shown_path
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.presets import PRESETS_DIR, preset_dirs
+from trl_cartpole.validation import validate
 
 
 @dataclass
@@ -54,6 +57,8 @@ def main(argv: list[str]) -> None:
     args = parse_args(TuneArgs, own, __doc__)
     if args.pruner not in ("median", "none"):
         raise ConfigError(f"pruner={args.pruner!r}; choose median or none")
+    # the trials' base config is checked before Optuna, torch and TorchRL are imported
+    validate(to_config(compose_config(PRESETS_DIR, overrides)))
     from trl_cartpole.study import run_study
 
     result = run_study(
