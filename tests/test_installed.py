@@ -10,6 +10,7 @@ Everything then runs from an empty directory outside the repository: the documen
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -26,9 +27,12 @@ PIP = [sys.executable, "-m", "pip"]
 def installed(tmp_path_factory) -> Path:
     """A fresh virtual environment with the wheel of this checkout; returns its bin directory."""
     base = tmp_path_factory.mktemp("installed")
-    wheels = base / "wheels"
+    source, wheels = base / "source", base / "wheels"  # built from a copy: the build/ is there
+    shutil.copytree(ROOT / "src", source / "src", ignore=shutil.ignore_patterns("*.egg-info"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source / name)
     subprocess.run(
-        [*PIP, "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(wheels), str(ROOT)],
+        [*PIP, "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(wheels), str(source)],
         check=True,
         capture_output=True,
         timeout=300,
