@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import runpy
 import sys
 from pathlib import Path
 
@@ -13,9 +12,10 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs import ExplorationType, set_exploration_type
 
-from tests.conftest import CONFIG_DIR, SCRIPTS, SMOKE_OVERRIDES, run_script
+from tests.conftest import CONFIG_DIR, SMOKE_OVERRIDES, run_script
 from trl_cartpole.checkpoint import read_observation_norm
 from trl_cartpole.cli import compose_config
+from trl_cartpole.commands import export as export_command
 from trl_cartpole.config import NetworkConfig
 from trl_cartpole.envs import make_env
 from trl_cartpole.errors import ConfigError
@@ -35,8 +35,8 @@ EPISODES = 20
 
 
 def _export_script(*args: str) -> None:
-    """Run ``scripts/export.py``'s ``main`` in this process (no interpreter start-up)."""
-    runpy.run_path(str(SCRIPTS / "export.py"), run_name="export_script")["main"](list(args))
+    """Run ``trl-cartpole export``'s ``main`` in this process (no interpreter start-up)."""
+    export_command.main(list(args))
 
 
 def _play_onnx(path, env_id: str, seed: int, episodes: int) -> tuple[list[float], np.ndarray]:
