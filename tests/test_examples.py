@@ -27,10 +27,8 @@ def _target_moved(loss: DQNLoss, initial: list[torch.Tensor]) -> bool:
 
 
 def test_torchrl_dqn_example_runs_on_the_factories():
-    out = _main("torchrl_dqn_example.py")(
-        ["--frames", "1500", "--init-random-frames", "500", "--annealing-frames", "500"]
-        + ["--test-interval", "1000"]
-    )
+    budget = "--frames 1500 --init-random-frames 500 --annealing-frames 500 --test-interval 1000"
+    out = _main("torchrl_dqn_example.py")(budget.split())
     assert isinstance(out["model"], QValueActor)
     assert type(out["greedy_module"]) is EGreedyModule
     assert out["greedy_module"].eps.item() == pytest.approx(0.05)  # annealed over 500 frames
