@@ -151,7 +151,18 @@ def make_collector(
     synchronous multi-worker batch. The defaults are the default config's ``collector`` section;
     ``collector_kwargs`` go to TorchRL's ``Collector`` (``storing_device``, ``compile_policy``,
     ``split_trajs``, ...). ``total_frames`` and ``init_random_frames`` are rounded up to whole
-    batches (:func:`whole_batches`), as TorchRL would do with a warning.
+    batches (:func:`whole_batches`), as TorchRL would do with a warning. TorchRL's defaults:
+    ``total_frames=-1`` (endless), no random frames, ``device`` the policy's.
+
+    Example::
+
+        >>> from trl_cartpole import make_collector, make_env, make_q_actor
+        >>> env = make_env("CartPole-v1", seed=0)
+        >>> actor = make_q_actor(env.observation_spec, env.action_spec)
+        >>> collector = make_collector(env, actor, frames_per_batch=8, total_frames=16)
+        >>> [batch.numel() for batch in collector]
+        [8, 8]
+        >>> collector.shutdown()
     """
     if backend not in BACKENDS:
         raise ConfigError(f"collector.backend={backend!r} is not one of {list(BACKENDS)}")

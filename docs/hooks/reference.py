@@ -1,0 +1,28 @@
+"""MkDocs hook: the factories' defaults table, rendered from the code at build time."""
+
+from __future__ import annotations
+
+import re
+
+MARKER = "<!-- factory-defaults -->"
+
+
+def on_page_markdown(markdown: str, **_: object) -> str:
+    if MARKER not in markdown:
+        return markdown
+    from trl_cartpole.reference import defaults_table
+
+    return markdown.replace(MARKER, defaults_table())
+
+
+# The docstrings are written for Python's help() and Sphinx-style readers: a role such as
+# :func:`~pkg.mod.name` and the "Example::" that opens a code block read as plain Markdown here.
+ROLE = re.compile(r":(?:func|class|meth|mod|attr|data):<code>(~?)([\w.]+)</code>")
+
+
+def on_page_content(html: str, **_: object) -> str:
+    html = ROLE.sub(
+        lambda m: f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>",
+        html,
+    )
+    return html.replace("<p>Example::</p>", "<p>Example:</p>")
