@@ -1,8 +1,8 @@
 """trl_cartpole: a modular Deep Q-Learning pipeline built from stock TorchRL parts.
 
-The factories return TorchRL objects with TorchRL's argument names, and their defaults are the
-default config's, so they can be reused on their own (tests/test_torchrl_example.py ports
-TorchRL's DQN example onto them)::
+The factories return TorchRL objects and take the argument names of the TorchRL class each
+builds, with TorchRL's meanings; their defaults are the default config's, so they can be
+reused on their own (examples/torchrl_dqn_example.py is TorchRL's DQN example on them)::
 
     from trl_cartpole import make_env, make_q_actor, make_exploration, make_replay_buffer
 
