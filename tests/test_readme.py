@@ -54,3 +54,41 @@ def test_user_facing_text_uses_no_word_a_user_cannot_know(path):
     for file in files:
         found = FORBIDDEN.findall(file.read_text())
         assert not found, f"{file.relative_to(ROOT)}: {found}"
+
+
+def test_the_readmes_expected_ending_is_what_a_run_prints(monkeypatch):
+    """The quick start's ending, rebuilt by ``console.ending`` from the figures it quotes."""
+    from trl_cartpole import console
+
+    quoted = re.search(r"```\n(CartPole-v1 \[dqn.*?)```", README, re.DOTALL)[1].splitlines()
+    numbers = re.match(
+        r"CartPole-v1 \[dqn, seed 0\]: solved at (\d+) frames, ([\d.]+) s of training; the best "
+        r"policy of (\d+) evaluations returned ([\d.]+) \+/- ([\d.]+) over (\d+) new episodes",
+        quoted[0],
+    )
+    run_dir = re.search(r"run directory: (\S+)", quoted[1]).group(1)
+    frames, seconds, evaluations, mean, std, episodes = numbers.groups()
+    summary = {
+        "env_id": "CartPole-v1",
+        "algo": "dqn",
+        "seed": 0,
+        "solve_threshold": 475.0,
+        "solved": True,
+        "frames": int(frames),
+        "frames_to_solve": int(frames),
+        "seconds_to_solve": float(seconds),
+        "eval_curve": {"frames": [0] * int(evaluations)},
+        "final_eval_return_mean": float(mean),
+        "final_eval_return_std": float(std),
+        "final_eval_episodes": int(episodes),
+        "best_eval_return_mean": float(mean),
+        "run_dir": str(ROOT / run_dir),
+        "checkpoint": "best",
+    }
+    monkeypatch.chdir(ROOT)
+    monkeypatch.setattr(console, "python_command", lambda: ".venv/bin/python")
+    console.set_scripts_dir(ROOT / "scripts")
+    try:
+        assert console.ending(summary).splitlines() == quoted
+    finally:
+        console.set_scripts_dir(None)
