@@ -125,6 +125,8 @@ def test_q_actor_takes_mlps_names_and_passes_mlp_and_actor_keywords_on(env):
     deep = make_q_actor(env.observation_spec, env.action_spec, num_cells=8, depth=3)
     widths = [m.out_features for m in deep.modules() if isinstance(m, nn.Linear)]
     assert widths == [8, 8, 8, 2]
+    with pytest.raises(TypeError, match=r"layer_class: set .* by noisy="):
+        make_q_actor(env.observation_spec, env.action_spec, layer_class=nn.Linear)
 
 
 def test_env_passes_gymwrapper_keywords_on():

@@ -130,6 +130,12 @@ def make_q_network(
     ``num_cells``.
     """
     check_network_choices(head, None)
+    fixed = sorted(set(mlp_kwargs) & _MLP_SET_HERE)
+    if fixed:
+        raise TypeError(
+            f"{', '.join(fixed)}: set from the specs and the head here (layer_class by noisy=), "
+            "not passed to MLP"
+        )
     widths = _widths(num_cells if hidden_sizes is None else hidden_sizes, mlp_kwargs)
     linear = partial(NoisyLinear, std_init=noisy_std) if noisy else nn.Linear
     torso = MLP(
@@ -156,8 +162,11 @@ def _widths(num_cells: Sequence[int] | int, mlp_kwargs: dict[str, Any]) -> list[
     return list(num_cells)
 
 
-# The keywords of TorchRL's MLP that make_q_actor hands to the torso (the rest go to the actor).
+# The keywords of TorchRL's MLP that make_q_actor hands to the torso (the rest go to the actor),
+# and those the factory sets itself: the input and output sizes, the layer type, the last
+# activation (the head follows the torso).
 _MLP_KEYWORDS = frozenset(inspect.signature(MLP.__init__).parameters) - {"self"}
+_MLP_SET_HERE = frozenset({"in_features", "out_features", "layer_class", "activate_last_layer"})
 
 
 def make_q_actor(
