@@ -9,6 +9,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from benchmarks import harness
 from benchmarks.ablate import BEGIN, write_between_markers
@@ -144,6 +145,7 @@ def _benchmarks(python, *args, **kwargs) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow  # one subprocess per benchmark subcommand
 def test_every_subcommand_shows_help_with_the_shared_arguments(python):
     proc = _benchmarks(python, "--help")
     assert proc.returncode == 0, proc.stderr
@@ -195,6 +197,7 @@ def test_wall_table_splits_the_wall_time_and_gives_the_median_ratio():
     assert wall_table(slow).endswith("median ratio 1.88 (target <= 1.3: not met)")
 
 
+@pytest.mark.slow  # times updates of every preset
 def test_update_cost_prints_a_row_per_preset(python, tmp_path):
     proc = _benchmarks(
         python,

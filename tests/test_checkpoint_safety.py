@@ -25,7 +25,7 @@ from trl_cartpole.env_state import env_snapshot, restore_env_snapshot
 from trl_cartpole.envs import make_env
 from trl_cartpole.pickle_scan import executable_opcode
 
-from .conftest import ROOT, run_script
+from .conftest import ROOT, run_script, run_script_in_process
 
 
 class _WritesAFile:
@@ -106,7 +106,7 @@ def test_a_policy_checkpoint_with_a_pickle_payload_is_refused_unrun(planted, scr
     payload = _WritesAFile(marker)
     _plant_in_policy(run_dir / "checkpoints" / "best", payload)
     output = run_dir / ("policy.pt2" if script == "export.py" else "agent.gif")
-    proc = run_script(script, f"checkpoint={run_dir}", f"output={output}")
+    proc = run_script_in_process(script, f"checkpoint={run_dir}", f"output={output}")
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1, proc.stderr[-1500:]
     assert "other.pickle would run code (builtins.exec)" in errors[0]
@@ -120,7 +120,7 @@ def test_a_training_state_with_a_pickle_payload_is_refused_unrun(planted):
     prefetch = next(last.glob("components/*-replay_buffer/prefetch.pkl"))
     prefetch.write_bytes(pickle.dumps(_WritesAFile(marker)))
     _rewrite_integrity(last)
-    proc = run_script("train.py", f"resume={run_dir}", "collector.total_frames=400")
+    proc = run_script_in_process("train.py", f"resume={run_dir}", "collector.total_frames=400")
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1, proc.stderr[-1500:]
     assert "prefetch.pkl would run code (builtins.exec)" in errors[0]
@@ -157,7 +157,7 @@ def test_a_zip_archive_or_a_symbolic_link_in_a_checkpoint_is_refused_unrun(plant
     shutil.move(component / "state", tmp_path / "state-moved")
     _archive_with_payload(component / "state.tdz", pickle.dumps({"data": _WritesAFile(marker)}))
     _rewrite_integrity(best)
-    proc = run_script("evaluate.py", f"checkpoint={run_dir}", "episodes=2")
+    proc = run_script_in_process("evaluate.py", f"checkpoint={run_dir}", "episodes=2")
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1, proc.stderr[-1500:]
     assert "state.tdz would run code (a zip archive" in errors[0]

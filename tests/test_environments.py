@@ -241,6 +241,7 @@ def test_the_guide_shows_the_custom_env_that_the_tests_train():
     assert "PYTHONPATH=examples .venv/bin/python scripts/train.py env.id=corridor:Corridor" in guide
 
 
+@pytest.mark.slow  # the env benchmark in a subprocess
 def test_benchmark_envs_trains_a_preset_and_tabulates_it(tmp_path):
     proc = subprocess.run(
         [

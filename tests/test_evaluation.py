@@ -19,7 +19,7 @@ from trl_cartpole.evaluation import (
 )
 from trl_cartpole.models import make_q_actor
 
-from .conftest import run_script
+from .conftest import run_script_in_process
 
 
 def test_epsilon_greedy_replaces_a_fraction_of_actions_even_in_deterministic_mode():
@@ -79,7 +79,7 @@ def test_direct_vector_env_evaluation_plays_the_episodes_torchrl_rollout_plays(
 
 def test_evaluate_cli_epsilon_is_reported(smoke_checkpoint, tmp_path):
     out = tmp_path / "eval.json"
-    proc = run_script(
+    proc = run_script_in_process(
         "evaluate.py",
         f"checkpoint={smoke_checkpoint}",
         "episodes=30",
@@ -90,5 +90,5 @@ def test_evaluate_cli_epsilon_is_reported(smoke_checkpoint, tmp_path):
     report = json.loads(out.read_text())
     assert report["epsilon"] == 0.05 and report["episodes"] == 30 == len(report["returns"])
     assert "epsilon=0.05 return over 30 episodes" in proc.stdout
-    bad = run_script("evaluate.py", f"checkpoint={smoke_checkpoint}", "epsilon=2")
+    bad = run_script_in_process("evaluate.py", f"checkpoint={smoke_checkpoint}", "epsilon=2")
     assert bad.returncode == 2 and "error: epsilon=2.0 must lie in [0, 1]" in bad.stderr

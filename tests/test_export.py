@@ -12,7 +12,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs import ExplorationType, set_exploration_type
 
-from tests.conftest import CONFIG_DIR, SMOKE_OVERRIDES, run_script
+from tests.conftest import CONFIG_DIR, SMOKE_OVERRIDES, run_script_in_process
 from trl_cartpole.checkpoint import read_observation_norm
 from trl_cartpole.cli import compose_config
 from trl_cartpole.commands import export as export_command
@@ -186,7 +186,7 @@ def test_missing_onnx_packages_and_a_failed_write_leave_no_file(
 
 
 def test_bad_suffix_exits_2_with_one_line(smoke_checkpoint, tmp_path):
-    result = run_script(
+    result = run_script_in_process(
         "export.py", f"checkpoint={smoke_checkpoint}", f"output={tmp_path / 'policy.txt'}"
     )
     assert result.returncode == 2

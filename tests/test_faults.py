@@ -22,7 +22,7 @@ from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config
 from trl_cartpole.errors import ConfigError, TrainingFailed
 from trl_cartpole.training import train
 
-from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
+from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script, run_script_in_process
 
 # 600 frames, an evaluation every 150, a training state every 200 (all of them kept).
 RESUMABLE = [
@@ -64,7 +64,7 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
     "overrides",
     [
         ["algo=dqn"],
-        ["algo=rainbow"],
+        pytest.param(["algo=rainbow"], marks=pytest.mark.slow),  # every Rainbow part: 17 s
         # The resumed run reads the observation statistics back from the checkpoint.
         ["env.normalize_observations=true", "env.normalization_frames=300"],
     ],
@@ -160,6 +160,7 @@ def _wait_until_training(run_dir: Path, proc: subprocess.Popen, timeout: float =
         time.sleep(0.05)
 
 
+@pytest.mark.slow  # a real signal to a training subprocess, four times
 @pytest.mark.parametrize(
     ("signum", "code"),
     [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129), (signal.SIGUSR1, 138)],
@@ -194,6 +195,7 @@ def test_signal_checkpoints_and_the_resumed_run_equals_the_uninterrupted_one(
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.slow  # a signal to a training subprocess
 def test_ctrl_c_saves_after_the_reader_of_a_tee_pipeline_died(python, tmp_path):
     # train.py ... 2>&1 | tee log, where tee is gone before Ctrl-C: every later write to the
     # pipe fails (EPIPE), and the save and its message must not be stopped by it.
@@ -225,6 +227,7 @@ def test_ctrl_c_saves_after_the_reader_of_a_tee_pipeline_died(python, tmp_path):
     assert json.loads((run_dir / "summary.json").read_text())["frames"] == 4000
 
 
+@pytest.mark.slow  # two training subprocesses and a SIGKILL
 def test_one_writer_per_run_directory_and_a_killed_one_blocks_nothing(python, tmp_path):
     run_dir = tmp_path / "run"
     endless = [o for o in LONG if not o.startswith(("collector.total_frames", "checkpoint."))]
@@ -245,6 +248,7 @@ def test_one_writer_per_run_directory_and_a_killed_one_blocks_nothing(python, tm
     assert f"process {os.getpid()}" not in (run_dir / ".lock").read_text()  # the new run's
 
 
+@pytest.mark.slow  # a signal to a training subprocess
 def test_second_ctrl_c_exits_at_once_and_corrupts_nothing(python, tmp_path):
     run_dir = tmp_path / "run"
     proc = _start(python, run_dir, *LONG, "checkpoint.interval_frames=100")
@@ -259,6 +263,7 @@ def test_second_ctrl_c_exits_at_once_and_corrupts_nothing(python, tmp_path):
     Checkpoint.manifest(checkpoint)
 
 
+@pytest.mark.slow  # SIGKILL mid-run, then a resume
 def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_path):
     run_dir = tmp_path / "run"
     for delay in (0.0, 0.37, 0.71):  # several moments, to land inside a write
@@ -381,7 +386,7 @@ BAD_INPUTS = [
 @pytest.mark.parametrize(("case", "args", "message"), BAD_INPUTS)
 def test_bad_training_input_is_one_line_and_exit_2(tmp_path, case, args, message):
     run_dir = tmp_path / "run"
-    proc = run_script("train.py", f"run_dir={run_dir}", *args)
+    proc = run_script_in_process("train.py", f"run_dir={run_dir}", *args)
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
     assert "Traceback" not in proc.stderr
@@ -399,7 +404,7 @@ def test_bad_training_input_is_one_line_and_exit_2(tmp_path, case, args, message
 def test_damaged_checkpoint_is_refused_in_one_line(tmp_path, finished_run, how, message):
     damaged = _damaged_copy(finished_run, tmp_path / "damaged", how)
     before = sorted(p.relative_to(damaged) for p in damaged.rglob("*"))
-    proc = run_script("train.py", f"resume={damaged}")
+    proc = run_script_in_process("train.py", f"resume={damaged}")
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
     assert "Traceback" not in proc.stderr
@@ -416,7 +421,7 @@ def test_damaged_checkpoint_is_refused_in_one_line(tmp_path, finished_run, how, 
     ],
 )
 def test_resume_refuses_an_incompatible_config(finished_run, args, message):
-    proc = run_script("train.py", f"resume={finished_run}", *args)
+    proc = run_script_in_process("train.py", f"resume={finished_run}", *args)
     assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
 
 
@@ -434,7 +439,7 @@ def test_a_directory_without_a_best_policy_is_one_line_naming_what_to_pass(
     ]
     output = tmp_path / ("policy.pt2" if script == "export.py" else "out.gif")
     for path, message in cases:
-        proc = run_script(script, f"checkpoint={path}", f"output={output}")
+        proc = run_script_in_process(script, f"checkpoint={path}", f"output={output}")
         lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
         assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr
         assert "Traceback" not in proc.stderr
@@ -444,7 +449,7 @@ def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluat
     tmp_path, finished_run
 ):
     best = finished_run / "checkpoints" / "best"
-    proc = run_script("train.py", f"resume={best}")
+    proc = run_script_in_process("train.py", f"resume={best}")
     assert proc.returncode == 2 and "without training state" in proc.stderr
     # A policy checkpoint whose stored config says another network shape.
     foreign = tmp_path / "foreign"
@@ -452,10 +457,10 @@ def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluat
     manifest = json.loads((foreign / "manifest.json").read_text())
     manifest["metadata"]["config"]["network"]["hidden_sizes"] = [64, 64]
     (foreign / "manifest.json").write_text(json.dumps(manifest))
-    proc = run_script("evaluate.py", f"checkpoint={foreign}", "episodes=2")
+    proc = run_script_in_process("evaluate.py", f"checkpoint={foreign}", "episodes=2")
     assert proc.returncode == 2 and "is damaged: manifest.json" in proc.stderr
     assert "Traceback" not in proc.stderr
-    proc = run_script("evaluate.py", "checkpoint=/nonexistent", "episodes=2")
+    proc = run_script_in_process("evaluate.py", "checkpoint=/nonexistent", "episodes=2")
     assert proc.returncode == 2 and "does not exist" in proc.stderr
 
 

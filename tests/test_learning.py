@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from trl_cartpole.training import train
+
+pytestmark = pytest.mark.slow  # trains until CartPole is solved
 
 FRAME_BUDGET = 40_000
 

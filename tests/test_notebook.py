@@ -6,9 +6,12 @@ import os
 import shutil
 
 import nbformat
+import pytest
 from nbclient import NotebookClient
 
 from .conftest import ROOT
+
+pytestmark = pytest.mark.slow  # executes the quick-start notebook: a training run in a kernel
 
 
 def test_quickstart_notebook_trains_evaluates_and_renders(monkeypatch):

@@ -45,6 +45,7 @@ def test_later_evaluations_play_new_episodes():
     # tianshou_dqn makes its own virtual environment on first use: minutes, so -m slow
     ["tutorial_loop", "sb3_dqn", pytest.param("tianshou_dqn", marks=pytest.mark.slow)],
 )
+@pytest.mark.slow  # a peer's run in a subprocess
 def test_peer_runs_under_the_protocol_and_writes_a_summary(tmp_path, peer):
     if peer == "sb3_dqn":
         pytest.importorskip("stable_baselines3")
@@ -62,6 +63,7 @@ def test_peer_runs_under_the_protocol_and_writes_a_summary(tmp_path, peer):
     assert summary["best_eval_return_mean"] == max(summary["eval_curve"]["returns"])
 
 
+@pytest.mark.slow  # two runs of a peer
 def test_tutorial_loop_repeats_itself_with_the_same_seed(tmp_path):
     protocol = ["--total-frames=600", "--eval-interval=300", "--eval-episodes=2"]
     summaries = [

@@ -161,7 +161,8 @@ def test_the_ray_backend_without_ray_names_the_extra(compose, monkeypatch):
 
 @pytest.mark.parametrize(
     "backend",
-    ["local", pytest.param("ray", marks=pytest.mark.slow)],  # ray: 2 x 20 s start-up
+    # two runs with worker processes (local: 17 s alone, 36 s beside other tests); ray: 2 x 20 s
+    [pytest.param("local", marks=pytest.mark.slow), pytest.param("ray", marks=pytest.mark.slow)],
 )
 def test_a_run_with_synchronous_workers_repeats_itself(compose, tmp_path, backend):
     """Each worker seeds its envs and its exploration draws, so a seed is one run."""
@@ -201,6 +202,7 @@ def test_two_worker_processes_solve_cartpole(compose, tmp_path):
     assert summary["final_eval_return_mean"] >= 400.0
 
 
+@pytest.mark.slow  # worker processes, twice
 def test_a_run_with_workers_resumes_with_fresh_worker_episodes(compose, tmp_path):
     overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("collector.total_frames")]
     cfg = compose(
@@ -277,6 +279,7 @@ def ray_head(tmp_path_factory):
         head.wait()
 
 
+@pytest.mark.slow  # imports Ray in a subprocess
 def test_a_ray_address_where_nothing_listens_is_one_line_and_exit_2(tmp_path):
     run_dir = tmp_path / "run"
     proc = run_script(
@@ -292,6 +295,7 @@ def test_a_ray_address_where_nothing_listens_is_one_line_and_exit_2(tmp_path):
     assert not run_dir.exists()  # refused before anything is written
 
 
+@pytest.mark.slow  # a Ray head: 20 s to start
 def test_two_ray_actors_on_a_local_head_solve_cartpole(ray_head, tmp_path):
     proc = run_script(
         "train.py",
@@ -325,6 +329,7 @@ def test_the_grid_of_a_sweep_is_every_combination():
     assert len(expand_grid(["seed=range(3)"])) == 3
 
 
+@pytest.mark.slow  # a sweep of training subprocesses
 def test_a_sweep_trains_every_job_in_its_own_directory_and_plot_compares_them(tmp_path):
     sweep_dir = tmp_path / "sweep"
     smoke = [o for o in SMOKE_OVERRIDES if not o.startswith("logger.progress_bar")]
@@ -354,6 +359,7 @@ def test_a_sweep_trains_every_job_in_its_own_directory_and_plot_compares_them(tm
     assert "| CartPole-v1 dqn | 0/2 |" in table and "| CartPole-v1 double | 0/2 |" in table
 
 
+@pytest.mark.slow  # a sweep subprocess
 def test_a_bad_point_of_a_sweep_stops_it_before_any_training(tmp_path):
     sweep_dir = tmp_path / "sweep"
     proc = run_script("train.py", "-m", "seed=0,-1", f"hydra.sweep.dir={sweep_dir}")

@@ -38,6 +38,7 @@ def test_a_search_space_is_checked_and_lists_pass_as_written(tmp_path):
     assert cfg.network.hidden_sizes == [64, 64]
 
 
+@pytest.mark.slow  # an Optuna study of training runs
 def test_a_tiny_study_prunes_resumes_and_writes_a_preset_that_trains(tmp_path, monkeypatch):
     from trl_cartpole.study import run_study
     from trl_cartpole.training import train

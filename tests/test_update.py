@@ -73,6 +73,7 @@ def test_adamw_updates_lower_the_loss_on_a_fixed_batch():
     assert last < 0.5 * first
 
 
+@pytest.mark.slow  # torch.compile: 25 s
 def test_update_compiles_whole_and_matches_eager():
     """``make_update`` is pure enough for ``torch.compile``: same losses and weights as eager."""
     results = []
