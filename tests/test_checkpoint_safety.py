@@ -81,13 +81,14 @@ def _plant_in_policy(checkpoint: Path, payload: bytes) -> None:
 
 
 def _plant_env_pickle(checkpoint: Path, payload: bytes) -> None:
-    """The training env's state replaced by pickle bytes (as checkpoints stored it before)."""
+    """The training env's state replaced by a pickled snapshot (``{"pickle": bytes}``)."""
     schema_file = next(checkpoint.glob("components/*-envs/state.json"))
     schema = json.loads(schema_file.read_text())
     for key, value in schema["items"]:
         if key["value"] == "env":
             value.clear()
-            value.update(kind="bytes", value=base64.b64encode(payload).decode("ascii"))
+            pickled = {"kind": "bytes", "value": base64.b64encode(payload).decode("ascii")}
+            value.update(kind="dict", items=[[{"kind": "value", "value": "pickle"}, pickled]])
     schema_file.write_text(json.dumps(schema))
     _rewrite_integrity(checkpoint)
 

@@ -23,8 +23,8 @@ from trl_cartpole.cli import compose_run_config
 from trl_cartpole.cli_help import field_help
 from trl_cartpole.config import Config
 from trl_cartpole.console import DYNAMO_PROFILER_LOGGER, ending, quiet_libraries, verdict
-from trl_cartpole.progress import Progress
-from trl_cartpole.telemetry import BAR_FORMAT, Telemetry
+from trl_cartpole.history import History
+from trl_cartpole.progress_bar import BAR_FORMAT
 
 SCRIPT_NAMES = sorted(path.name for path in SCRIPTS.glob("*.py"))
 
@@ -125,8 +125,7 @@ def test_the_ending_of_an_unsolved_run_and_of_an_env_without_threshold():
 
 
 def test_episodes_are_recorded_in_the_order_they_ended_with_their_frame():
-    telemetry = Telemetry(None, progress_bar=False)
-    progress = Progress()
+    history = History()
     # 2 envs x 3 steps: env 0 ends at step 2, env 1 at step 0
     done = torch.tensor([[False, False, True], [True, False, False]]).unsqueeze(-1)
     batch = TensorDict(
@@ -139,9 +138,9 @@ def test_episodes_are_recorded_in_the_order_they_ended_with_their_frame():
         },
         batch_size=[2, 3],
     )
-    progress.frames = 100 + batch.numel()  # the loop counts the batch before recording it
-    telemetry.episodes(batch, progress)
-    history = telemetry.history
+    frames = 100 + batch.numel()  # the loop counts the batch before recording it
+    episodes = history.record_episodes(batch, frames)
+    assert [episode.frame for episode in episodes] == history.episode_frames
     assert history.episode_returns == [10.0, 30.0]  # env 1's episode ended first
     assert history.episode_lengths == [10, 30]
     assert history.episode_frames == [100 + 1 * 2, 100 + 3 * 2]

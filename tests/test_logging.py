@@ -7,8 +7,8 @@ from torchrl.checkpoint import Checkpoint
 
 from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.loggers import make_logger
 from trl_cartpole.plotting import LearningCurves, LiveDurationPlot, live_plot_target
-from trl_cartpole.telemetry import make_logger
 from trl_cartpole.training import train
 
 from .conftest import SMOKE_OVERRIDES
@@ -122,11 +122,11 @@ def test_a_resumed_run_rewinds_its_own_wandb_run_to_the_checkpoint(tmp_path, mon
     import sys
     import types
 
-    from trl_cartpole import telemetry
+    from trl_cartpole import loggers
 
     created = []
     monkeypatch.setitem(sys.modules, "wandb", types.ModuleType("wandb"))
-    monkeypatch.setattr(telemetry, "WandbLogger", lambda **kwargs: created.append(kwargs))
+    monkeypatch.setattr(loggers, "WandbLogger", lambda **kwargs: created.append(kwargs))
     run_dir, other_dir = tmp_path / "0-CartPole-v1-dqn-seed0", tmp_path / "sweep2"
     run_dir.mkdir(), other_dir.mkdir()
     make_logger("wandb", run_dir)

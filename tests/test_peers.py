@@ -5,20 +5,20 @@ from __future__ import annotations
 import json
 
 import gymnasium as gym
-import numpy as np
 import pytest
+import torch
 
 from benchmarks.harness import run_peer
 from benchmarks.peers.protocol import GreedyEvaluation
 
 
-def _always_left(obs: np.ndarray) -> np.ndarray:
-    return np.zeros(len(obs), dtype=np.int64)
+def _always_left(obs: torch.Tensor) -> torch.Tensor:  # obs [E, 4] -> action values [E, 2]
+    return torch.tensor([1.0, 0.0]).expand(len(obs), 2)
 
 
 def test_greedy_evaluation_scores_each_envs_first_episode():
     evaluation = GreedyEvaluation("CartPole-v1", episodes=3, seed=11)
-    returns = evaluation(_always_left)
+    returns = evaluation(_always_left).returns
     evaluation.close()
     expected = []  # by hand: env i of the vector env is seeded 11 + i
     for index in range(3):
@@ -35,7 +35,7 @@ def test_greedy_evaluation_scores_each_envs_first_episode():
 
 def test_later_evaluations_play_new_episodes():
     evaluation = GreedyEvaluation("CartPole-v1", episodes=4, seed=0)
-    first, second = evaluation(_always_left), evaluation(_always_left)
+    first, second = evaluation(_always_left).returns, evaluation(_always_left).returns
     evaluation.close()
     assert first != second  # the envs' RNGs moved on: new start states
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import torch
 
-from benchmarks.peers.protocol import PeerRun, greedy_act, parse_peer_args, weights_snapshot
+from benchmarks.peers.protocol import PeerRun, parse_peer_args
 
 ZOO_TIMESTEPS = 50_000
 ZOO_SETTINGS = {
@@ -56,16 +56,16 @@ def main() -> None:
         **ZOO_SETTINGS,
     )
 
-    act, snapshot = greedy_act(model.q_net), weights_snapshot(model.q_net)
+    run.watch(model.q_net)
 
     class ProtocolCallback(BaseCallback):
         def _on_step(self) -> bool:
             if self.num_timesteps % args.eval_interval:
                 return True
-            return not run.evaluate(self.num_timesteps, act, snapshot)
+            return not run.evaluate(self.num_timesteps)
 
     model.learn(total_timesteps=args.total_frames, callback=ProtocolCallback())
-    run.finish(model.num_timesteps, model._n_updates, act, model.q_net.load_state_dict)
+    run.finish(model.num_timesteps, model._n_updates)
 
 
 if __name__ == "__main__":

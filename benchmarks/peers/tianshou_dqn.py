@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from benchmarks.peers.protocol import PeerRun, greedy_act, parse_peer_args, weights_snapshot
+from benchmarks.peers.protocol import PeerRun, parse_peer_args
 
 EXAMPLE = {  # examples/discrete/discrete_dqn.py
     "lr": 1e-3,
@@ -83,7 +83,7 @@ def main() -> None:
     collector.reset()
 
     # Tianshou's Net returns (action values, hidden state)
-    act, snapshot = greedy_act(lambda obs: net(obs)[0]), weights_snapshot(net)
+    run.watch(net, lambda obs: net(obs)[0])
 
     frames = updates = 0
     next_eval = args.eval_interval
@@ -94,9 +94,9 @@ def main() -> None:
         updates += 1
         if frames >= next_eval:
             next_eval += args.eval_interval
-            if run.evaluate(frames, act, snapshot):
+            if run.evaluate(frames):
                 break
-    run.finish(frames, updates, act, net.load_state_dict)
+    run.finish(frames, updates)
 
 
 if __name__ == "__main__":

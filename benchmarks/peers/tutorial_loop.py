@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import nn, optim
 
-from benchmarks.peers.protocol import PeerRun, greedy_act, parse_peer_args, weights_snapshot
+from benchmarks.peers.protocol import PeerRun, parse_peer_args
 
 BATCH_SIZE = 128
 GAMMA = 0.99
@@ -118,7 +118,7 @@ def main() -> None:
         optimizer.step()
         updates += 1
 
-    act, snapshot = greedy_act(policy_net), weights_snapshot(policy_net)
+    run.watch(policy_net)
 
     frames = 0
     state = torch.tensor(state, dtype=torch.float32).unsqueeze(0)
@@ -143,10 +143,10 @@ def main() -> None:
         if terminated or truncated:
             state, _ = env.reset()
             state = torch.tensor(state, dtype=torch.float32).unsqueeze(0)
-        if frames % args.eval_interval == 0 and run.evaluate(frames, act, snapshot):
+        if frames % args.eval_interval == 0 and run.evaluate(frames):
             break
     env.close()
-    run.finish(frames, updates, act, policy_net.load_state_dict)
+    run.finish(frames, updates)
 
 
 if __name__ == "__main__":

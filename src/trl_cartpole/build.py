@@ -4,9 +4,10 @@
 :class:`Components` of a run, every one a stock TorchRL object or a small object with one
 concern: the envs (``TransformedEnv``), the Q-actor (``QValueActor``) and its exploration
 (``EGreedyModule``), the replay buffer (``TensorDictReplayBuffer``), the learner (``DQNLoss``,
-``SoftUpdate``/``HardUpdate``, AdamW), the ``Collector``, the evaluator, the checkpointer and
-the telemetry. ``Components`` is a context manager: leaving it, normally or by an exception,
-closes the collector (its worker processes or Ray actors), the envs and the logger.
+``SoftUpdate``/``HardUpdate``, AdamW), the ``Collector``, the evaluator, the checkpointer,
+the metrics log, the progress bar and the history. ``Components`` is a context manager:
+leaving it, normally or by an exception, closes the collector (its worker processes or Ray
+actors), the envs and the logger.
 
 The ``build_*`` functions build one part each from the config; evaluation, rendering, the
 notebook and the benchmark tools use them too, so every tool builds what training builds.
@@ -19,12 +20,12 @@ import random
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import torch
 from omegaconf import OmegaConf
-from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.checkpoint import Checkpoint
 from torchrl.collectors import BaseCollector
@@ -32,8 +33,8 @@ from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs import TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
-from trl_cartpole.buffers import annealed_beta, make_replay_buffer
-from trl_cartpole.checkpoint import Checkpointer, read_observation_norm, save_policy
+from trl_cartpole.buffers import make_replay_buffer
+from trl_cartpole.checkpoint import Checkpointer, read_observation_norm
 from trl_cartpole.collectors import (
     check_ray_address,
     is_distributed,
@@ -47,16 +48,18 @@ from trl_cartpole.config import Config
 from trl_cartpole.env_state import EnvState
 from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, solve_threshold
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.evaluation import Evaluator
+from trl_cartpole.evaluation import Evaluator, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.files import write_text_atomic
+from trl_cartpole.history import History
 from trl_cartpole.learner import Learner
+from trl_cartpole.loggers import MetricsLog, make_logger, truncate_csv_metrics
 from trl_cartpole.losses import make_dqn_loss, make_target_updater
-from trl_cartpole.models import make_q_actor_for_env, reset_network_noise
+from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.plotting import LiveDurationPlot
 from trl_cartpole.progress import Progress
+from trl_cartpole.progress_bar import ProgressBar
 from trl_cartpole.run_lock import RunLock
-from trl_cartpole.telemetry import Telemetry, make_logger, truncate_csv_metrics
 from trl_cartpole.update import make_optimizer, make_update
 
 __all__ = [
@@ -225,7 +228,12 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
 
 @dataclass
 class Components:
-    """Everything a run is made of; a context manager that releases it on every exit."""
+    """Everything a run is made of, built in one step; a context manager that releases it.
+
+    The training loop (:func:`~trl_cartpole.training.train`) drives these parts; each one has a
+    single concern: the metrics log takes ready-made scalars, the progress bar shows the run,
+    the history keeps the curves, the checkpointer writes states and the best policy.
+    """
 
     cfg: Config
     run_dir: Path
@@ -239,31 +247,18 @@ class Components:
     learner: Learner
     collector: BaseCollector
     evaluator: Evaluator
-    telemetry: Telemetry
-    checkpointer: Checkpointer = field(init=False)
-    progress: Progress = field(default_factory=Progress)
-    threshold: float | None = None
-    learning_starts: int = 0  # no update before the buffer holds this many transitions
-    sync_policy_weights: bool = False  # the collector steps a copy of the policy
-    wall_start: float = 0.0
-    lock: RunLock | None = None  # the run directory's, released on close
+    progress: Progress
+    history: History
+    metrics: MetricsLog
+    progress_bar: ProgressBar
+    live_plot: LiveDurationPlot | None
+    checkpointer: Checkpointer
+    lock: RunLock  # the run directory's, released on close
+    threshold: float | None
+    learning_starts: int  # no update before the buffer holds this many transitions
+    sync_policy_weights: bool  # the collector steps a copy of the policy
+    wall_start: float  # perf_counter() when the build began
     _collector_released: bool = field(default=False, init=False, repr=False)
-
-    def after_batch(self, batch: TensorDictBase, updates_before: int) -> None:
-        """Step epsilon, resample network noise, anneal beta, send the new weights; report."""
-        cfg, frames = self.cfg, batch.numel()
-        if self.exploration is not None:
-            self.exploration.step(frames)
-        if cfg.network.noisy:
-            reset_network_noise(self.actor)  # fresh noise for the next collected batch too
-        if cfg.buffer.prioritized:
-            anneal_frames = cfg.buffer.beta_anneal_frames or cfg.collector.total_frames
-            self.buffer.sampler.beta = annealed_beta(
-                cfg.buffer.beta, self.progress.frames, anneal_frames
-            )
-        if self.sync_policy_weights:
-            self.collector.update_policy_weights_()
-        self.telemetry.batch(batch, self.progress, self.actor, self.exploration, updates_before)
 
     def release_collector(self) -> None:
         """Shut the collector down (its worker processes, Ray actors) once."""
@@ -272,14 +267,13 @@ class Components:
             shutdown_collector(self.collector)
 
     def close(self) -> None:
-        """Release the collector (workers, Ray actors), the envs and the logger."""
-        self.telemetry.close_bar()
+        """Release the collector (workers, Ray actors), the envs, the logger and the lock."""
+        self.progress_bar.close()
         self.release_collector()
         for env in (self.env, self.eval_env):
             env.close()
-        self.telemetry.close()
-        if self.lock is not None:
-            self.lock.release()
+        self.metrics.close()
+        self.lock.release()
 
     def __enter__(self) -> Components:
         return self
@@ -299,7 +293,6 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     wall_start = time.perf_counter()
     torch.set_num_threads(cfg.num_threads)
     seed_everything(cfg.seed)
-    threshold = solve_threshold(cfg.env.id, cfg.eval.solve_threshold)
     # Observation statistics are estimated once per run (a resumed run reads them back) and
     # shared by the training and evaluation envs.
     observation_norm = None
@@ -311,7 +304,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         )
     env = build_env(cfg, cfg.seed, observation_norm=observation_norm)
     eval_env = build_env(cfg, cfg.seed + cfg.eval.seed_offset, cfg.eval.episodes, observation_norm)
-    with ExitStack() as on_error:  # an error while building the rest closes the envs
+    with ExitStack() as on_error:  # an error while building the rest closes what it holds
         on_error.callback(eval_env.close)
         on_error.callback(env.close)
         if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
@@ -319,9 +312,13 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         run_dir = prepare_run_dir(cfg.run_dir)
         lock = RunLock(run_dir)  # a second writer of run_dir stops here
         on_error.callback(lock.release)
-        components = _assemble(cfg, resume, run_dir, env, eval_env, observation_norm, threshold)
+        components = _assemble(
+            cfg, resume, run_dir, env, eval_env, observation_norm, lock, wall_start, on_error
+        )
+        if resume is not None:
+            components.checkpointer.load(resume, components.progress)
         on_error.pop_all()
-    components.lock, components.wall_start = lock, wall_start
+    components.progress_bar.open(components.progress.frames)
     return components
 
 
@@ -332,7 +329,9 @@ def _assemble(
     env: TransformedEnv,
     eval_env: TransformedEnv,
     observation_norm: dict[str, list[float]] | None,
-    threshold: float | None,
+    lock: RunLock,
+    wall_start: float,
+    on_error: ExitStack,
 ) -> Components:
     """Everything after the envs and the run directory: networks, buffer, learner, collector..."""
     frames_done, logger_step = 0, None
@@ -363,8 +362,8 @@ def _assemble(
         backend=cfg.collector.backend,
         ray_address=cfg.collector.ray_address,
     )
-    title = run_title(cfg)
-    telemetry = Telemetry(
+    on_error.callback(shutdown_collector, collector)  # worker processes, Ray actors
+    metrics = MetricsLog(
         make_logger(
             cfg.logger.backend,
             run_dir,
@@ -372,39 +371,45 @@ def _assemble(
             cfg.logger.wandb_offline,
             resumed_at=None if resume is None else frames_done,
             logger_step=logger_step,
-        ),
-        LiveDurationPlot(run_dir / "durations.png", title, min_seconds=cfg.logger.live_plot_seconds)
-        if cfg.logger.live_plot
-        else None,
-        progress_bar=cfg.logger.progress_bar,
-        description=cfg.env.id,
-        total_frames=whole_batches(cfg.collector.total_frames, cfg.collector.frames_per_batch),
-        threshold=threshold,
+        )
     )
-
-    def save_best(frames: int, mean: float) -> None:
-        if cfg.checkpoint.save_best:
-            save_policy(
-                run_dir / "checkpoints" / "best",
-                actor,
-                cfg,
-                frames=frames,
-                eval_return_mean=mean,
-                observation_norm=observation_norm,
-            )
-
+    on_error.callback(metrics.close)
+    threshold = solve_threshold(cfg.env.id, cfg.eval.solve_threshold)
     evaluator = Evaluator(
+        partial(evaluate, actor, eval_env, cfg.eval.max_steps),
         actor,
-        eval_env,
         cfg.eval.interval_frames,
-        cfg.eval.max_steps,
         threshold,
         cfg.eval.stop_when_solved,
-        report=telemetry.evaluation,
-        save_best=save_best,
-        redraw=telemetry.redraw_live_plot,
     )
-    components = Components(
+    progress, history = Progress(), History()
+    checkpointer = Checkpointer(
+        run_dir,
+        cfg,
+        {
+            "policy": actor,
+            "loss": learner.loss,
+            "optimizer": learner.optimizer,
+            **({} if exploration is None else {"exploration": exploration}),
+            **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
+            **({} if distributed else {"collector": collector}),
+            "progress": progress,
+            "learner": learner,
+            "evaluator": evaluator,
+            "history": history,
+            # last: its carrier replaces the one the collector's own state restored
+            "envs": EnvState(
+                None if distributed else env,
+                eval_env,
+                collector,
+                buffer,
+                trust_pickle=cfg.checkpoint.trust_pickled_envs,
+            ),
+        },
+        observation_norm,
+        metrics,
+    )
+    return Components(
         cfg,
         run_dir,
         env,
@@ -417,43 +422,25 @@ def _assemble(
         learner,
         collector,
         evaluator,
-        telemetry,
-        threshold=threshold,
+        progress,
+        history,
+        metrics,
+        ProgressBar(
+            cfg.logger.progress_bar,
+            cfg.env.id,
+            whole_batches(cfg.collector.total_frames, cfg.collector.frames_per_batch),
+        ),
+        LiveDurationPlot(
+            run_dir / "durations.png", run_title(cfg), min_seconds=cfg.logger.live_plot_seconds
+        )
+        if cfg.logger.live_plot
+        else None,
+        checkpointer,
+        lock,
+        threshold,
         learning_starts=max(
             cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
         ),
         sync_policy_weights=needs_weight_sync(collector, policy),
+        wall_start=wall_start,
     )
-    components.checkpointer = Checkpointer(
-        run_dir,
-        cfg,
-        {
-            "policy": actor,
-            "loss": learner.loss,
-            "optimizer": learner.optimizer,
-            **({} if exploration is None else {"exploration": exploration}),
-            **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
-            **({} if distributed else {"collector": collector}),
-            "progress": components.progress,
-            "learner": learner,
-            "evaluator": evaluator,
-            "telemetry": telemetry,
-            # last: its carrier replaces the one the collector's own state restored
-            "envs": EnvState(
-                None if distributed else env,
-                eval_env,
-                collector,
-                buffer,
-                trust_pickle=cfg.checkpoint.trust_pickled_envs,
-            ),
-        },
-        observation_norm,
-    )
-    if resume is not None:
-        try:
-            components.checkpointer.load(resume, components.progress)
-        except BaseException:
-            components.close()  # the collector may hold worker processes already
-            raise
-    telemetry.open_bar(components.progress.frames)
-    return components

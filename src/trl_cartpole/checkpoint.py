@@ -68,9 +68,25 @@ RESUMABLE_FIELDS = (
 )
 
 
+# The layout of a training state's components; a state of another format is refused in one line
+# (format 2: the loop's history under "history"; no state of format 1 is read any more).
+TRAINING_STATE_FORMAT = 2
+
+
 def _config_metadata(cfg: Config, kind: str, **extra: Any) -> dict[str, Any]:
     config = OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
     return {"kind": kind, "config": config, **extra}
+
+
+def check_training_state_format(path: str | Path) -> None:
+    """Raise a one-line :class:`ConfigError` unless ``path`` has this version's state format."""
+    found = Checkpoint.manifest(path).get("metadata", {}).get("format", 1)
+    if found != TRAINING_STATE_FORMAT:
+        raise ConfigError(
+            f"resume={str(path)!r} is a training state of format {found}, and this version "
+            f"reads format {TRAINING_STATE_FORMAT}; resume it with the version that wrote it, or "
+            "start a new run (its best policy still evaluates and exports)"
+        )
 
 
 def save_policy(path: str | Path, actor: nn.Module, cfg: Config, **metadata: Any) -> Path:
@@ -99,7 +115,11 @@ def save_training_state(
     """
     checkpoint = Checkpoint(rng=GlobalRNGState(), **components)
     metadata = _config_metadata(
-        cfg, TRAINING_STATE, counters=counters, observation_norm=observation_norm
+        cfg,
+        TRAINING_STATE,
+        format=TRAINING_STATE_FORMAT,
+        counters=counters,
+        observation_norm=observation_norm,
     )
     if keep_last is None:
         return _write_integrity(Path(checkpoint.save(path, metadata=metadata)))
@@ -233,6 +253,7 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
             f"resume={str(checkpoint)!r} is a {kind or 'foreign'} checkpoint without training "
             "state; pass the run directory (its checkpoints/periodic or checkpoints/last)"
         )
+    check_training_state_format(checkpoint)
     stored = read_checkpoint_config(checkpoint)
     # Trust in pickled env state comes from whoever resumes, not from the checkpoint's config.
     stored.checkpoint.trust_pickled_envs = False
@@ -302,15 +323,18 @@ class Checkpointer:
         cfg: Config,
         components: Mapping[str, Any],
         observation_norm: dict[str, list[float]] | None = None,
+        metrics: Any = None,
     ) -> None:
         self.run_dir, self.cfg = run_dir, cfg
         self.components = dict(components)
         self.observation_norm = observation_norm
+        self.metrics = metrics  # a MetricsLog: its W&B step goes into the counters
         self.interval = cfg.checkpoint.interval_frames or math.inf
         self.last_saved_frame = 0
 
     def load(self, path: str | Path, progress: Progress) -> None:
         """Restore every component from the training state at ``path``."""
+        check_training_state_format(path)
         components = dict(self.components)
         if "replay_buffer" not in Checkpoint.manifest(path)["components"]:
             components.pop("replay_buffer", None)  # saved while an n-step buffer was empty
@@ -319,8 +343,7 @@ class Checkpointer:
 
     def save(self, path: Path, progress: Progress, keep_last: int | None = None) -> Path:
         counters = {"frames": progress.frames, "updates": progress.updates}
-        telemetry = self.components.get("telemetry")
-        logger_step = None if telemetry is None else telemetry.logger_step()
+        logger_step = None if self.metrics is None else self.metrics.logger_step()
         if logger_step is not None:
             counters["logger_step"] = logger_step  # a W&B resume rewinds to it
         buffer = self.components.get("replay_buffer")
@@ -361,6 +384,18 @@ class Checkpointer:
                 stop.signum,
             )
         progress.clock.start()
+
+    def save_best(self, policy: nn.Module, frames: int, eval_return_mean: float) -> None:
+        """The best policy so far (``checkpoints/best``), if ``checkpoint.save_best``."""
+        if self.cfg.checkpoint.save_best:
+            save_policy(
+                self.run_dir / "checkpoints" / "best",
+                policy,
+                self.cfg,
+                frames=frames,
+                eval_return_mean=eval_return_mean,
+                observation_norm=self.observation_norm,
+            )
 
     def save_last(self, progress: Progress) -> None:
         """The end-of-run state (``checkpoints/last``), if ``checkpoint.save_last``."""

@@ -2,7 +2,7 @@
 
 ``torchrl.checkpoint.Checkpoint`` saves every component through ``state_dict()`` /
 ``load_state_dict()``. The networks, optimizer, exploration module, replay buffer, collector
-counters, global RNGs and the loop's own objects (progress, learner, evaluator, telemetry) have
+counters, global RNGs and the loop's own objects (progress, learner, evaluator, history) have
 their own; :class:`EnvState` gathers what lives inside TorchRL and Gymnasium objects, so that a
 run resumed from a checkpoint continues exactly as if never stopped:
 
@@ -121,15 +121,12 @@ def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | N
 
 
 def restore_env_snapshot(
-    env: EnvBase, snapshot: dict[str, Any] | bytes | None, trust_pickle: bool = False
+    env: EnvBase, snapshot: dict[str, Any] | None, trust_pickle: bool = False
 ) -> bool:
     """Put a snapshot of :func:`env_snapshot` back into ``env``; False if it holds no state.
 
-    A pickled snapshot (or the bare pickle bytes checkpoints held before arrays replaced it) is
-    loaded only with ``trust_pickle``.
+    A pickled snapshot is loaded only with ``trust_pickle``.
     """
-    if isinstance(snapshot, bytes):
-        snapshot = {"pickle": snapshot}
     if snapshot is None:
         return False
     gymnasium_env = gym_env(env)
@@ -144,8 +141,7 @@ def restore_env_snapshot(
         return True
     if not trust_pickle:
         return False
-    envs = pickle.loads(snapshot["pickle"])
-    envs = envs if isinstance(envs, list) else [envs]  # older checkpoints: a single env bare
+    envs = pickle.loads(snapshot["pickle"])  # a list: one Gymnasium env per env of the batch
     if any(isinstance(e.unwrapped, EzPickle) for e in envs):
         return False
     if isinstance(gymnasium_env, SyncVectorEnv):
@@ -223,10 +219,8 @@ class EnvState:
                     carrier_of(self.collector).update(env.reset())
                 continue
             memo = state[f"{key}_autoreset"]
-            if isinstance(memo, dict):
+            if memo is not None:
                 _restore_autoreset(env, memo)
-            elif isinstance(memo, bytes) and self.trust_pickle:  # older checkpoints pickled it
-                set_autoreset_state(env, pickle.loads(memo))
         # The carrier and the n-step window continue the training env's episodes: only with it.
         if restored["env"]:
             carrier = carrier_of(self.collector)
@@ -237,7 +231,7 @@ class EnvState:
 
     def _not_restored(self, key: str, snapshot: Any) -> str:
         name = key.replace("_", " ")
-        pickled = isinstance(snapshot, bytes) or "pickle" in (snapshot or {})
+        pickled = "pickle" in (snapshot or {})
         if pickled and not self.trust_pickle:
             return (
                 f"the {name}'s state was stored pickled, and unpickling runs any code the "

@@ -49,6 +49,7 @@ __all__ = [
     "evaluate_on_vector_env",
     "evaluate_with_rollout",
     "first_episode_mask",
+    "play_greedy_episodes",
 ]
 
 
@@ -172,24 +173,44 @@ def evaluate_on_vector_env(
     action_values = _action_values(
         actor, [t for t in env.transform if isinstance(t, ObservationNorm)]
     )
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        return play_greedy_episodes(
+            vector_env,
+            lambda observation: expected_action_values(actor, action_values(observation)),
+            max_steps,
+        )
+
+
+@torch.inference_mode()
+def play_greedy_episodes(
+    vector_env: gym.vector.VectorEnv,
+    q_values: Callable[[torch.Tensor], torch.Tensor],
+    max_steps: int,
+    seed: int | None = None,
+) -> EvalResult:
+    """Each env's first episode, greedy on ``q_values`` (obs ``[E, obs_dim]`` -> ``[E, A]``).
+
+    The evaluation protocol of a run and of the benchmark's peers alike: the Gymnasium vector
+    env is reset (with ``seed`` if given, else continuing its seeded random streams), stepped
+    until every env has ended one episode or ``max_steps``, and only each env's first episode
+    counts (Gymnasium's same-step autoreset starts the next one at once).
+    """
     num_envs = vector_env.num_envs
     returns = np.zeros(num_envs)  # [E]
     lengths = np.zeros(num_envs, dtype=np.int64)  # [E]
     running = np.ones(num_envs, dtype=bool)  # [E] still in its first episode
     initial_q = None
-    obs, _ = vector_env.reset()  # obs: [E, obs_dim]
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(max_steps):
-            observation = torch.as_tensor(obs, dtype=torch.float32)  # [E, obs_dim]
-            q = expected_action_values(actor, action_values(observation))  # [E, num_actions]
-            if initial_q is None:
-                initial_q = q
-            obs, reward, terminated, truncated, _ = vector_env.step(q.argmax(-1).numpy())
-            returns += reward * running
-            lengths += running
-            running &= ~(terminated | truncated)
-            if not running.any():
-                break
+    obs, _ = vector_env.reset(seed=seed)  # obs: [E, obs_dim]
+    for _ in range(max_steps):
+        q = q_values(torch.as_tensor(obs, dtype=torch.float32))  # [E, num_actions]
+        if initial_q is None:
+            initial_q = q
+        obs, reward, terminated, truncated, _ = vector_env.step(q.argmax(-1).numpy())
+        returns += reward * running
+        lengths += running
+        running &= ~(terminated | truncated)
+        if not running.any():
+            break
     return EvalResult(
         returns=returns.tolist(),
         lengths=lengths.tolist(),
@@ -252,9 +273,12 @@ class EvalCurve:
 
 @dataclass
 class Evaluation:
-    """One evaluation's result and what it means for the run."""
+    """One periodic evaluation: what :meth:`Evaluator.run` returns for the loop to dispatch."""
 
+    frames: int  # frames collected when it ran
     result: EvalResult
+    best_return: float  # the best greedy mean so far, this one included
+    new_best: bool  # this one is the best so far (its weights are kept)
     solved: bool  # the greedy mean reached the solve threshold
     stop: bool  # solved, and the run stops when solved
 
@@ -262,26 +286,23 @@ class Evaluation:
 class Evaluator:
     """Greedy evaluations every ``interval_frames``; keeps the best weights and the solve point.
 
-    ``report(result, best_return, frames)`` is called after each evaluation (the telemetry);
-    ``save_best(frames, mean)`` after each new best (writes the ``best`` policy checkpoint).
+    ``play()`` plays the evaluation episodes (``evaluate(actor, env, max_steps)`` in a run, a
+    peer's own greedy episodes in the benchmark) and ``network`` is what plays them: its
+    ``state_dict`` is kept at each new best. :meth:`run` only evaluates and keeps score; what
+    follows (logging, the progress bar, the plot, saving the best policy) is the caller's.
     """
 
     def __init__(
         self,
-        actor: TensorDictModuleBase,
-        env: EnvBase,
+        play: Callable[[], EvalResult],
+        network: torch.nn.Module,
         interval_frames: int,
-        max_steps: int,
         threshold: float | None,
         stop_when_solved: bool = True,
-        report: Callable[[EvalResult, float, int], None] | None = None,
-        save_best: Callable[[int, float], Any] | None = None,
-        redraw: Callable[[EvalCurve], None] | None = None,
     ) -> None:
-        self.actor, self.env = actor, env
-        self.interval_frames, self.max_steps = interval_frames, max_steps
+        self.play, self.network = play, network
+        self.interval_frames = interval_frames
         self.threshold, self.stop_when_solved = threshold, stop_when_solved
-        self.report, self.save_best, self.redraw = report, save_best, redraw
         self.best_return = -float("inf")
         self.best_state: dict[str, torch.Tensor] | None = None
         self.frames_to_solve: int | None = None
@@ -293,36 +314,32 @@ class Evaluator:
         """Whether ``interval_frames`` frames have passed since the last evaluation."""
         return progress.frames - max(self.last_eval_frame, 0) >= self.interval_frames
 
-    def run(self, progress: Progress, redraw: bool = True) -> Evaluation:
+    def run(self, progress: Progress) -> Evaluation:
         """Evaluate greedily with the training clock stopped; keep the weights if the best."""
         running = progress.clock.running
         progress.clock.pause()
-        result = evaluate(self.actor, self.env, self.max_steps)
+        result = self.play()
         frames, seconds = progress.frames, progress.clock.seconds
         self.last_eval_frame = frames
         self.curve.frames.append(frames)
         self.curve.seconds.append(round(seconds, 3))
         self.curve.returns.append(result.mean)
         self.curve.initial_values.append(result.initial_value)
-        if result.mean > self.best_return:
+        new_best = result.mean > self.best_return
+        if new_best:
             self.best_return = result.mean
-            self.best_state = copy.deepcopy(self.actor.state_dict())
-            if self.save_best is not None:
-                self.save_best(frames, result.mean)
+            self.best_state = copy.deepcopy(self.network.state_dict())
         solved = self.threshold is not None and result.mean >= self.threshold
         if solved and self.frames_to_solve is None:
             self.frames_to_solve, self.seconds_to_solve = frames, seconds
-        if self.report is not None:
-            self.report(result, self.best_return, frames)
-        if redraw and self.redraw is not None:
-            self.redraw(self.curve)
         if running:
             progress.clock.start()
-        return Evaluation(result, solved, solved and self.stop_when_solved)
+        stop = solved and self.stop_when_solved
+        return Evaluation(frames, result, self.best_return, new_best, solved, stop)
 
     def load_best(self) -> None:
-        """Put the best weights seen into the actor."""
-        self.actor.load_state_dict(self.best_state)
+        """Put the best weights seen into the network."""
+        self.network.load_state_dict(self.best_state)
 
     def state_dict(self) -> dict[str, Any]:
         return {

@@ -56,6 +56,7 @@ class Learner:
         self.optimizer = optimizer  # (stepped inside ``update``; saved with the training state)
         self.update = update  # make_update(...): one gradient step, possibly torch.compile'd
         self.prioritized = isinstance(buffer, TensorDictPrioritizedReplayBuffer)
+        self.last_report = UpdateReport(prioritized=self.prioritized)  # of the last step
 
     def step(self, count: int, progress: Progress) -> UpdateReport:
         """Take ``count`` updates; raise :class:`TrainingFailed` on a non-finite TD loss."""
@@ -75,6 +76,7 @@ class Learner:
             report.losses.append(loss)
             report.grad_norms.append(metrics["grad_norm"].item())
             report.last_sample = sample
+        self.last_report = report
         return report
 
     def state_dict(self) -> dict[str, Any]:

@@ -8,6 +8,7 @@ and writes ``summary.json``, whose keys other tools rely on (docs/architecture.m
 
 from __future__ import annotations
 
+import resource
 import time
 from pathlib import Path
 from typing import Any
@@ -19,36 +20,40 @@ import torchrl
 
 from trl_cartpole.build import Components, build_env, run_title
 from trl_cartpole.errors import TrainingFailed
-from trl_cartpole.evaluation import EvalResult, evaluate
+from trl_cartpole.evaluation import EvalResult, Evaluator, evaluate
 from trl_cartpole.files import write_json_atomic
 from trl_cartpole.plotting import plot_dashboard, plot_durations
-from trl_cartpole.telemetry import peak_rss_mb
 
-__all__ = ["finish", "record_failure"]
+__all__ = ["finish", "peak_rss_mb", "record_failure", "run_summary"]
 
 
-def finish(c: Components) -> dict[str, Any]:
+def peak_rss_mb() -> float:
+    """This process's peak resident memory in MiB (Linux reports ``ru_maxrss`` in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def finish(run: Components) -> dict[str, Any]:
     """Save the last state, evaluate the best policy, draw the plots, write ``summary.json``."""
-    cfg, progress, evaluator = c.cfg, c.progress, c.evaluator
+    cfg, progress, evaluator = run.cfg, run.progress, run.evaluator
     progress.clock.pause()
-    c.telemetry.close_bar()
-    c.checkpointer.save_last(progress)
-    c.release_collector()
-    if evaluator.last_eval_frame != progress.frames:
-        evaluator.run(progress, redraw=False)
-    c.telemetry.flush_live_plot()
+    run.progress_bar.close()
+    run.checkpointer.save_last(progress)
+    run.release_collector()
+    curves = run.history.curves(evaluator.curve, run.threshold)
+    if run.live_plot is not None:
+        run.live_plot.flush()
     evaluator.load_best()
     final_env = build_env(
-        cfg, cfg.seed + 2 * cfg.eval.seed_offset, cfg.eval.final_episodes, c.observation_norm
+        cfg, cfg.seed + 2 * cfg.eval.seed_offset, cfg.eval.final_episodes, run.observation_norm
     )
-    final = evaluate(c.actor, final_env, cfg.eval.max_steps)
+    final = evaluate(run.actor, final_env, cfg.eval.max_steps)
     final_env.close()
-    c.telemetry.log({"eval/final_return_mean": final.mean}, progress.frames)
-    c.telemetry.close()
+    run.metrics.log({"eval/final_return_mean": final.mean}, progress.frames)
+    run.metrics.close()
     if cfg.logger.plots:
-        history, curve = c.telemetry.history, evaluator.curve
+        history, curve = run.history, evaluator.curve
         title = run_title(cfg)
-        plot_durations(c.telemetry.curves(curve), c.run_dir / "durations.png", title)
+        plot_durations(curves, run.run_dir / "durations.png", title)
         plot_dashboard(
             curve.frames,
             curve.returns,
@@ -56,81 +61,111 @@ def finish(c: Components) -> dict[str, Any]:
             history.update_frames,
             history.td_losses,
             history.grad_norms,
-            c.run_dir / "dashboard.png",
+            run.run_dir / "dashboard.png",
             title=title,
-            threshold=c.threshold,
+            threshold=run.threshold,
         )
-    summary = _summary(c, final)
-    write_json_atomic(c.run_dir / "summary.json", summary)
+    phases = progress.phase_seconds
+    summary = run_summary(
+        env_id=cfg.env.id,
+        seed=cfg.seed,
+        algo=cfg.algo.name,
+        frames=progress.frames,
+        updates=progress.updates,
+        train_seconds=progress.clock.seconds,
+        wall_start=run.wall_start,
+        threshold=run.threshold,
+        evaluator=evaluator,
+        final=final,
+        run_dir=run.run_dir,
+        episodes=len(run.history.episode_returns),
+        # Throughput of the two halves of the loop.
+        collect_frames_per_second=round(progress.frames / max(phases["collect"], 1e-9)),
+        updates_per_second=round(progress.updates / max(phases["update"], 1e-9), 1),
+        phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
+        checkpoint=str(run.run_dir / "checkpoints" / "best") if cfg.checkpoint.save_best else None,
+        versions={
+            "torch": torch.__version__,
+            "torchrl": torchrl.__version__,
+            "tensordict": tensordict.__version__,
+            "gymnasium": gym.__version__,
+        },
+    )
+    write_json_atomic(run.run_dir / "summary.json", summary)
     return summary
 
 
-def record_failure(c: Components, failure: TrainingFailed) -> TrainingFailed:
+def run_summary(
+    *,
+    env_id: str,
+    seed: int,
+    algo: str,
+    frames: int,
+    updates: int,
+    train_seconds: float,
+    wall_start: float,
+    threshold: float | None,
+    evaluator: Evaluator,
+    final: EvalResult,
+    run_dir: str | Path,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The ``summary.json`` of a finished run: ours, and a benchmark peer's under the protocol.
+
+    ``evaluator`` holds the periodic evaluations (curve, best, solve point), ``final`` the
+    best policy's evaluation on new episodes; ``extra`` keys (throughput, versions...) follow
+    the shared ones, before ``peak_rss_mb``, ``run_dir`` and the end.
+    """
+    seconds_to_solve = evaluator.seconds_to_solve
+    return {
+        "env_id": env_id,
+        "seed": seed,
+        "algo": algo,
+        "frames": frames,
+        "updates": updates,
+        "train_seconds": round(train_seconds, 3),
+        "wall_seconds": round(time.perf_counter() - wall_start, 3),
+        "solved": evaluator.frames_to_solve is not None,
+        "solve_threshold": threshold,
+        "frames_to_solve": evaluator.frames_to_solve,
+        "seconds_to_solve": None if seconds_to_solve is None else round(seconds_to_solve, 3),
+        "final_eval_return_mean": final.mean,
+        "final_eval_return_std": final.std,
+        "final_eval_episodes": len(final.returns),
+        "final_eval_returns": final.returns,
+        "best_eval_return_mean": evaluator.best_return,
+        "eval_curve": {
+            "frames": evaluator.curve.frames,
+            "seconds": evaluator.curve.seconds,  # training seconds, evaluation excluded
+            "returns": evaluator.curve.returns,
+        },
+        **extra,
+        "peak_rss_mb": round(peak_rss_mb(), 1),
+        "run_dir": str(run_dir),
+    }
+
+
+def record_failure(run: Components, failure: TrainingFailed) -> TrainingFailed:
     """Write the failure to ``summary.json``; return the error to raise, naming that file.
 
     The last periodic checkpoint (written before the fault) stays the one to resume from.
     """
-    periodic = c.run_dir / "checkpoints" / "periodic"
-    progress, evaluator = c.progress, c.evaluator
+    periodic = run.run_dir / "checkpoints" / "periodic"
+    progress, evaluator = run.progress, run.evaluator
     summary = {
-        "env_id": c.cfg.env.id,
-        "seed": c.cfg.seed,
-        "algo": c.cfg.algo.name,
+        "env_id": run.cfg.env.id,
+        "seed": run.cfg.seed,
+        "algo": run.cfg.algo.name,
         "frames": progress.frames,
         "updates": progress.updates,
-        "wall_seconds": round(time.perf_counter() - c.wall_start, 3),
+        "wall_seconds": round(time.perf_counter() - run.wall_start, 3),
         "solved": evaluator.frames_to_solve is not None,
         "frames_to_solve": evaluator.frames_to_solve,
         "failed": True,
         "failure": str(failure),
         "best_eval_return_mean": evaluator.best_return if evaluator.best_state else None,
         "last_good_checkpoint": str(periodic) if periodic.is_dir() else None,
-        "run_dir": str(c.run_dir),
+        "run_dir": str(run.run_dir),
     }
-    write_json_atomic(c.run_dir / "summary.json", summary)
-    return TrainingFailed(f"{failure}; the failure is recorded in {c.run_dir / 'summary.json'}")
-
-
-def _summary(c: Components, final: EvalResult) -> dict[str, Any]:
-    cfg, progress, evaluator = c.cfg, c.progress, c.evaluator
-    phases = progress.phase_seconds
-    best = Path(c.run_dir) / "checkpoints" / "best"
-    return {
-        "env_id": cfg.env.id,
-        "seed": cfg.seed,
-        "algo": cfg.algo.name,
-        "frames": progress.frames,
-        "updates": progress.updates,
-        "train_seconds": round(progress.clock.seconds, 3),
-        "wall_seconds": round(time.perf_counter() - c.wall_start, 3),
-        "solved": evaluator.frames_to_solve is not None,
-        "solve_threshold": c.threshold,
-        "frames_to_solve": evaluator.frames_to_solve,
-        "seconds_to_solve": None
-        if evaluator.seconds_to_solve is None
-        else round(evaluator.seconds_to_solve, 3),
-        "final_eval_return_mean": final.mean,
-        "final_eval_return_std": final.std,
-        "final_eval_episodes": len(final.returns),
-        "final_eval_returns": final.returns,
-        "best_eval_return_mean": evaluator.best_return,
-        "episodes": len(c.telemetry.history.episode_returns),
-        # Throughput of the two halves of the loop, and the process's peak resident memory.
-        "collect_frames_per_second": round(progress.frames / max(phases["collect"], 1e-9)),
-        "updates_per_second": round(progress.updates / max(phases["update"], 1e-9), 1),
-        "phase_seconds": {name: round(seconds, 3) for name, seconds in phases.items()},
-        "peak_rss_mb": round(peak_rss_mb(), 1),
-        "eval_curve": {
-            "frames": evaluator.curve.frames,
-            "seconds": evaluator.curve.seconds,  # training seconds, evaluation excluded
-            "returns": evaluator.curve.returns,
-        },
-        "checkpoint": str(best) if cfg.checkpoint.save_best else None,
-        "run_dir": str(c.run_dir),
-        "versions": {
-            "torch": torch.__version__,
-            "torchrl": torchrl.__version__,
-            "tensordict": tensordict.__version__,
-            "gymnasium": gym.__version__,
-        },
-    }
+    write_json_atomic(run.run_dir / "summary.json", summary)
+    return TrainingFailed(f"{failure}; the failure is recorded in {run.run_dir / 'summary.json'}")

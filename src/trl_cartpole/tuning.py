@@ -15,12 +15,15 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 from omegaconf import OmegaConf
 
 from trl_cartpole.errors import ConfigError
+
+if TYPE_CHECKING:  # the evaluation module imports torch: not at the tuner's import
+    from trl_cartpole.evaluation import Evaluation
 
 __all__ = [
     "curve_score",
@@ -159,10 +162,10 @@ def _run_score(train: Any, cfg: Any, first_step: int, report: Any) -> float:
     expected = max(cfg.collector.total_frames // cfg.eval.interval_frames, 1)
     returns: list[float] = []
 
-    def on_evaluation(frames: int, mean: float) -> None:
-        returns.append(mean)
+    def on_evaluation(evaluation: Evaluation) -> None:
+        returns.append(evaluation.result.mean)
         if report is not None:
-            report(first_step + frames, curve_score(returns, len(returns)))
+            report(first_step + evaluation.frames, curve_score(returns, len(returns)))
 
     summary = train(cfg, on_evaluation=on_evaluation)
     return curve_score(summary["eval_curve"]["returns"], expected)
