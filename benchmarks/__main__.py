@@ -12,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from benchmarks import ablate, envs, profile, run, scaling, update_cost, wall
+from benchmarks import ablate, docs, envs, profile, readme, run, scaling, update_cost, wall
 from benchmarks.harness import sweep_arguments
 
 SUBCOMMANDS = {
@@ -23,6 +23,8 @@ SUBCOMMANDS = {
     "update-cost": update_cost,
     "profile": profile,
     "wall": wall,
+    "readme": readme,
+    "docs": docs,
 }
 
 

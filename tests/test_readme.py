@@ -92,3 +92,10 @@ def test_the_readmes_expected_ending_is_what_a_run_prints(monkeypatch):
         assert console.ending(summary).splitlines() == quoted
     finally:
         console.set_scripts_dir(None)
+
+
+def test_the_tutorials_python_runs_on_its_own(capsys):
+    tutorial = (ROOT / "docs" / "tutorial.md").read_text()
+    (code,) = _blocks(tutorial, "python")
+    exec(compile(code, "docs/tutorial.md", "exec"), {})
+    assert capsys.readouterr().out.strip() in ("tensor([1, 0])", "tensor([0, 1])")

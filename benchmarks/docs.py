@@ -1,0 +1,164 @@
+"""Regenerate every generated block of the docs from its one source (``--check``: fail if stale).
+
+A generated block sits between ``<!-- generated:NAME -->`` and ``<!-- /generated:NAME -->``;
+its text comes from the code, the schema, the presets or a results file that a benchmark
+wrote, never from a hand copy:
+
+- ``readme-ending``, ``readme-next-steps`` (README.md): the quick start's printed ending and the
+  measured time of each next step, from ``docs/results/readme.json`` (``python -m benchmarks
+  readme`` writes it, with the date, commit and machine);
+- ``config-fields`` (docs/reference/config.md): every field of the schema with its type, default
+  and meaning, the source ``--help`` prints;
+- ``algo-presets`` (docs/guide.md): what each ``configs/algo/`` preset sets, read from the YAML;
+- ``train-listing`` (docs/architecture.md): ``train()`` as the code has it.
+
+``tests/test_docs_in_sync.py`` runs the check, so CI fails when a doc drifts from its source.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "src" / "trl_cartpole"
+RESULTS = ROOT / "docs" / "results" / "readme.json"
+SEEDS = [0]
+OUT = Path("runs/bench/docs")
+
+
+def _fenced(text: str, language: str = "") -> str:
+    return f"```{language}\n{text.rstrip()}\n```"
+
+
+def readme_ending() -> str:
+    """The ending the quick start's run printed, as ``docs/results/readme.json`` recorded it."""
+    results = json.loads(RESULTS.read_text())
+    return _fenced(results["quick_start"]["ending"])
+
+
+def readme_next_steps() -> str:
+    """The next-step commands, each with the time it took in the recorded run."""
+    results = json.loads(RESULTS.read_text())
+    lines = []
+    for step in results["next_steps"]:
+        seconds = step.get("seconds")
+        timing = "" if seconds is None else f" ({_duration(seconds)})"
+        lines.append(f"{step['command']:<64} # {step['what']}{timing}")
+    machine = results["machine"]
+    return (
+        _fenced("\n".join(lines), "bash")
+        + f"\n\nTimes: command to prompt, measured {results['date']} on {machine['cpu']} "
+        f"({machine['cores']} cores) at commit {results['commit'][:7]}, one command at a time "
+        "(`python -m benchmarks readme`)."
+    )
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 1:
+        return "instant"
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.1f} min"
+
+
+def config_fields() -> str:
+    """Every leaf field of the schema: key, type, default and meaning (what ``--help`` shows)."""
+    from trl_cartpole.cli_help import field_help
+    from trl_cartpole.config import Config
+
+    rows = ["| field | type | default | meaning |", "| --- | --- | --- | --- |"]
+    for key, kind, default, meaning in field_help(Config):
+        rows.append(f"| `{key}` | {kind} | `{default}` | {meaning.replace('|', '/')} |")
+    return "\n".join(rows)
+
+
+def algo_presets() -> str:
+    """What each ``configs/algo/`` preset sets, from its YAML (comments dropped)."""
+    import yaml
+
+    rows = ["| preset | sets |", "| --- | --- |"]
+    for path in sorted((PACKAGE / "configs" / "algo").glob("*.yaml")):
+        settings = yaml.safe_load(path.read_text()) or {}
+        flat = _flatten({k: v for k, v in settings.items() if k != "defaults"})
+        shown = ", ".join(f"`{key}={_yaml_value(value)}`" for key, value in flat.items())
+        rows.append(f"| `algo={path.stem}` | {shown or 'the schema defaults'} |")
+    return "\n".join(rows)
+
+
+def _flatten(tree: dict, prefix: str = "") -> dict:
+    flat = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def _yaml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, list):
+        return "[" + ",".join(_yaml_value(v) for v in value) + "]"
+    return str(value)
+
+
+def train_listing() -> str:
+    """``train()`` as ``src/trl_cartpole/training.py`` has it."""
+    from trl_cartpole.training import train
+
+    return _fenced(inspect.getsource(train), "python")
+
+
+BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
+    "readme-ending": ("README.md", readme_ending),
+    "readme-next-steps": ("README.md", readme_next_steps),
+    "config-fields": ("docs/reference/config.md", config_fields),
+    "algo-presets": ("docs/guide.md", algo_presets),
+    "train-listing": ("docs/architecture.md", train_listing),
+}
+
+
+def _pattern(name: str) -> re.Pattern[str]:
+    return re.compile(
+        rf"(<!-- generated:{name} -->\n)(.*?)(\n<!-- /generated:{name} -->)", re.DOTALL
+    )
+
+
+def stale_blocks(write: bool = False) -> list[str]:
+    """The blocks whose text differs from their source (rewritten in place with ``write``)."""
+    stale = []
+    for name, (doc, generate) in BLOCKS.items():
+        path = ROOT / doc
+        text = path.read_text()
+        match = _pattern(name).search(text)
+        if match is None:
+            stale.append(f"{doc}: no <!-- generated:{name} --> block")
+            continue
+        expected = generate()
+        if match.group(2) != expected:
+            stale.append(f"{doc}: {name}")
+            if write:
+                start, end = match.span(2)
+                path.write_text(text[:start] + expected + text[end:])
+    return stale
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--check", action="store_true", help="write nothing; exit 1 if a block is stale"
+    )
+
+
+def main(args: argparse.Namespace) -> None:
+    stale = stale_blocks(write=not args.check)
+    if args.check and stale:
+        print("stale generated docs (python -m benchmarks docs):", *stale, sep="\n  ")
+        sys.exit(1)
+    print("rewrote: " + ", ".join(stale) if stale else "every generated block is up to date")
