@@ -16,7 +16,13 @@ import argparse
 import json
 from pathlib import Path
 
-from benchmarks.harness import VARIANT_PRESETS, markdown_table, run_presets
+from benchmarks.harness import (
+    VARIANT_PRESETS,
+    markdown_table,
+    provenance,
+    provenance_line,
+    run_presets,
+)
 from trl_cartpole.plotting import plot_seed_groups
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/ablations"
@@ -63,7 +69,8 @@ def main(args: argparse.Namespace) -> None:
         return
     seeds = " ".join(str(seed) for seed in args.seeds)
     block = (
-        f"Seeds {seeds}; command: `python -m benchmarks ablate --doc {args.doc}"
+        f"{provenance_line(provenance())} Seeds {seeds}; command: "
+        f"`python -m benchmarks ablate --doc {args.doc}"
         f"{''.join(' ' + o for o in args.overrides)} --seeds {seeds}`.\n\n{table}\n\n"
         f"![eval return against frames per preset]({image.relative_to(args.doc.parent)})"
     )

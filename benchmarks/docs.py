@@ -25,6 +25,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from benchmarks.harness import provenance_line
+
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "src" / "trl_cartpole"
 RESULTS = ROOT / "docs" / "results" / "readme.json"
@@ -50,12 +52,10 @@ def readme_next_steps() -> str:
         seconds = step.get("seconds")
         timing = "" if seconds is None else f" ({_duration(seconds)})"
         lines.append(f"{step['command']:<64} # {step['what']}{timing}")
-    machine = results["machine"]
     return (
         _fenced("\n".join(lines), "bash")
-        + f"\n\nTimes: command to prompt, measured {results['date']} on {machine['cpu']} "
-        f"({machine['cores']} cores) at commit {results['commit'][:7]}, one command at a time "
-        "(`python -m benchmarks readme`)."
+        + "\n\nTimes: command to prompt, one command at a time (`python -m benchmarks readme`). "
+        + provenance_line(results)
     )
 
 

@@ -75,6 +75,38 @@ PEER_VENV_ROOT = Path("runs") / "peer-venvs"
 _PEER_VENV_LOCK = threading.Lock()  # --jobs 2 starts two runs of a peer at once: make it once
 
 
+def provenance() -> dict[str, Any]:
+    """When, at which commit and on which machine a result was measured (for results files)."""
+    import datetime
+    import platform
+
+    cpu = platform.processor() or "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    commit = subprocess.run(
+        ["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True, check=False
+    ).stdout.strip()
+    return {
+        "date": datetime.date.today().isoformat(),
+        "commit": commit or "unknown",
+        "machine": {"cpu": cpu, "cores": os.cpu_count()},
+    }
+
+
+def provenance_line(record: dict[str, Any]) -> str:
+    """``Measured 2026-11-25 at commit abc1234 on <CPU> (2 cores).``"""
+    machine = record["machine"]
+    return (
+        f"Measured {record['date']} at commit `{record['commit'][:7]}` on {machine['cpu']} "
+        f"({machine['cores']} cores)."
+    )
+
+
 def peer_python(peer: str) -> str:
     """The interpreter that runs ``peer``: this one, or its own virtual environment's.
 

@@ -12,15 +12,14 @@ kernels); on another, the difference is reported and not failed.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import os
-import platform
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from benchmarks.harness import provenance
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "docs" / "results" / "readme.json"
@@ -56,19 +55,6 @@ NEXT_STEPS = [
 ]
 
 
-def machine() -> dict[str, object]:
-    """The CPU model and core count (a seed's run and every time depend on them)."""
-    cpu = platform.processor() or "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count()}
-
-
 def _run(command: str) -> tuple[float, str]:
     """Run ``command`` (its ``.venv/bin/python`` is this interpreter): seconds and stdout."""
     argv = [sys.executable if word == PYTHON else word for word in command.split()]
@@ -97,13 +83,8 @@ def record() -> dict[str, object]:
             latest.unlink()
             latest.symlink_to(run_dir.name)
         steps.append(step)
-    commit = subprocess.run(
-        ["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=False
-    ).stdout.strip()
     return {
-        "date": datetime.date.today().isoformat(),
-        "commit": commit,
-        "machine": machine(),
+        **provenance(),
         "quick_start": {
             "command": QUICK_START,
             "seconds": round(seconds, 1),
@@ -131,7 +112,8 @@ def check_run(run_dir: Path) -> None:
     if not differ:
         print(f"the quick start ran as the README says: {found}")
         return
-    same_cpu = machine()["cpu"] == recorded["machine"]["cpu"]
+    here = provenance()["machine"]["cpu"]
+    same_cpu = here == recorded["machine"]["cpu"]
     detail = ", ".join(f"{key} {old} -> {new}" for key, (old, new) in differ.items())
     if same_cpu:
         print(
@@ -140,7 +122,7 @@ def check_run(run_dir: Path) -> None:
         )
         sys.exit(1)
     print(
-        f"note: on {machine()['cpu']} (the README's run: {recorded['machine']['cpu']}) "
+        f"note: on {here} (the README's run: {recorded['machine']['cpu']}) "
         f"the quick start differs ({detail}): another CPU's float kernels"
     )
 
