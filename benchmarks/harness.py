@@ -80,11 +80,14 @@ def provenance() -> dict[str, Any]:
     import datetime
     import platform
 
-    cpu = platform.processor() or "unknown CPU"
+    cpu, vector_units = platform.processor() or "unknown CPU", []
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
                 cpu = line.split(":", 1)[1].strip()
+            elif line.startswith("flags"):  # the float kernels torch picks depend on these
+                flags = line.split(":", 1)[1].split()
+                vector_units = sorted(f for f in flags if f.startswith(("avx", "fma", "amx")))
                 break
     except OSError:
         pass
@@ -94,7 +97,7 @@ def provenance() -> dict[str, Any]:
     return {
         "date": datetime.date.today().isoformat(),
         "commit": commit or "unknown",
-        "machine": {"cpu": cpu, "cores": os.cpu_count()},
+        "machine": {"cpu": cpu, "cores": os.cpu_count(), "vector_units": vector_units},
     }
 
 

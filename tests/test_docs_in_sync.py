@@ -43,3 +43,70 @@ def test_the_readme_states_the_size_of_the_default_tier(request):
     if not whole_tier:
         pytest.skip("counts the default tier only when the whole tier runs")
     assert stated == len(request.session.items)
+
+
+# A command line in a doc: optional interpreter, then scripts/NAME.py or trl-cartpole NAME.
+COMMAND = re.compile(
+    r"^(?:\S*python\S*\s+)?(?:\S*scripts/(?P<script>\w+)\.py|trl-cartpole\s+(?P<sub>\w+))(?P<rest>.*)$"
+)
+SCHEMAS = {
+    "evaluate": ("trl_cartpole.commands.evaluate", "EvaluateArgs"),
+    "render": ("trl_cartpole.commands.render", "RenderArgs"),
+    "export": ("trl_cartpole.commands.export", "ExportArgs"),
+    "tune": ("trl_cartpole.commands.tune", "TuneArgs"),
+    "plot": ("trl_cartpole.commands.plot", "PlotArgs"),
+}
+
+
+def _documented_commands() -> list[tuple[str, str, list[str]]]:
+    """``(where, subcommand, key=value arguments)`` of every command in a bash block of the docs."""
+    import shlex
+
+    found = []
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
+        for block in re.findall(r"```bash\n(.*?)```", path.read_text(), re.DOTALL):
+            for line in block.replace("\\\n", " ").splitlines():
+                for part in line.split("&&"):
+                    match = COMMAND.match(part.strip())
+                    if match is None:
+                        continue
+                    words = shlex.split(match["rest"], comments=True)
+                    name = match["script"] or match["sub"]
+                    found.append((path.name, name, [w for w in words if "=" in w]))
+    return found
+
+
+def test_every_documented_command_line_is_one_the_code_accepts():
+    """Each key of each documented command is a field its command knows, with a valid value."""
+    import dataclasses
+    import importlib
+
+    from omegaconf import OmegaConf
+
+    from trl_cartpole.cli import compose_config
+    from trl_cartpole.config import to_config
+    from trl_cartpole.validation import validate
+
+    commands = _documented_commands()
+    assert len(commands) > 30  # the README and the guides are full of them
+    refused = []
+    for where, name, args in commands:
+        # a placeholder (RUN_DIR, <run>), a user's own presets (presets=, a tuned preset the
+        # docs write first) or a checkpoint path is not checkable here
+        args = [a for a in args if not re.search(r"[<>]|[A-Z]{3,}|presets=|resume=|_tuned$", a)]
+        # a sweep's "key=a,b" is checked at its first value
+        args = [re.sub(r"=([^\[,]+),.*", r"=\1", a) for a in args]
+        try:
+            training = args
+            if name in SCHEMAS:  # its own keys, then the training overrides it passes on
+                module, schema = SCHEMAS[name]
+                schema = getattr(importlib.import_module(module), schema)
+                fields = {f.name for f in dataclasses.fields(schema)}
+                own = [a for a in args if a.split("=", 1)[0] in fields or name != "tune"]
+                OmegaConf.merge(OmegaConf.structured(schema), OmegaConf.from_dotlist(own))
+                training = [a for a in args if a not in own] if name == "tune" else []
+            if name in ("train", "tune") and training:
+                validate(to_config(compose_config(overrides=training)))
+        except Exception as error:
+            refused.append(f"{where}: {name} {' '.join(args)}: {str(error).splitlines()[0]}")
+    assert refused == []
