@@ -126,9 +126,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
 
 
 def _pattern(name: str) -> re.Pattern[str]:
-    return re.compile(
-        rf"(<!-- generated:{name} -->\n)(.*?)(\n<!-- /generated:{name} -->)", re.DOTALL
-    )
+    return re.compile(rf"<!-- generated:{name} -->.*?<!-- /generated:{name} -->", re.DOTALL)
 
 
 def stale_blocks(write: bool = False) -> list[str]:
@@ -141,12 +139,11 @@ def stale_blocks(write: bool = False) -> list[str]:
         if match is None:
             stale.append(f"{doc}: no <!-- generated:{name} --> block")
             continue
-        expected = generate()
-        if match.group(2) != expected:
+        expected = f"<!-- generated:{name} -->\n{generate()}\n<!-- /generated:{name} -->"
+        if match.group(0) != expected:
             stale.append(f"{doc}: {name}")
             if write:
-                start, end = match.span(2)
-                path.write_text(text[:start] + expected + text[end:])
+                path.write_text(text[: match.start()] + expected + text[match.end() :])
     return stale
 
 
