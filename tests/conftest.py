@@ -87,25 +87,22 @@ def smoke_checkpoint(tmp_path_factory) -> Path:
 def run_script_in_process(name: str, *args: str) -> subprocess.CompletedProcess:
     """``scripts/<name>`` run by this process: its exit status and what it printed.
 
-    The same entry (``run_cli``) as the script, so bad input still ends in one line and exit
+    The same entry (``cli.run_script``) as the script, so bad input still ends in one line and exit
     status 2, without a new interpreter importing torch (seconds a test). Tests of what only a
     process shows (signals, a traceback at exit, the import cost) use :func:`run_script`.
     """
     import contextlib
-    import importlib
     import io
 
-    from trl_cartpole.cli import run_cli
+    from trl_cartpole.cli import run_script as run_script_entry
     from trl_cartpole.console import set_scripts_dir
 
-    command = importlib.import_module(f"trl_cartpole.commands.{Path(name).stem}")
     stdout, stderr = io.StringIO(), io.StringIO()
     saved_cwd = Path.cwd()
-    set_scripts_dir(SCRIPTS)
     os.chdir(ROOT)  # the scripts print paths relative to where they run
     try:
         with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-            code = run_cli(command.main, list(args))
+            code = run_script_entry(Path(name).stem, SCRIPTS / name, list(args))
     finally:
         os.chdir(saved_cwd)
         set_scripts_dir(None)

@@ -44,8 +44,7 @@ class GreedyEvaluation:
         self.max_steps = max_steps
 
     def __call__(self, q_values: QValues) -> EvalResult:
-        with torch.no_grad():
-            result = play_greedy_episodes(self.env, q_values, self.max_steps, seed=self.seed)
+        result = play_greedy_episodes(self.env, q_values, self.max_steps, seed=self.seed)
         self.seed = None
         return result
 
@@ -70,8 +69,9 @@ class PeerRun:
         self.wall_start = time.perf_counter()
         self.progress = Progress()  # its clock is the training time: paused while evaluating
         self.progress.clock.start()
-        self.evaluator: Evaluator | None = None
+        self.evaluator: Evaluator | None = None  # set by watch()
         self.q_values: QValues | None = None
+        self._periodic: GreedyEvaluation | None = None
 
     def watch(self, network: torch.nn.Module, q_values: QValues | None = None) -> None:
         """Evaluate ``network`` (``q_values``: its observations -> action values, if not itself)."""

@@ -206,7 +206,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run_cli(_command_main(name), rest)
 
 
-def run_script(name: str, script: str | Path) -> int:
-    """``python scripts/NAME.py ...``: subcommand ``name``, its printed commands naming scripts."""
+def run_script(name: str, script: str | Path, argv: Sequence[str] | None = None) -> int:
+    """``python scripts/NAME.py ...``: subcommand ``name``, its printed commands naming scripts.
+
+    ``argv`` defaults to the process's own arguments.
+    """
     set_scripts_dir(Path(script).resolve().parent)
-    return run_cli(_command_main(name))
+    return run_cli(_command_main(name), argv)

@@ -39,7 +39,6 @@ def finish(run: Components) -> dict[str, Any]:
     run.progress_bar.close()
     run.checkpointer.save_last(progress)
     run.release_collector()
-    curves = run.history.curves(evaluator.curve, run.threshold)
     if run.live_plot is not None:
         run.live_plot.flush()
     evaluator.load_best()
@@ -53,7 +52,7 @@ def finish(run: Components) -> dict[str, Any]:
     if cfg.logger.plots:
         history, curve = run.history, evaluator.curve
         title = run_title(cfg)
-        plot_durations(curves, run.run_dir / "durations.png", title)
+        plot_durations(history.curves(curve, run.threshold), run.run_dir / "durations.png", title)
         plot_dashboard(
             curve.frames,
             curve.returns,
