@@ -3,9 +3,7 @@
 ``--help`` lists its keys; the code is ``trl_cartpole.commands.tune``.
 """
 
-import sys
-
-from trl_cartpole.cli import run_script
+from trl_cartpole.cli import exit_process, run_script
 
 if __name__ == "__main__":
-    sys.exit(run_script("tune", __file__))
+    exit_process(run_script("tune", __file__))

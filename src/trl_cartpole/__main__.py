@@ -1,7 +1,5 @@
 """``python -m trl_cartpole COMMAND [key=value ...]``: the ``trl-cartpole`` command."""
 
-import sys
+from trl_cartpole.cli import console_main
 
-from trl_cartpole.cli import main
-
-sys.exit(main())
+console_main()

@@ -13,12 +13,15 @@ instead.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import os
 import re
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
@@ -204,6 +207,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     set_scripts_dir(None)
     return run_cli(_command_main(name), rest)
+
+
+def console_main() -> NoReturn:
+    """The ``trl-cartpole`` executable: :func:`main`, then :func:`exit_process`."""
+    exit_process(main())
+
+
+def exit_process(status: int) -> NoReturn:
+    """End the process with ``status`` as ``sys.exit`` does, without the interpreter's teardown.
+
+    Python's exit first does what a finished command needs: it joins the non-daemon threads
+    (after the hooks that tell pools to stop), runs the ``atexit`` functions (Ray's shutdown,
+    multiprocessing's children, logging's flush) and flushes stdout and stderr. Then it frees
+    every module and object one by one: about 1.4 s once torch and TorchRL are imported, for
+    nothing anyone reads (docs/performance.md). This does the first part, with the same
+    private hooks the interpreter calls, and ends with ``os._exit``. For a command's end only:
+    in a process that goes on (a test, a notebook) call the command's function instead.
+    """
+    threading._shutdown()  # type: ignore[attr-defined]  # Py_FinalizeEx's first step
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # a closed pipe: nothing more to say
+            stream.flush()
+    os._exit(status)
 
 
 def run_script(name: str, script: str | Path, argv: Sequence[str] | None = None) -> int:

@@ -26,7 +26,13 @@ from typing import Any
 from trl_cartpole.cli import compose_config
 from trl_cartpole.errors import ConfigError, TrainingFailed
 from trl_cartpole.presets import preset_dirs
-from trl_cartpole.tuning import load_search_space, suggest, trial_score, write_preset
+from trl_cartpole.tuning import (
+    OBJECTIVES,
+    load_search_space,
+    suggest,
+    trial_score,
+    write_preset,
+)
 
 try:
     import optuna
@@ -98,7 +104,13 @@ def _work(spec: dict[str, Any]) -> None:
 
         try:
             return trial_score(
-                spec["config_dir"], spec["overrides"], params, spec["seeds"], trial_dir, report
+                spec["config_dir"],
+                spec["overrides"],
+                params,
+                spec["seeds"],
+                trial_dir,
+                report,
+                spec["objective"],
             )
         finally:
             shutil.rmtree(trial_dir, ignore_errors=True)  # a trial's runs are not kept
@@ -135,6 +147,7 @@ def run_study(
     space_path: str | Path | None = None,
     seeds: Sequence[int] = (0,),
     pruner: Any = "median",
+    objective: str = "return",
 ) -> StudyResult:
     """Run (or continue) a study to ``trials`` finished trials; write the best as a preset."""
     if optuna is None:
@@ -155,9 +168,17 @@ def run_study(
     else:
         study_dir = Path("runs") / "tune" / study_name
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    optuna.create_study(
-        study_name=study_name, storage=_storage(storage), direction="maximize", load_if_exists=True
+    if objective not in OBJECTIVES:
+        raise ConfigError(f"objective={objective!r}; choose one of {', '.join(OBJECTIVES)}")
+    direction = OBJECTIVES[objective]
+    study = optuna.create_study(
+        study_name=study_name, storage=_storage(storage), direction=direction, load_if_exists=True
     )
+    if study.direction.name.lower() != direction:
+        raise ConfigError(
+            f"study {study_name!r} in {storage} was made to {study.direction.name.lower()} its "
+            f"score; objective={objective} needs one that is to {direction}: name another study="
+        )
     spec = {
         "study_name": study_name,
         "storage": storage,
@@ -169,6 +190,7 @@ def run_study(
         "overrides": [arg for arg in overrides if not arg.startswith("seed=")],
         "seeds": list(seeds),
         "trials": trials,
+        "objective": objective,
     }
     if not isinstance(pruner, str) and jobs > 1:
         raise ConfigError("a pruner object works with jobs=1 only; name one for several jobs")
@@ -209,7 +231,7 @@ def run_study(
         f"{cfg.env.id} tuned by trl-cartpole tune (study {study_name}, trial {best.number}: "
         f"score {best.value:.1f})",
         f"base preset env={preset}; tuned over {', '.join(space)}",
-        f"score: mean greedy return over the evaluations of {cfg.collector.total_frames} frames, "
+        f"score: {_score_words(objective, cfg.collector.total_frames)}, "
         f"seeds {', '.join(map(str, seeds))}; {len(finished)} trials, {pruned} pruned",
         f"tuning overrides: {' '.join(overrides) or 'none'}",
     ]
@@ -223,6 +245,13 @@ def run_study(
         f"plots: {study_dir / 'history.png'}, {study_dir / 'importances.png'}",
     ]
     return StudyResult(best.value, dict(best.params), len(finished), pruned, "\n".join(lines), path)
+
+
+def _score_words(objective: str, total_frames: int) -> str:
+    """What a trial's score is, for the preset's header."""
+    if objective == "frames":
+        return f"mean frames to solve (unsolved: {2 * total_frames}) within {total_frames} frames"
+    return f"mean greedy return over the evaluations of {total_frames} frames"
 
 
 def _preset_body(path: Path) -> dict[str, Any]:
@@ -250,6 +279,7 @@ def _save_plots(study: Any, study_dir: Path) -> None:
         try:
             with warnings.catch_warnings():  # Optuna marks its matplotlib plots experimental
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                warnings.simplefilter("ignore", UserWarning)  # e.g. importances all equal
                 axes = plot(study)
         except (ValueError, RuntimeError):  # e.g. every parameter constant so far
             continue

@@ -1,11 +1,13 @@
 """Hyperparameter search with Optuna: a YAML search space, pruned trials, a preset as the result.
 
 A trial samples the fields of a search space (``configs/tune/<env>.yaml``) with Optuna's TPE
-sampler (Bergstra et al. 2011), trains one run per seed with them, and scores them by
-:func:`curve_score`: the mean greedy return over the periodic evaluations of the frame budget
-(the area under the evaluation curve, divided by its length), where a run that stopped because
-it solved the env keeps its last value until the budget. Each evaluation is reported to the
-trial, so Optuna's pruner (median rule by default) stops poor trials early. The study lives in an
+sampler (Bergstra et al. 2011), trains one run per seed with them, and scores them by one of
+:data:`OBJECTIVES`: ``return`` (:func:`curve_score`, maximised: the mean greedy return over the
+periodic evaluations of the frame budget, the area under the evaluation curve divided by its
+length, where a run that stopped because it solved the env keeps its last value until the
+budget) or ``frames`` (:func:`frames_score`, minimised: the frames to solve, an unsolved run
+counting twice its budget). Each evaluation is reported to the trial, so Optuna's pruner
+(median rule by default) stops poor trials early. The study lives in an
 Optuna storage (SQLite by default), so a stopped study resumes and several processes share it.
 The best trial is written as a preset ``scripts/train.py`` takes by name.
 """
@@ -26,7 +28,9 @@ if TYPE_CHECKING:  # the evaluation module imports torch: not at the tuner's imp
     from trl_cartpole.evaluation import Evaluation
 
 __all__ = [
+    "OBJECTIVES",
     "curve_score",
+    "frames_score",
     "load_search_space",
     "objective_overrides",
     "suggest",
@@ -34,6 +38,10 @@ __all__ = [
 ]
 
 RANGE_KEYS = {"low", "high", "log", "step"}
+
+OBJECTIVES = {"return": "maximize", "frames": "minimize"}
+"""A trial's score and its direction: the mean greedy return over the evaluations, or the
+frames to solve."""
 
 
 def load_search_space(path: str | Path) -> dict[str, dict[str, Any]]:
@@ -106,6 +114,11 @@ def curve_score(returns: Sequence[float], expected: int) -> float:
     return (sum(returns) + held * returns[-1]) / (len(returns) + held)
 
 
+def frames_score(frames_to_solve: int | None, total_frames: int) -> float:
+    """Frames to solve; a run that never solved counts as twice its frame budget."""
+    return float(2 * total_frames if frames_to_solve is None else frames_to_solve)
+
+
 def write_preset(
     path: str | Path,
     base: Mapping[str, Any],
@@ -134,16 +147,21 @@ def trial_score(
     seeds: Sequence[int],
     trial_dir: Path,
     report: Any = None,
+    objective: str = "return",
 ) -> float:
-    """Train one run per seed with ``params``; the mean of their :func:`curve_score`.
+    """Train one run per seed with ``params``; the mean of their scores under ``objective``.
 
     ``report(step, value)`` (``optuna.Trial.report`` and a prune check) gets each evaluation's
-    running score; seed ``k``'s evaluations are steps ``k * total_frames + frames``.
+    running score, the mean over this seed and the seeds before it; seed ``k``'s evaluations are
+    steps ``k * total_frames + frames``. Under ``frames`` a seed's running score is its frames so
+    far until it solves, and once it solves its frames to solve are reported at the remaining
+    evaluation steps of its budget too, so that a trial still unsolved where most earlier trials
+    had solved is pruned.
     """
     from trl_cartpole.cli import compose_config
     from trl_cartpole.training import train
 
-    scores = []
+    scores: list[float] = []
     for index, seed in enumerate(seeds):
         run_overrides = [
             *overrides,
@@ -153,22 +171,49 @@ def trial_score(
             *QUIET_RUN,
         ]
         cfg = compose_config(config_dir, run_overrides)
-        scores.append(_run_score(train, cfg, index * cfg.collector.total_frames, report))
+        report_seed = _seed_reporter(report, index * cfg.collector.total_frames, list(scores))
+        score_run = _return_score if objective == "return" else _frames_score
+        scores.append(score_run(train, cfg, report_seed))
     return sum(scores) / len(scores)
 
 
-def _run_score(train: Any, cfg: Any, first_step: int, report: Any) -> float:
-    """One run's :func:`curve_score`; each evaluation's running score reported at its step."""
+def _seed_reporter(report: Any, first_step: int, done: list[float]) -> Any:
+    """``report_seed(frames, value)``: the mean of ``done`` and ``value`` at the seed's step."""
+
+    def report_seed(frames: int, value: float) -> None:
+        if report is not None:
+            report(first_step + frames, (sum(done) + value) / (len(done) + 1))
+
+    return report_seed
+
+
+def _return_score(train: Any, cfg: Any, report_seed: Any) -> float:
+    """One run's :func:`curve_score`; each evaluation's running score reported at its frames."""
     expected = max(cfg.collector.total_frames // cfg.eval.interval_frames, 1)
     returns: list[float] = []
 
     def on_evaluation(evaluation: Evaluation) -> None:
         returns.append(evaluation.result.mean)
-        if report is not None:
-            report(first_step + evaluation.frames, curve_score(returns, len(returns)))
+        report_seed(evaluation.frames, curve_score(returns, len(returns)))
 
     summary = train(cfg, on_evaluation=on_evaluation)
     return curve_score(summary["eval_curve"]["returns"], expected)
+
+
+def _frames_score(train: Any, cfg: Any, report_seed: Any) -> float:
+    """One run's :func:`frames_score`; its frames so far reported at each evaluation."""
+    total = cfg.collector.total_frames
+    batch = cfg.collector.frames_per_batch
+    period = -(-cfg.eval.interval_frames // batch) * batch  # evaluations fall on whole batches
+
+    def on_evaluation(evaluation: Evaluation) -> None:
+        report_seed(evaluation.frames, float(evaluation.frames))
+        if evaluation.solved:  # held at the steps its budget would still have evaluated
+            for frames in range(evaluation.frames + period, total + batch, period):
+                report_seed(frames, float(evaluation.frames))
+
+    summary = train(cfg, on_evaluation=on_evaluation)
+    return frames_score(summary["frames_to_solve"], total)
 
 
 # A trial's runs write no plots, periodic checkpoints or policies: only what the score needs.

@@ -1,7 +1,8 @@
 """Tune hyperparameters with Optuna and write the best trial as a preset (docs/tuning.md).
 
 usage: trl-cartpole tune trials=N out=FILE [jobs=J] [storage=URL] [study=NAME] [space=FILE]
-           [seeds=[0,1]] [pruner=median|none] [train's key=value ...]
+           [seeds=[0,1]] [pruner=median|none] [objective=return|frames]
+           [train's key=value ...]
 
 Every other key=value is train's (env=lunarlander collector.total_frames=300000); the search
 space is the env preset's tune/<preset>.yaml unless space= names one. trials= is the study's
@@ -27,6 +28,7 @@ from trl_cartpole.config import to_config
 from trl_cartpole.console import command, shown_path
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.presets import PRESETS_DIR, preset_dirs
+from trl_cartpole.tuning import OBJECTIVES
 from trl_cartpole.validation import validate
 
 
@@ -42,6 +44,9 @@ class TuneArgs:
     # median: stop a trial whose running score is below the median of earlier trials at the
     # same step (after 5 trials, from a quarter of the frame budget on); none: never
     pruner: str = "median"
+    # return: maximise the mean greedy return over the evaluations; frames: minimise the frames
+    # to solve (an unsolved run counts twice the frame budget)
+    objective: str = "return"
 
 
 TUNE_KEYS = {f.name for f in dataclasses.fields(TuneArgs)}
@@ -57,6 +62,8 @@ def main(argv: list[str]) -> None:
     args = parse_args(TuneArgs, own, __doc__)
     if args.pruner not in ("median", "none"):
         raise ConfigError(f"pruner={args.pruner!r}; choose median or none")
+    if args.objective not in OBJECTIVES:
+        raise ConfigError(f"objective={args.objective!r}; choose {' or '.join(OBJECTIVES)}")
     # the trials' base config is checked before Optuna, torch and TorchRL are imported
     validate(to_config(compose_config(PRESETS_DIR, overrides)))
     from trl_cartpole.study import run_study
@@ -72,6 +79,7 @@ def main(argv: list[str]) -> None:
         space_path=args.space,
         seeds=args.seeds,
         pruner=args.pruner,
+        objective=args.objective,
     )
     print(result.summary)
     preset = Path(args.out).resolve()
