@@ -1,19 +1,26 @@
 """Median frames and seconds to solve over seeds, per preset, optionally against peer DQNs.
 
     python -m benchmarks run --algos dqn tutorial --seeds 0 1 2 3 4
-        [--peers tutorial_loop sb3_dqn tianshou_dqn] [--jobs 1] [--out runs/benchmark]
-        [key=value ...]
+        [--peers tutorial_loop sb3_dqn tianshou_dqn] [--eval-interval 1000 [2500]]
+        [--jobs 1] [--out runs/benchmark] [key=value ...]
+
+docs/performance.md's 20-seed table, both protocols, on seeds no preset was tuned on:
+
+    python -m benchmarks run --algos dqn --peers sb3_dqn --eval-interval 1000 2500
+        --seeds $(seq 100 119) --out runs/perf20
 
 Each (preset, seed) is one ``scripts/train.py`` run, each (peer, seed) one
 ``python -m benchmarks.peers.<peer>`` run, in their own processes (``--jobs`` at a time;
 1, the default, keeps the machine's noise the same for all). Every run evaluates greedily over
 ``--eval-episodes`` episodes every ``--eval-interval`` frames with the training clock stopped
-(``benchmarks.peers.protocol``). ``tianshou_dqn`` runs from its own virtual environment,
-``runs/peer-venvs/tianshou_dqn``, made on its first use (``benchmarks.harness.peer_python``).
-The table of medians (solve rate, frames and seconds to
-solve, collection frames/s, updates/s, peak RSS) is printed and written to ``OUT/results.md``
-and ``OUT/results.json``, followed by the ratios: each peer's median seconds_to_solve over the
-first preset's, and seconds per frame of ``tutorial`` against ``tutorial_loop``.
+(``benchmarks.peers.protocol``); several ``--eval-interval`` values run every (preset, seed)
+once per protocol, in ``OUT/every-N``, with a table each. ``tianshou_dqn`` runs from its own
+virtual environment, ``runs/peer-venvs/tianshou_dqn``, made on its first use
+(``benchmarks.harness.peer_python``). The table (solve rate, frames and seconds to solve,
+collection frames/s, updates/s, peak RSS) is printed and written to ``OUT/results.md`` and
+``OUT/results.json``, followed by the ratios: each peer's median seconds_to_solve over the
+first preset's, the same on the interquartile means with their 95 % intervals, and seconds
+per frame of ``tutorial`` against ``tutorial_loop``.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import argparse
 import importlib.util
 import json
 import math
+from pathlib import Path
 
 from benchmarks.harness import (
     PEERS,
@@ -30,6 +38,7 @@ from benchmarks.harness import (
     seconds_per_frame,
     speed_ratios,
 )
+from trl_cartpole.interval_estimates import interval_estimate
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/benchmark"
 
@@ -48,6 +57,7 @@ def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
             )
         else:
             lines.append(f"- {peer} needs {ratio:.1f}x the seconds to solve of {ours} (medians)")
+    lines += iqm_ratio_lines(results, algos[0], peers)
     if "tutorial" in results and "tutorial_loop" in results:
         ours, theirs = (
             seconds_per_frame(results["tutorial"]),
@@ -60,11 +70,36 @@ def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
     return lines
 
 
+def iqm_ratio_lines(results: dict, ours: str, peers: list[str]) -> list[str]:
+    """Each peer's interquartile mean of seconds to solve over ours, with the 95 % intervals
+    (an unsolved seed is infinitely slow) and whether the intervals are apart."""
+    mine = interval_estimate([_or_inf(run["seconds_to_solve"]) for run in results[ours]])
+    lines = []
+    for peer in peers:
+        theirs = interval_estimate([_or_inf(run["seconds_to_solve"]) for run in results[peer]])
+        if not math.isfinite(mine.value):
+            verdict = f"{ours} left more than a quarter of its seeds unsolved"
+        elif not math.isfinite(theirs.value):
+            verdict = f"{peer} left more than a quarter of its seeds unsolved"
+        else:
+            apart = theirs.low > mine.high or mine.low > theirs.high
+            intervals = "apart" if apart else "overlap"
+            verdict = f"{theirs.value / mine.value:.1f}x, intervals {intervals}"
+        lines.append(f"- IQM seconds to solve: {peer} {theirs} against {ours} {mine}: {verdict}")
+    return lines
+
+
+def _or_inf(value: float | None) -> float:
+    return math.inf if value is None else value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algos", nargs="+", default=["dqn"])
     parser.add_argument("--peers", nargs="*", default=[], choices=sorted(PEERS))
     parser.add_argument("--peer-frames", type=int, default=150_000, help="peers' frame budget")
-    parser.add_argument("--eval-interval", type=int, default=1000)
+    parser.add_argument(
+        "--eval-interval", type=int, nargs="+", default=[1000], help="one protocol per value"
+    )
     parser.add_argument("--eval-episodes", type=int, default=20)
 
 
@@ -73,22 +108,35 @@ def main(args: argparse.Namespace) -> None:
         raise SystemExit(
             "error: --peers sb3_dqn needs Stable-Baselines3: pip install -e '.[bench]'"
         )
-    protocol = [f"eval.interval_frames={args.eval_interval}", f"eval.episodes={args.eval_episodes}"]
+    texts = []
+    for interval in args.eval_interval:
+        out = args.out if len(args.eval_interval) == 1 else args.out / f"every-{interval}"
+        text = _protocol_table(args, interval, out)
+        texts.append(f"### Evaluation every {interval} frames\n\n{text}")
+    print("\n\n".join(texts))
+    if len(args.eval_interval) > 1:
+        (args.out / "results.md").write_text("\n\n".join(texts) + "\n")
+
+
+def _protocol_table(args: argparse.Namespace, interval: int, out: Path) -> str:
+    """Run every (preset or peer, seed) under one evaluation interval; its table and ratios."""
+    protocol = [f"eval.interval_frames={interval}", f"eval.episodes={args.eval_episodes}"]
     peer_args = [
         f"--total-frames={args.peer_frames}",
-        f"--eval-interval={args.eval_interval}",
+        f"--eval-interval={interval}",
         f"--eval-episodes={args.eval_episodes}",
     ]
     results = run_presets(
         args.algos,
         args.seeds,
-        args.out,
+        out,
         [*protocol, *args.overrides],
         peers=args.peers,
         peer_args=peer_args,
         jobs=args.jobs,
     )
     text = "\n".join([markdown_table(results), "", *ratio_lines(results, args.algos, args.peers)])
-    print(text)
-    (args.out / "results.md").write_text(text + "\n")
-    (args.out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.md").write_text(text + "\n")
+    (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    return text

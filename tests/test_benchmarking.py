@@ -16,7 +16,7 @@ from benchmarks.ablate import BEGIN, write_between_markers
 from benchmarks.envs import table as env_table
 from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
 from benchmarks.profile import phase_table
-from benchmarks.run import ratio_lines
+from benchmarks.run import iqm_ratio_lines, ratio_lines
 from benchmarks.wall import wall_table
 from trl_cartpole.plotting import hold_last, plot_seed_groups
 
@@ -119,10 +119,25 @@ def test_speed_ratios_divide_medians_and_name_the_unsolved():
     assert ratios["peer"] == 20.0 / 4.0  # medians: 20 s vs 4 s (unsolved counts as slowest)
     assert math.isinf(ratios["stuck"])
     assert speed_ratios(results, "stuck", ["peer", "stuck"]) == {"peer": 0.0, "stuck": None}
-    assert ratio_lines(results, ["ours"], ["peer", "stuck"]) == [
+    assert ratio_lines(results, ["ours"], ["peer", "stuck"])[:2] == [
         "- peer needs 5.0x the seconds to solve of ours (medians)",
         "- stuck solved 0 of 3 seeds: no median to compare",  # not "infx"
     ]
+
+
+def test_iqm_ratios_carry_their_intervals_and_say_whether_they_are_apart():
+    ours = [_summary(1000, float(s), 500.0) for s in (1, 2, 3, 4)]
+    peer = [_summary(9000, float(s), 500.0) for s in (10, 20, 30, 40)]
+    close = [_summary(9000, float(s), 500.0) for s in (2, 3, 4, 5)]
+    stuck = [_summary(None, None, 9.0)] * 4
+    results = {"ours": ours, "peer": peer, "close": close, "stuck": stuck}
+    lines = iqm_ratio_lines(results, "ours", ["peer", "close", "stuck"])
+    # IQM of 4 seeds: the middle two; (20 + 30) / 2 over (2 + 3) / 2 = 10
+    assert lines[0].startswith("- IQM seconds to solve: peer 25.0 [")
+    assert "against ours 2.5 [" in lines[0]
+    assert lines[0].endswith(": 10.0x, intervals apart")
+    assert lines[1].endswith(": 1.4x, intervals overlap")  # 3.5 / 2.5
+    assert lines[2].endswith("stuck left more than a quarter of its seeds unsolved")
 
 
 def test_seed_group_plot_and_doc_markers(tmp_path):

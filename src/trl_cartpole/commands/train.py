@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from trl_cartpole.cli import compose_run_config, split_resume
+from trl_cartpole.cli import compose_run_config, freeze_imported_objects, split_resume
 from trl_cartpole.cli_help import print_train_help, wants_help
 from trl_cartpole.config import Config, to_config
 from trl_cartpole.console import command, ending, shown_path, verdict
@@ -41,6 +41,7 @@ def main(argv: list[str]) -> None:
         validate(to_config(cfg))
         from trl_cartpole.training import train
 
+        freeze_imported_objects()
         summary = train(cfg)
     else:
         from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
@@ -50,6 +51,7 @@ def main(argv: list[str]) -> None:
         if not any(arg.startswith("run_dir=") for arg in overrides):  # continue where it is
             overrides = [f"run_dir={run_dir_of(checkpoint)}", *overrides]
         print(f"resuming from {checkpoint}", flush=True)
+        freeze_imported_objects()
         summary = train(resume_config(checkpoint, overrides), resume=checkpoint)
     print(ending(summary))
 
