@@ -10,7 +10,7 @@ from trl_cartpole.cli import compose_config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.tuning import QUIET_RUN, curve_score, load_search_space, objective_overrides
 
-from .conftest import CONFIG_DIR, run_script
+from .conftest import CONFIG_DIR, run_script, run_script_in_process
 
 optuna = pytest.importorskip("optuna")
 
@@ -22,6 +22,56 @@ def test_the_score_is_the_mean_of_the_curve_held_at_its_last_value():
     assert curve_score([10.0, 20.0, 30.0], 3) == 20.0
     assert curve_score([10.0, 500.0], 4) == (10 + 500 * 3) / 4  # stopped solved: 500 held
     assert curve_score([], 3) == float("-inf")
+
+
+def test_the_frames_objective_reports_its_lower_bound_and_holds_a_solve():
+    from types import SimpleNamespace
+
+    from trl_cartpole.tuning import OBJECTIVES, _frames_score, _seed_reporter, frames_score
+
+    assert OBJECTIVES == {"return": "maximize", "frames": "minimize"}
+    assert frames_score(12288, 30000) == 12288.0 and frames_score(None, 30000) == 60000.0
+    cfg = SimpleNamespace(
+        collector=SimpleNamespace(total_frames=5000, frames_per_batch=32),
+        eval=SimpleNamespace(interval_frames=1000),  # evaluations at 1 024, 2 048, ... frames
+    )
+
+    def solves_at_2048(cfg, on_evaluation):
+        for frames, solved in ((1024, False), (2048, True)):
+            on_evaluation(SimpleNamespace(frames=frames, solved=solved))
+        return {"frames_to_solve": 2048}
+
+    reports = []
+    assert _frames_score(solves_at_2048, cfg, lambda *step: reports.append(step)) == 2048.0
+    # its frames so far, then the solve held at the steps the budget would still evaluate
+    assert reports == [(1024, 1024.0), (2048, 2048.0), (3072, 2048.0), (4096, 2048.0)]
+    # the second seed's steps follow the first's budget; its value is the mean with seed 0's
+    seen = []
+    _seed_reporter(lambda *step: seen.append(step), 5000, [3000.0])(1024, 1024.0)
+    assert seen == [(6024, 2012.0)]
+
+
+def test_an_unknown_objective_or_a_study_of_the_other_direction_is_refused(tmp_path):
+    out = f"out={tmp_path / 'x.yaml'}"
+    proc = run_script_in_process("tune.py", "trials=1", out, "objective=wins")
+    assert proc.returncode == 2 and proc.stderr.splitlines() == [
+        "error: objective='wins'; choose return or frames"
+    ]
+    from trl_cartpole.study import run_study
+
+    storage = f"sqlite:///{tmp_path / 'study.db'}"
+    optuna.create_study(study_name="s", storage=storage, direction="maximize")
+    with pytest.raises(ConfigError, match=r"made to maximize .* objective=frames needs one"):
+        run_study(
+            CONFIG_DIR,
+            [],
+            1,
+            tmp_path / "x.yaml",
+            storage=storage,
+            study_name="s",
+            objective="frames",
+        )
+    assert not (tmp_path / "x.yaml").exists()
 
 
 def test_a_search_space_is_checked_and_lists_pass_as_written(tmp_path):
