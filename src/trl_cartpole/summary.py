@@ -39,7 +39,8 @@ def finish(run: Components) -> dict[str, Any]:
     run.progress_bar.close()
     run.checkpointer.save_last(progress)
     run.release_collector()
-    if run.live_plot is not None:
+    # a live plot to a file is the durations.png the end draws anew: no last redraw first
+    if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
         run.live_plot.flush()
     evaluator.load_best()
     final_env = build_env(
