@@ -38,7 +38,7 @@ from benchmarks.harness import (
     seconds_per_frame,
     speed_ratios,
 )
-from trl_cartpole.interval_estimates import interval_estimate
+from trl_cartpole.comparison import iqm_to_solve
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/benchmark"
 
@@ -73,10 +73,10 @@ def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
 def iqm_ratio_lines(results: dict, ours: str, peers: list[str]) -> list[str]:
     """Each peer's interquartile mean of seconds to solve over ours, with the 95 % intervals
     (an unsolved seed is infinitely slow) and whether the intervals are apart."""
-    mine = interval_estimate([_or_inf(run["seconds_to_solve"]) for run in results[ours]])
+    mine = iqm_to_solve([run["seconds_to_solve"] for run in results[ours]])
     lines = []
     for peer in peers:
-        theirs = interval_estimate([_or_inf(run["seconds_to_solve"]) for run in results[peer]])
+        theirs = iqm_to_solve([run["seconds_to_solve"] for run in results[peer]])
         if not math.isfinite(mine.value):
             verdict = f"{ours} left more than a quarter of its seeds unsolved"
         elif not math.isfinite(theirs.value):
@@ -87,10 +87,6 @@ def iqm_ratio_lines(results: dict, ours: str, peers: list[str]) -> list[str]:
             verdict = f"{theirs.value / mine.value:.1f}x, intervals {intervals}"
         lines.append(f"- IQM seconds to solve: {peer} {theirs} against {ours} {mine}: {verdict}")
     return lines
-
-
-def _or_inf(value: float | None) -> float:
-    return math.inf if value is None else value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -18,9 +18,21 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from trl_cartpole.config import flat_fields
-from trl_cartpole.interval_estimates import interval_estimate
+from trl_cartpole.interval_estimates import Estimate, interval_estimate
 
-__all__ = ["expand_sweep_dirs", "group_runs", "load_runs", "markdown_table", "median_to_solve"]
+__all__ = [
+    "expand_sweep_dirs",
+    "group_runs",
+    "iqm_to_solve",
+    "load_runs",
+    "markdown_table",
+    "median_to_solve",
+]
+
+
+def _unsolved_as_inf(values: Sequence[float | None]) -> list[float]:
+    """Frames or seconds to solve per seed, an unsolved seed (``None``) as ``inf``."""
+    return [math.inf if value is None else value for value in values]
 
 
 def median_to_solve(values: Sequence[float | None]) -> float:
@@ -28,7 +40,15 @@ def median_to_solve(values: Sequence[float | None]) -> float:
 
     The result is finite when more than half of the seeds solved; ``inf`` otherwise.
     """
-    return statistics.median(math.inf if value is None else value for value in values)
+    return statistics.median(_unsolved_as_inf(values))
+
+
+def iqm_to_solve(values: Sequence[float | None]) -> Estimate:
+    """Interquartile mean over seeds and its 95 % interval, an unsolved seed infinitely slow.
+
+    The value is finite when at most a quarter of the seeds did not solve; ``inf`` otherwise.
+    """
+    return interval_estimate(_unsolved_as_inf(values))
 
 
 def _format(value: float, digits: int) -> str:
@@ -42,10 +62,10 @@ def _median_of(runs: Sequence[dict[str, Any]], key: str, digits: int) -> str:
 
 def _estimate(values: Sequence[float | None], digits: int) -> tuple[str, str, str]:
     """IQM [95% CI], median and slowest (largest) of frames or seconds to solve."""
-    finite = [math.inf if value is None else value for value in values]
-    estimate = interval_estimate(finite)
+    estimate = iqm_to_solve(values)
     iqm_text = "not solved" if math.isinf(estimate.value) else str(estimate)
-    return iqm_text, _format(median_to_solve(values), digits), _format(max(finite), digits)
+    slowest = max(_unsolved_as_inf(values))
+    return iqm_text, _format(median_to_solve(values), digits), _format(slowest, digits)
 
 
 def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "preset") -> str:

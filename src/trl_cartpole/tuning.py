@@ -161,6 +161,7 @@ def trial_score(
     from trl_cartpole.cli import compose_config
     from trl_cartpole.training import train
 
+    score_run = _return_score if objective == "return" else _frames_score
     scores: list[float] = []
     for index, seed in enumerate(seeds):
         run_overrides = [
@@ -172,7 +173,6 @@ def trial_score(
         ]
         cfg = compose_config(config_dir, run_overrides)
         report_seed = _seed_reporter(report, index * cfg.collector.total_frames, list(scores))
-        score_run = _return_score if objective == "return" else _frames_score
         scores.append(score_run(train, cfg, report_seed))
     return sum(scores) / len(scores)
 

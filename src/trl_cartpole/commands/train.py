@@ -35,24 +35,23 @@ def main(argv: list[str]) -> None:
     if is_multirun(argv):
         _sweep(argv)
         return
+    checkpoint = None
     if resume is None:
         # composed and checked before torch and TorchRL are imported: a typo costs no wait
         cfg = compose_run_config(PRESETS_DIR, overrides)
         validate(to_config(cfg))
-        from trl_cartpole.training import train
-
-        freeze_imported_objects()
-        summary = train(cfg)
     else:
         from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config, run_dir_of
-        from trl_cartpole.training import train
 
         checkpoint = find_resume_checkpoint(resume)
         if not any(arg.startswith("run_dir=") for arg in overrides):  # continue where it is
             overrides = [f"run_dir={run_dir_of(checkpoint)}", *overrides]
         print(f"resuming from {checkpoint}", flush=True)
-        freeze_imported_objects()
-        summary = train(resume_config(checkpoint, overrides), resume=checkpoint)
+        cfg = resume_config(checkpoint, overrides)
+    from trl_cartpole.training import train
+
+    freeze_imported_objects()
+    summary = train(cfg, resume=checkpoint)
     print(ending(summary))
 
 
