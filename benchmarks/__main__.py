@@ -12,7 +12,18 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from benchmarks import ablate, docs, envs, profile, readme, run, scaling, update_cost, wall
+from benchmarks import (
+    ablate,
+    docs,
+    envs,
+    memory,
+    profile,
+    readme,
+    run,
+    scaling,
+    update_cost,
+    wall,
+)
 from benchmarks.harness import sweep_arguments
 
 SUBCOMMANDS = {
@@ -23,6 +34,7 @@ SUBCOMMANDS = {
     "update-cost": update_cost,
     "profile": profile,
     "wall": wall,
+    "memory": memory,
     "readme": readme,
     "docs": docs,
 }

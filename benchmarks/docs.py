@@ -10,7 +10,9 @@ wrote, never from a hand copy:
 - ``config-fields`` (docs/reference/config.md): every field of the schema with its type, default
   and meaning, the source ``--help`` prints;
 - ``algo-presets`` (docs/guide.md): what each ``configs/algo/`` preset sets, read from the YAML;
-- ``train-listing`` (docs/architecture.md): ``train()`` as the code has it.
+- ``train-listing`` (docs/architecture.md): ``train()`` as the code has it;
+- ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
+  ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it).
 
 ``tests/test_docs_in_sync.py`` runs the check, so CI fails when a doc drifts from its source.
 """
@@ -30,6 +32,7 @@ from benchmarks.harness import provenance_line
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "src" / "trl_cartpole"
 RESULTS = ROOT / "docs" / "results" / "readme.json"
+PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 SEEDS = [0]
 OUT = Path("runs/bench/docs")
 
@@ -109,6 +112,27 @@ def _yaml_value(value: object) -> str:
     return str(value)
 
 
+def performance_tables() -> str:
+    """The headline tables of docs/performance.md: per evaluation interval, every preset and
+    peer over the seeds, with the ratios, from ``docs/results/performance.json`` (``python -m
+    benchmarks run ... --record docs/results/performance.json`` writes it)."""
+    from benchmarks.harness import PEERS
+    from benchmarks.run import protocol_text
+
+    record = json.loads(PERFORMANCE.read_text())
+    parts = [_fenced(record["command"], "bash"), provenance_line(record)]
+    for interval, results in record["protocols"].items():
+        names = list(results)
+        algos = [name for name in names if name not in PEERS]
+        peers = [name for name in names if name in PEERS]
+        seeds = len(results[names[0]])
+        parts.append(
+            f"#### Evaluation every {int(interval):,} frames, {seeds} seeds".replace(",", " ")
+        )
+        parts.append(protocol_text(results, algos, peers))
+    return "\n\n".join(parts)
+
+
 def train_listing() -> str:
     """``train()`` as ``src/trl_cartpole/training.py`` has it."""
     from trl_cartpole.training import train
@@ -122,6 +146,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "config-fields": ("docs/reference/config.md", config_fields),
     "algo-presets": ("docs/guide.md", algo_presets),
     "train-listing": ("docs/architecture.md", train_listing),
+    "performance-tables": ("docs/performance.md", performance_tables),
 }
 
 

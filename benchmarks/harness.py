@@ -215,15 +215,17 @@ def run_presets(
     """``{algo or peer: [summary per seed]}``, every run in its own process.
 
     ``jobs`` processes run at a time (1: one after another, so every run sees the same idle
-    machine; more overlap runs, slowing each a little but all alike).
+    machine; more overlap runs, slowing each a little but all alike). The runs go seed by seed,
+    every preset and peer on a seed before the next seed, so a machine that drifts over the
+    benchmark slows them all alike.
     """
     tasks = [(run_training, algo, overrides) for algo in algos]
     tasks += [(run_peer, peer, peer_args) for peer in peers]
     with ThreadPoolExecutor(max_workers=jobs) as pool:
-        futures = {
-            name: [pool.submit(run, name, seed, out, extra) for seed in seeds]
-            for run, name, extra in tasks
-        }
+        futures: dict[str, list[Any]] = {name: [] for _, name, _ in tasks}
+        for seed in seeds:
+            for run, name, extra in tasks:
+                futures[name].append(pool.submit(run, name, seed, out, extra))
         return {name: [future.result() for future in runs] for name, runs in futures.items()}
 
 

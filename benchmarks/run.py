@@ -7,7 +7,7 @@
 docs/performance.md's 20-seed table, both protocols, on seeds no preset was tuned on:
 
     python -m benchmarks run --algos dqn --peers sb3_dqn --eval-interval 1000 2500
-        --seeds $(seq 100 119) --out runs/perf20
+        --seeds $(seq 100 119) --out runs/perf20 --record docs/results/performance.json
 
 Each (preset, seed) is one ``scripts/train.py`` run, each (peer, seed) one
 ``python -m benchmarks.peers.<peer>`` run, in their own processes (``--jobs`` at a time;
@@ -29,11 +29,13 @@ import argparse
 import importlib.util
 import json
 import math
+import sys
 from pathlib import Path
 
 from benchmarks.harness import (
     PEERS,
     markdown_table,
+    provenance,
     run_presets,
     seconds_per_frame,
     speed_ratios,
@@ -89,6 +91,23 @@ def iqm_ratio_lines(results: dict, ours: str, peers: list[str]) -> list[str]:
     return lines
 
 
+def protocol_text(results: dict, algos: list[str], peers: list[str]) -> str:
+    """One protocol's table and the ratios under it."""
+    return "\n".join([markdown_table(results), "", *ratio_lines(results, algos, peers)])
+
+
+def write_record(path: Path, command: str, protocols: dict[int, dict]) -> None:
+    """``path`` (docs/results/*.json): the command, when and where it ran, and per evaluation
+    interval every run's summary; ``python -m benchmarks docs`` renders the tables from it."""
+    record = {
+        **provenance(),
+        "command": command,
+        "protocols": {str(interval): results for interval, results in protocols.items()},
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record, indent=2) + "\n")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algos", nargs="+", default=["dqn"])
     parser.add_argument("--peers", nargs="*", default=[], choices=sorted(PEERS))
@@ -97,6 +116,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--eval-interval", type=int, nargs="+", default=[1000], help="one protocol per value"
     )
     parser.add_argument("--eval-episodes", type=int, default=20)
+    parser.add_argument(
+        "--record", type=Path, help="also write every summary to this results file (docs/results)"
+    )
 
 
 def main(args: argparse.Namespace) -> None:
@@ -104,18 +126,22 @@ def main(args: argparse.Namespace) -> None:
         raise SystemExit(
             "error: --peers sb3_dqn needs Stable-Baselines3: pip install -e '.[bench]'"
         )
-    texts = []
+    texts, protocols = [], {}
     for interval in args.eval_interval:
         out = args.out if len(args.eval_interval) == 1 else args.out / f"every-{interval}"
-        text = _protocol_table(args, interval, out)
+        protocols[interval] = _protocol_results(args, interval, out)
+        text = protocol_text(protocols[interval], args.algos, args.peers)
+        (out / "results.md").write_text(text + "\n")
         texts.append(f"### Evaluation every {interval} frames\n\n{text}")
     print("\n\n".join(texts))
     if len(args.eval_interval) > 1:
         (args.out / "results.md").write_text("\n\n".join(texts) + "\n")
+    if args.record is not None:
+        write_record(args.record, "python -m benchmarks run " + " ".join(sys.argv[2:]), protocols)
 
 
-def _protocol_table(args: argparse.Namespace, interval: int, out: Path) -> str:
-    """Run every (preset or peer, seed) under one evaluation interval; its table and ratios."""
+def _protocol_results(args: argparse.Namespace, interval: int, out: Path) -> dict:
+    """Run every (preset or peer, seed) under one evaluation interval; write its results.json."""
     protocol = [f"eval.interval_frames={interval}", f"eval.episodes={args.eval_episodes}"]
     peer_args = [
         f"--total-frames={args.peer_frames}",
@@ -131,8 +157,6 @@ def _protocol_table(args: argparse.Namespace, interval: int, out: Path) -> str:
         peer_args=peer_args,
         jobs=args.jobs,
     )
-    text = "\n".join([markdown_table(results), "", *ratio_lines(results, args.algos, args.peers)])
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.md").write_text(text + "\n")
     (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
-    return text
+    return results

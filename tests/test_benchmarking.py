@@ -164,7 +164,7 @@ def _benchmarks(python, *args, **kwargs) -> subprocess.CompletedProcess:
 def test_every_subcommand_shows_help_with_the_shared_arguments(python):
     proc = _benchmarks(python, "--help")
     assert proc.returncode == 0, proc.stderr
-    subcommands = ["run", "ablate", "envs", "scaling", "update-cost", "profile", "wall"]
+    subcommands = ["run", "ablate", "envs", "scaling", "update-cost", "profile", "wall", "memory"]
     assert all(name in proc.stdout for name in subcommands)
     for name in subcommands:
         proc = _benchmarks(python, name, "--help")
@@ -323,3 +323,30 @@ def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkey
     expected = tmp_path / "runs" / "peer-venvs" / "tianshou_dqn" / "bin" / "python"
     assert pythons == [str(expected), str(expected)]
     assert harness.peer_python("sb3_dqn") == harness.sys.executable  # no venv of its own
+
+
+def test_the_memory_row_subtracts_what_the_buffer_filled(tmp_path):
+    from benchmarks.memory import memory_row
+
+    (tmp_path / "config.yaml").write_text("buffer:\n  size: 1000\n")
+    component = tmp_path / "checkpoints" / "last" / "components" / "0004-replay_buffer"
+    component.mkdir(parents=True)
+    (component / "storage.memmap").write_bytes(b"\0" * 2**20)  # a 1 MiB buffer
+    summary = {
+        "seed": 7,
+        "peak_rss_mb": 210.0,
+        # the first evaluation had no reading (a state from before it): skipped
+        "eval_curve": {"frames": [50, 100, 500, 2000], "rss_mb": [None, 200.0, 200.5, 201.0]},
+    }
+    # filled between frames 100 and 2000: 1 MiB * (1000 - 100) / 1000 = 0.9 MiB;
+    # growth beyond it: 201 - 200 - 0.9 = +0.1 MiB
+    assert memory_row(tmp_path, summary) == [
+        "7",
+        "3",
+        "200 (100)",
+        "201 (2000)",
+        "210",
+        "1.0",
+        "0.9",
+        "+0.1",
+    ]

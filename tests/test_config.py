@@ -83,6 +83,10 @@ def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
         (["network.v_min=5", "network.v_max=5"], "must be < network.v_max"),
         (["exploration.schedule=greedy"], "choose one of"),
         (["env.num_envs=0"], "env.num_envs=0 must be >= 1"),
+        # accepted before, then a NaN TD loss (lr) or a nonsense support (v_min) mid-run
+        (["optim.lr=inf"], r"optim.lr=inf must be a finite number"),
+        (["network.v_min=-inf"], r"network.v_min=-inf must be a finite number"),
+        (["buffer.alpha=nan"], r"buffer.alpha=nan must be a finite number"),
         (
             ["env.num_envs=3", "collector.frames_per_batch=16"],
             "frames_per_batch=16 must be a multiple of env.num_envs=3",

@@ -36,7 +36,8 @@ RESUMABLE = [
 
 def _comparable(summary: dict) -> dict:
     summary = {key: value for key, value in summary.items() if key not in TIMING_KEYS}
-    summary["eval_curve"] = {k: v for k, v in summary["eval_curve"].items() if k != "seconds"}
+    measured = ("seconds", "rss_mb")  # timings and memory differ between two runs
+    summary["eval_curve"] = {k: v for k, v in summary["eval_curve"].items() if k not in measured}
     return summary
 
 
@@ -520,3 +521,267 @@ def test_an_env_pickled_as_constructor_arguments_is_reset_on_resume(compose, tmp
     with pytest.warns(UserWarning, match="not an exact continuation"):
         summary = train(cfg, resume=checkpoint)
     assert summary["frames"] == 600 and summary["final_eval_episodes"] == 4
+
+
+# --- a full disk -----------------------------------------------------------------------------
+
+# 600 frames, a training state every 200: the first fits, the disk is full for the second.
+FULL_DISK = [*SMOKE_OVERRIDES, "collector.total_frames=600", "checkpoint.interval_frames=200"]
+
+
+def _leftover_stages(run_dir: Path) -> list[Path]:
+    return [path for path in run_dir.rglob(".*") if ".stage-" in path.name]
+
+
+@pytest.mark.parametrize("how", ["free space short", "ENOSPC mid-write"])
+def test_a_full_disk_stops_the_run_and_keeps_the_previous_checkpoint(monkeypatch, tmp_path, how):
+    import errno
+
+    import trl_cartpole.checkpoint as checkpoint_module
+    from trl_cartpole.checkpoint import find_complete_checkpoints
+    from trl_cartpole.files import free_bytes
+
+    run_dir = tmp_path / "run"
+
+    def disk_full_after_the_first_state() -> bool:
+        return bool(find_complete_checkpoints(run_dir))
+
+    if how == "free space short":  # the check before the write refuses it
+        monkeypatch.setattr(
+            checkpoint_module,
+            "free_bytes",
+            lambda path: 4096 if disk_full_after_the_first_state() else free_bytes(path),
+        )
+    else:  # the free space looks fine, but the write itself fails as a full disk's does
+        new_manifest = Checkpoint._new_manifest
+
+        def manifest_or_enospc(*args, **kwargs):
+            if disk_full_after_the_first_state():
+                raise OSError(errno.ENOSPC, "No space left on device", str(run_dir))
+            return new_manifest(*args, **kwargs)
+
+        monkeypatch.setattr(Checkpoint, "_new_manifest", staticmethod(manifest_or_enospc))
+    proc = run_script_in_process("train.py", *FULL_DISK, f"run_dir={run_dir}")
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 74 and len(lines) == 1, proc.stderr[-2000:]
+    assert "no space left for the checkpoint at" in lines[0] and "MB is free" in lines[0]
+    assert f"resume={run_dir}" in lines[0] or f"resume={run_dir.name}" in lines[0]
+    assert "Traceback" not in proc.stderr
+    assert _leftover_stages(run_dir) == []  # TorchRL's staged files are gone
+    assert not (run_dir / "summary.json").exists()
+    good = find_resume_checkpoint(run_dir)  # verified against its integrity record
+    assert Checkpoint.manifest(good)["metadata"]["counters"]["frames"] == 200
+    monkeypatch.undo()  # space again: the resume finishes the run
+    resumed = run_script_in_process("train.py", f"resume={run_dir}")
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert json.loads((run_dir / "summary.json").read_text())["frames"] == 600
+
+
+def test_the_first_checkpoint_not_fitting_says_there_is_nothing_to_resume(monkeypatch, tmp_path):
+    import trl_cartpole.checkpoint as checkpoint_module
+
+    monkeypatch.setattr(checkpoint_module, "free_bytes", lambda path: 0)
+    run_dir = tmp_path / "run"
+    proc = run_script_in_process("train.py", *FULL_DISK, f"run_dir={run_dir}")
+    assert proc.returncode == 74, proc.stderr[-2000:]
+    assert "0.0 MB is free" in proc.stderr and "start the run again" in proc.stderr
+    assert not (run_dir / "checkpoints").exists() or not any(
+        (run_dir / "checkpoints").rglob("manifest.json")
+    )
+
+
+def _in_a_small_filesystem(
+    mount_point: Path, megabytes: int, script: str, *args: str
+) -> subprocess.CompletedProcess:
+    """Run ``sh -c script`` with ``$1`` a fresh tmpfs of ``megabytes`` on ``mount_point``, in a
+    private mount namespace (``unshare``: nothing is mounted on the machine, and the tmpfs
+    vanishes with the process); skip where the machine allows no such namespace."""
+    mount_point.mkdir()
+    shell = ["unshare", "--user", "--map-root-user", "--mount", "sh", "-c"]
+    mount = f'mount -t tmpfs -o size={megabytes}m tmpfs "$1"'
+    if shutil.which("unshare") is None:
+        pytest.skip("this machine has no unshare for a private tmpfs")
+    if subprocess.run([*shell, mount, "sh", str(mount_point)], capture_output=True).returncode:
+        pytest.skip("this machine allows no private tmpfs (unshare --user --mount)")
+    return subprocess.run(
+        [*shell, f"{mount} && {script}", "sh", str(mount_point), *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+@pytest.mark.slow  # training subprocesses on a real full filesystem
+@pytest.mark.parametrize(("megabytes", "resumable"), [(10, True), (3, False)])
+def test_a_run_on_a_real_small_filesystem_stops_in_one_line(python, tmp_path, megabytes, resumable):
+    # Before: at 10 MB the second periodic state died of SIGBUS (exit 135, the replay buffer's
+    # memory-mapped writes), at 3 MB the first one did, with no word of the disk.
+    copy = tmp_path / "copy"
+    proc = _in_a_small_filesystem(
+        tmp_path / "mount",
+        megabytes,  # a default training state is about 6 MB (50 000 transitions)
+        '"$2" "$3" run_dir="$1/run" collector.total_frames=3000 checkpoint.interval_frames=1000 '
+        "eval.interval_frames=1000 eval.episodes=3 eval.final_episodes=4 "
+        'logger.progress_bar=false; status=$?; cp -a "$1/run" "$4"; exit $status',
+        python,
+        str(SCRIPTS / "train.py"),
+        str(copy),
+    )
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 74 and len(lines) == 1, proc.stderr[-2000:]
+    assert "no space left for the checkpoint at" in lines[0] and "Traceback" not in proc.stderr
+    assert _leftover_stages(copy) == []
+    if not resumable:
+        assert "start the run again" in lines[0]
+        return
+    good = find_resume_checkpoint(copy)
+    frames = Checkpoint.manifest(good)["metadata"]["counters"]["frames"]
+    assert 1000 <= frames < 2000  # the first periodic state (whole batches of 32 frames)
+    resumed = subprocess.run(
+        [python, str(SCRIPTS / "train.py"), f"resume={copy}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert json.loads((copy / "summary.json").read_text())["frames"] >= 3000
+
+
+# --- the other tools on damaged input ------------------------------------------------------
+
+
+def _damage_summary(summary_path: Path, how: str) -> None:
+    text = summary_path.read_text()
+    summary = json.loads(text)
+    if how == "truncated":
+        summary_path.write_text(text[: len(text) // 2])
+        return
+    if how == "a list":
+        summary = [summary]
+    elif how == "curve lengths differ":
+        summary["eval_curve"]["returns"] = summary["eval_curve"]["returns"][:-1]
+    elif how == "a string for a number":
+        summary["frames_to_solve"] = "many"
+    elif how == "a missing field":
+        del summary["solve_threshold"]
+    summary_path.write_text(json.dumps(summary))
+
+
+@pytest.mark.parametrize(
+    ("how", "message"),
+    [
+        ("truncated", "not JSON"),
+        ("a list", "a JSON list, not an object"),
+        ("curve lengths differ", "different lengths"),
+        ("a string for a number", "'frames_to_solve' is 'many'"),
+        ("a missing field", "no 'solve_threshold'"),
+        ("damaged config.yaml", "config.yaml is damaged"),
+    ],
+)
+def test_plot_refuses_a_damaged_run_in_one_line(tmp_path, finished_run, how, message):
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished_run, run_dir)
+    if how == "damaged config.yaml":
+        (run_dir / "config.yaml").write_text("env: {id: [unclosed\n")
+    else:
+        _damage_summary(run_dir / "summary.json", how)
+    out = tmp_path / "comparison"
+    proc = run_script_in_process("plot.py", str(run_dir), f"out={out}")
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-2000:]
+    assert message in lines[0] and str(run_dir) in lines[0], lines[0]
+    assert "Traceback" not in proc.stderr
+    assert not list(tmp_path.glob("comparison*"))  # nothing written
+
+
+def test_plot_reads_no_metrics_csv_and_a_resume_drops_its_damaged_rows(
+    tmp_path, finished_run, capsys
+):
+    from trl_cartpole.loggers import truncate_csv_metrics
+
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished_run, run_dir)
+    csv = run_dir / "metrics" / "scalars" / "eval" / "damaged.csv"
+    # rows of a run, a write cut off by a kill, bytes that are no text, then later frames
+    csv.write_bytes(b"100,1.5\n200,2.5\n30\xff\xfe,\n300,x\n\n400,4.5\n500,5")
+    proc = run_script_in_process("plot.py", str(run_dir), f"out={tmp_path / 'comparison'}")
+    assert proc.returncode == 0, proc.stderr[-2000:]  # the plot reads summary.json only
+    truncate_csv_metrics(run_dir, 400)
+    assert csv.read_text() == "100,1.5\n200,2.5\n400,4.5\n"
+    assert f"dropped 2 damaged row(s) of {csv}" in capsys.readouterr().err
+
+
+def test_evaluate_refuses_a_checkpoint_of_another_env_in_one_line(tmp_path, finished_run):
+    from trl_cartpole.checkpoint import _write_integrity
+
+    # the manifest says Acrobot (6 observations, 3 actions), the weights are CartPole's, and the
+    # integrity record is rewritten to match: the network built from the manifest does not fit
+    foreign = tmp_path / "foreign"
+    shutil.copytree(finished_run / "checkpoints" / "best", foreign)
+    manifest = json.loads((foreign / "manifest.json").read_text())
+    manifest["metadata"]["config"]["env"]["id"] = "Acrobot-v1"
+    (foreign / "manifest.json").write_text(json.dumps(manifest))
+    _write_integrity(foreign)
+    proc = run_script_in_process("evaluate.py", f"checkpoint={foreign}", "episodes=2")
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-2000:]
+    assert "does not fit this policy" in lines[0] and "Traceback" not in proc.stderr
+    assert not (tmp_path / "evaluation-foreign.json").exists()
+
+
+def _foreign_database(path: Path) -> None:
+    import sqlite3
+
+    with sqlite3.connect(path) as db:
+        db.execute("CREATE TABLE accounts (name TEXT, balance REAL)")
+        db.execute("INSERT INTO accounts VALUES ('ada', 12.5)")
+    db.close()
+
+
+def _damaged_study(path: Path) -> None:
+    optuna = pytest.importorskip("optuna")
+    optuna.create_study(study_name="s", storage=f"sqlite:///{path}")
+    data = bytearray(path.read_bytes())
+    data[4096:8192] = b"\xa5" * 4096  # the second page overwritten
+    path.write_bytes(bytes(data))
+
+
+def _study_of_another_space(path: Path) -> None:
+    optuna = pytest.importorskip("optuna")
+    study = optuna.create_study(study_name="s", storage=f"sqlite:///{path}", direction="maximize")
+    study.add_trial(
+        optuna.trial.create_trial(
+            params={"optim.weight_decay": 0.1},
+            distributions={"optim.weight_decay": optuna.distributions.FloatDistribution(0, 1)},
+            value=1.0,
+        )
+    )
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda path: path.write_bytes(b"not a database\n" * 100), "is not an SQLite database"),
+        (_damaged_study, "is a damaged SQLite database"),
+        (_foreign_database, "another program's SQLite database (tables accounts)"),
+        (_study_of_another_space, "was tuned over optim.weight_decay; this search space is over"),
+    ],
+    ids=["not sqlite", "damaged", "another program's", "another search space"],
+)
+def test_tune_refuses_a_damaged_or_foreign_study_database_unchanged(tmp_path, make, message):
+    pytest.importorskip("optuna")
+    database = tmp_path / "study.db"
+    make(database)
+    before = database.read_bytes()
+    proc = run_script_in_process(
+        "tune.py",
+        "trials=1",
+        f"out={tmp_path / 'tuned.yaml'}",
+        f"storage=sqlite:///{database}",
+        "study=s",
+    )
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-2000:]
+    assert message in lines[0] and "Traceback" not in proc.stderr
+    assert database.read_bytes() == before  # Optuna added no table to it
+    assert not (tmp_path / "tuned.yaml").exists()

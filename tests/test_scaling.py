@@ -181,7 +181,7 @@ def test_a_run_with_synchronous_workers_repeats_itself(compose, tmp_path, backen
         for run in range(2)
     ]
     for summary in summaries:
-        del summary["eval_curve"]["seconds"]  # timings
+        del summary["eval_curve"]["seconds"], summary["eval_curve"]["rss_mb"]  # measurements
     first, second = ({k: v for k, v in s.items() if k not in TIMING_KEYS} for s in summaries)
     assert first == second
 
@@ -366,3 +366,183 @@ def test_a_bad_point_of_a_sweep_stops_it_before_any_training(tmp_path):
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and lines == ["error: seed=-1 must be >= 0"], proc.stderr[-1500:]
     assert not sweep_dir.exists()
+
+
+# --- a Ray actor dies mid-run ---------------------------------------------------------------
+
+
+def _descendants(pid: int) -> list[int]:
+    """The processes below ``pid`` (children, theirs...), read from /proc."""
+    parents: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the process ended meanwhile
+            continue
+        parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = [], [pid]
+    while todo:
+        children = parents.get(todo.pop(), [])
+        found += children
+        todo += children
+    return found
+
+
+def _title(pid: int) -> str:
+    """A process's command line, or "" once it has ended."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _ray_actor_processes(pid: int) -> list[int]:
+    """The collector actors' processes of the run in process ``pid`` (titled ``ray::Collector``;
+    Ray's own agents are ``ray::DashboardAgent``, ``ray::RuntimeEnvAgent``...)."""
+    return [child for child in _descendants(pid) if _title(child).startswith("ray::Collector")]
+
+
+def _start_ray_run(run_dir: Path) -> subprocess.Popen:
+    """A long ``collector.backend=ray`` run with two actors, returned once it trains on both."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            str(Path(__file__).parents[1] / "scripts" / "train.py"),
+            "collector.backend=ray",
+            *TWO_WORKERS,
+            "collector.total_frames=200000",
+            "checkpoint.interval_frames=0",  # no training state but the one the stop makes
+            "eval.stop_when_solved=false",  # still training when it is stopped
+            "logger.progress_bar=false",
+            "logger.plots=false",
+            f"run_dir={run_dir}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    marker = run_dir / "metrics" / "scalars" / "train" / "episode_return.csv"
+    deadline = time.monotonic() + 180
+    while not (marker.is_file() and len(_ray_actor_processes(proc.pid)) == 2):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the run did not start training on two actors"
+        time.sleep(0.2)
+    return proc
+
+
+@pytest.mark.slow  # a local Ray instance, an actor killed, then a resume on a new one
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds Ray's processes in /proc")
+def test_a_killed_ray_actor_stops_the_run_with_a_checkpoint_that_resumes(tmp_path):
+    # Before: Ray's traceback ("The actor is dead because its worker process has died"), exit 1,
+    # no resume hint.
+    pytest.importorskip("ray")
+    run_dir = tmp_path / "run"
+    proc = _start_ray_run(run_dir)
+    os.kill(_ray_actor_processes(proc.pid)[0], signal.SIGKILL)
+    _, stderr = proc.communicate(timeout=120)  # no hang
+    lines = [line for line in stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 75 and len(lines) == 1, stderr[-3000:]
+    assert "Ray collector actor" in lines[0] and "of 2" in lines[0] and "died" in lines[0]
+    assert f"resume={run_dir}" in lines[0] and "Traceback" not in stderr
+    from torchrl.checkpoint import Checkpoint
+
+    from trl_cartpole.checkpoint import find_resume_checkpoint
+
+    frames = Checkpoint.manifest(find_resume_checkpoint(run_dir))["metadata"]["counters"]["frames"]
+    assert frames > 0
+    resumed = run_script(
+        "train.py", f"resume={run_dir}", f"collector.total_frames={frames + 4000}", timeout=300
+    )
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert json.loads((run_dir / "summary.json").read_text())["frames"] >= frames + 4000
+
+
+# --- the run's own Ray instance stays closed ------------------------------------------------
+
+_START_LOCAL_RAY = """
+import sys, ray
+from trl_cartpole.collectors import guard_local_ray_with_a_token_of_its_own, ray_init_config
+guard_local_ray_with_a_token_of_its_own()
+ray.init(**ray_init_config(None, 1))
+print(ray.get_runtime_context().gcs_address, flush=True)
+sys.stdin.read()  # until the test closes it
+"""
+
+_JOIN = "import ray; ray.init(address={address!r}); print(ray.cluster_resources()['CPU'])"
+
+
+def _without_ray_settings(home: Path, **extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
+    return {**env, "HOME": str(home), "RAY_USAGE_STATS_ENABLED": "0", **extra}
+
+
+@pytest.mark.slow  # a local Ray instance and three processes that import Ray
+def test_the_runs_own_ray_instance_refuses_a_client_without_its_token(tmp_path):
+    # Before: Ray wrote the token to ~/.ray/auth_token, mode 644 (every user could read it), and
+    # every later local instance used the same one.
+    pytest.importorskip("ray")
+    home = tmp_path / "home"
+    home.mkdir()
+    server = subprocess.Popen(
+        [sys.executable, "-c", _START_LOCAL_RAY],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=_without_ray_settings(home),
+        start_new_session=True,
+    )
+    try:
+        address = server.stdout.readline().strip()
+        assert address, "the local Ray instance did not start"
+        assert not (home / ".ray" / "auth_token").exists()  # no token file for others to read
+        # The token is in the environment of the Ray processes the run started (the GCS server
+        # first), which only their owner can read.
+        gcs = next(p for p in _descendants(server.pid) if "gcs_server" in _title(p))
+        environ = Path(f"/proc/{gcs}/environ")
+        assert environ.stat().st_mode & 0o077 == 0
+        variables = [item.split("=", 1) for item in environ.read_text().split("\0") if "=" in item]
+        token = dict(variables)["RAY_AUTH_TOKEN"]
+        join = [sys.executable, "-c", _JOIN.format(address=address)]
+        refused = subprocess.run(
+            join,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env=_without_ray_settings(home, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN="0" * 64),
+        )
+        assert refused.returncode != 0, refused.stdout
+        assert "auth" in refused.stderr.lower() or "token" in refused.stderr.lower()
+        joined = subprocess.run(
+            join,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env=_without_ray_settings(home, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token),
+        )
+        assert joined.returncode == 0, joined.stderr[-2000:]  # the token is what was missing
+    finally:
+        server.stdin.close()
+        try:
+            server.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+            server.wait()
+
+
+@pytest.mark.slow  # a local Ray instance and a signal to its driver
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds Ray's processes in /proc")
+def test_sigterm_to_a_run_on_ray_saves_a_checkpoint(tmp_path):
+    # Before: ray.init's own SIGTERM handler (in C) printed a stack trace and killed the run,
+    # with no checkpoint and no resume hint.
+    pytest.importorskip("ray")
+    run_dir = tmp_path / "run"
+    proc = _start_ray_run(run_dir)
+    os.kill(proc.pid, signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 143, stderr[-3000:]
+    assert "stopped by SIGTERM" in stderr and f"resume={run_dir}" in stderr
+    assert "SIGTERM received" not in stderr  # Ray's handler did not run
+    from trl_cartpole.checkpoint import find_resume_checkpoint
+
+    assert find_resume_checkpoint(run_dir).is_dir()

@@ -76,6 +76,7 @@ def test_run_directory_holds_every_artefact(smoke_run):
         "train/episode_length",
         "train/td_loss",
         "eval/return_mean",
+        "eval/rss_mb",
         "eval/final_return_mean",
     ]:
         assert (scalars / f"{name}.csv").is_file(), name
@@ -97,6 +98,9 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
     assert summary["updates"] == 57 * 2
     assert summary["solve_threshold"] == 475.0
     assert summary["final_eval_episodes"] == 4 == len(summary["final_eval_returns"])
+    curve = summary["eval_curve"]
+    assert len(curve["rss_mb"]) == len(curve["frames"]) == 2  # memory at each evaluation
+    assert all(0 < mb <= summary["peak_rss_mb"] for mb in curve["rss_mb"])
     assert summary["final_eval_return_mean"] == pytest.approx(
         sum(summary["final_eval_returns"]) / 4, rel=1e-5
     )
@@ -136,6 +140,7 @@ def test_same_seed_same_figures(compose, tmp_path):
         summaries.append(train(cfg))
     for summary in summaries:
         assert len(summary["eval_curve"].pop("seconds")) == 2  # timings differ between runs
+        assert len(summary["eval_curve"].pop("rss_mb")) == 2  # and so does memory
     first, second = ({k: v for k, v in s.items() if k not in TIMING_KEYS} for s in summaries)
     assert first == second
     losses = [(tmp_path / n / "metrics/scalars/train/td_loss.csv").read_text() for n in "ab"]

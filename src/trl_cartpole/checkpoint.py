@@ -14,22 +14,26 @@ component in place. Anything wrong raises a one-line :class:`ConfigError`.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
 import signal
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import torch
 from omegaconf import OmegaConf
+from tensordict import is_tensor_collection
 from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
 
 from trl_cartpole.config import Config, flat_fields, to_config
 from trl_cartpole.console import command, shown_path
-from trl_cartpole.errors import ConfigError, TrainingInterrupted
-from trl_cartpole.files import write_json_atomic
+from trl_cartpole.errors import ConfigError, DiskFull, TrainingInterrupted, WorkerLost
+from trl_cartpole.files import free_bytes, megabytes, tree_bytes, write_json_atomic
 from trl_cartpole.pickle_scan import no_unpickling, refuse_code
 from trl_cartpole.progress import Progress
 from trl_cartpole.validation import validate
@@ -46,6 +50,7 @@ __all__ = [
     "run_dir_of",
     "save_policy",
     "save_training_state",
+    "state_bytes",
     "verify_checkpoint",
 ]
 
@@ -71,6 +76,26 @@ RESUMABLE_FIELDS = (
 # The layout of a training state's components; a state of another format is refused in one line
 # (format 2: the loop's history under "history"; no state of format 1 is read any more).
 TRAINING_STATE_FORMAT = 2
+
+# Room asked for beyond a checkpoint's expected size before it is written (file-system blocks,
+# the manifest, the integrity record): a full disk would otherwise end the run mid-write, where
+# the memory-mapped tensors of the replay buffer die of SIGBUS instead of raising ENOSPC.
+DISK_MARGIN_FRACTION, DISK_MARGIN_BYTES = 0.1, 1_000_000
+
+
+def state_bytes(state: Any) -> int:
+    """The bytes of the tensors and arrays in a (nested) state dict: what a checkpoint stores."""
+    if isinstance(state, torch.Tensor):
+        return state.numel() * state.element_size()
+    if is_tensor_collection(state):
+        return state.bytes()
+    if isinstance(state, np.ndarray):
+        return state.nbytes
+    if isinstance(state, Mapping):
+        return sum(state_bytes(value) for value in state.values())
+    if isinstance(state, (list, tuple)):
+        return sum(state_bytes(value) for value in state)
+    return 0
 
 
 def _config_metadata(cfg: Config, kind: str, **extra: Any) -> dict[str, Any]:
@@ -160,16 +185,7 @@ def find_resume_checkpoint(path: str | Path) -> Path:
     if (path / "manifest.json").is_file():
         verify_checkpoint(path)
         return path
-    candidates = []
-    periodic = path / "checkpoints" / "periodic"
-    entries = sorted(periodic.iterdir(), reverse=True) if periodic.is_dir() else []
-    for entry in entries:
-        if entry.is_dir() and not entry.name.startswith(".") and (entry / INTEGRITY).is_file():
-            candidates.append(entry)
-            break
-    last = path / "checkpoints" / "last"
-    if (last / INTEGRITY).is_file():
-        candidates.append(last)
+    candidates = find_complete_checkpoints(path)
     if not candidates:
         raise ConfigError(
             f"resume={str(path)!r} holds no complete training state (checkpoints/periodic or "
@@ -178,6 +194,22 @@ def find_resume_checkpoint(path: str | Path) -> Path:
     for candidate in candidates:
         verify_checkpoint(candidate)
     return max(candidates, key=lambda c: _read_manifest(c)["metadata"]["counters"]["frames"])
+
+
+def find_complete_checkpoints(run_dir: str | Path) -> list[Path]:
+    """The newest complete periodic training state of ``run_dir`` and its end-of-run one, of
+    those that exist (complete: with the integrity record written after every other file)."""
+    candidates = []
+    periodic = Path(run_dir) / "checkpoints" / "periodic"
+    entries = sorted(periodic.iterdir(), reverse=True) if periodic.is_dir() else []
+    for entry in entries:
+        if entry.is_dir() and not entry.name.startswith(".") and (entry / INTEGRITY).is_file():
+            candidates.append(entry)
+            break
+    last = Path(run_dir) / "checkpoints" / "last"
+    if (last / INTEGRITY).is_file():
+        candidates.append(last)
+    return candidates
 
 
 def _read_manifest(path: Path) -> dict[str, Any]:
@@ -331,6 +363,7 @@ class Checkpointer:
         self.metrics = metrics  # a MetricsLog: its W&B step goes into the counters
         self.interval = cfg.checkpoint.interval_frames or math.inf
         self.last_saved_frame = 0
+        self.state_size: int | None = None  # bytes of the last training state written
 
     def load(self, path: str | Path, progress: Progress) -> None:
         """Restore every component from the training state at ``path``."""
@@ -353,13 +386,56 @@ class Checkpointer:
             for name, component in self.components.items()
             if name != "replay_buffer" or len(buffer) > 0
         }
-        return save_training_state(
+        # The replay buffer's storage is allocated whole with its first batch, so a training
+        # state is about as large as the one before it; the first is estimated from its tensors.
+        expected = self.state_size or sum(
+            state_bytes(component.state_dict()) for component in components.values()
+        )
+        saved = self._write_or_stop(
             path,
-            self.cfg,
-            counters,
-            keep_last,
-            observation_norm=self.observation_norm,
-            **components,
+            expected,
+            lambda: save_training_state(
+                path,
+                self.cfg,
+                counters,
+                keep_last,
+                observation_norm=self.observation_norm,
+                **components,
+            ),
+        )
+        self.state_size = tree_bytes(saved)
+        return saved
+
+    def _write_or_stop(self, path: Path, expected: int, write: Callable[[], Path]) -> Path:
+        """``write()`` a checkpoint of about ``expected`` bytes at ``path``, or raise
+        :class:`DiskFull` if it cannot fit: before the write when the free space is short,
+        after it when the write fails with ENOSPC (TorchRL's staged files are then removed)."""
+        needed = int(expected * (1 + DISK_MARGIN_FRACTION)) + DISK_MARGIN_BYTES
+        if free_bytes(path) < needed:
+            raise self._disk_full(path, needed)
+        try:
+            return write()
+        except OSError as error:
+            if error.errno != errno.ENOSPC:
+                raise
+            raise self._disk_full(path, needed) from None
+
+    def _disk_full(self, path: Path, needed: int) -> DiskFull:
+        free = free_bytes(path)
+        if find_complete_checkpoints(self.run_dir):
+            then = f"then resume with: {command('train')} resume={shown_path(self.run_dir)}"
+        else:
+            then = "then start the run again (no training state was written before this one)"
+        if free >= needed:  # the write failed all the same: something else fills the disk
+            return DiskFull(
+                f"no space left for the checkpoint at {shown_path(path)}: the write failed with "
+                f"ENOSPC though {megabytes(free)} is free now (another writer on that disk?); "
+                f"make room, {then}"
+            )
+        return DiskFull(
+            f"no space left for the checkpoint at {shown_path(path)}: it needs about "
+            f"{megabytes(needed)} and {megabytes(free)} is free; free "
+            f"{megabytes(needed - free)} or more on that disk, {then}"
         )
 
     def maybe_save(self, progress: Progress, stop: Any) -> None:
@@ -385,16 +461,33 @@ class Checkpointer:
             )
         progress.clock.start()
 
+    def stop_for_lost_worker(self, progress: Progress, lost: str) -> WorkerLost:
+        """Save a periodic state of the batches trained so far; return the error that ends the
+        run, naming the ``lost`` worker and the resume command."""
+        progress.clock.pause()
+        self.save(
+            self.run_dir / "checkpoints" / "periodic", progress, self.cfg.checkpoint.keep_last
+        )
+        return WorkerLost(
+            f"{lost}; the run stopped at frame {progress.frames} with a checkpoint; resume with: "
+            f"{command('train')} resume={shown_path(self.run_dir)}"
+        )
+
     def save_best(self, policy: nn.Module, frames: int, eval_return_mean: float) -> None:
         """The best policy so far (``checkpoints/best``), if ``checkpoint.save_best``."""
         if self.cfg.checkpoint.save_best:
-            save_policy(
-                self.run_dir / "checkpoints" / "best",
-                policy,
-                self.cfg,
-                frames=frames,
-                eval_return_mean=eval_return_mean,
-                observation_norm=self.observation_norm,
+            path = self.run_dir / "checkpoints" / "best"
+            self._write_or_stop(
+                path,
+                state_bytes(policy.state_dict()),
+                lambda: save_policy(
+                    path,
+                    policy,
+                    self.cfg,
+                    frames=frames,
+                    eval_return_mean=eval_return_mean,
+                    observation_norm=self.observation_norm,
+                ),
             )
 
     def save_last(self, progress: Progress) -> None:

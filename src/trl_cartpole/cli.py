@@ -7,14 +7,17 @@ function. Every subcommand takes ``key=value`` arguments and ``--help``.
 Bad input (an unknown key, a wrong type, an impossible value, an unknown env, a bad
 checkpoint) ends the program with one line on stderr and exit status 2, before any training.
 An interrupted run exits with 128 + the signal (130 for Ctrl-C) after one line saying how to
-resume; a numerical fault exits with 1. Set ``HYDRA_FULL_ERROR=1`` to get the full traceback
-instead.
+resume; a numerical fault exits with 1; a full disk exits with 74 (``EX_IOERR``) after one line
+naming the path, the space needed and the resume command; a lost Ray actor exits with 75
+(``EX_TEMPFAIL``) after a checkpoint and one line naming the actor and the resume command. Set
+``HYDRA_FULL_ERROR=1`` to get the full traceback instead.
 """
 
 from __future__ import annotations
 
 import atexit
 import contextlib
+import errno
 import gc
 import os
 import re
@@ -32,7 +35,13 @@ from omegaconf.errors import OmegaConfBaseException
 from trl_cartpole.cli_help import shown_value
 from trl_cartpole.config import flat_fields, register_configs, to_config
 from trl_cartpole.console import command, quiet_libraries, set_scripts_dir
-from trl_cartpole.errors import ConfigError, TrainingFailed, TrainingInterrupted
+from trl_cartpole.errors import (
+    ConfigError,
+    DiskFull,
+    TrainingFailed,
+    TrainingInterrupted,
+    WorkerLost,
+)
 from trl_cartpole.presets import PRESETS_DIR, with_search_path
 from trl_cartpole.run_control import install_unbreakable_console
 
@@ -50,6 +59,8 @@ __all__ = [
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
 EXIT_KEYBOARD_INTERRUPT = 130
+EXIT_DISK_FULL = 74  # sysexits.h's EX_IOERR
+EXIT_WORKER_LOST = 75  # sysexits.h's EX_TEMPFAIL: resuming is the retry
 
 
 def compose_config(
@@ -164,6 +175,22 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     except TrainingFailed as failure:
         print(f"error: {failure}", file=sys.stderr)
         return EXIT_FAILED
+    except DiskFull as full:
+        print(f"error: {full}", file=sys.stderr)
+        return EXIT_DISK_FULL
+    except WorkerLost as lost:
+        print(f"error: {lost}", file=sys.stderr)
+        return EXIT_WORKER_LOST
+    except OSError as error:
+        if error.errno != errno.ENOSPC:
+            raise
+        where = "" if error.filename is None else f" writing {error.filename}"
+        print(
+            f"error: no space left on the disk{where}; free some space, then resume the run "
+            f"from its newest checkpoint: {command('train')} resume=RUN_DIR",
+            file=sys.stderr,
+        )
+        return EXIT_DISK_FULL
     except KeyboardInterrupt:
         print(
             "interrupted outside a safe point (or twice): exited at once; the newest complete "

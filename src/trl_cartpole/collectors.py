@@ -12,13 +12,16 @@ being trained. More workers, or the Ray backend, go through the backends of Torc
 
 The workers hold copies of the policy: call ``collector.update_policy_weights_()`` after each
 round of updates (:func:`needs_weight_sync`) to send them the learner's weights and buffers
-(epsilon, network noise).
+(epsilon, network noise). A Ray actor that dies (its process killed, its node preempted) ends
+the run: :func:`lost_worker` tells its error apart, and the loop checkpoints and stops.
 """
 
 from __future__ import annotations
 
 import os
+import secrets
 import socket
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -38,7 +41,9 @@ __all__ = [
     "BACKENDS",
     "WorkerEnvFactory",
     "check_ray_address",
+    "guard_local_ray_with_a_token_of_its_own",
     "is_distributed",
+    "lost_worker",
     "make_collector",
     "needs_weight_sync",
     "ray_init_config",
@@ -123,6 +128,26 @@ def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
     }
 
 
+def guard_local_ray_with_a_token_of_its_own() -> None:
+    """Token authentication for the Ray instance a run starts, with a token made for it.
+
+    Ray (2.52 on) turns token authentication on for a new local instance and, finding no token,
+    writes one to ``~/.ray/auth_token`` with the user's umask: mode 644, readable by every user
+    of the machine, and the same for every later instance. Its ports listen on every interface
+    whatever ``_node_ip_address`` says (Ray has no setting to bind them to the loopback), so the
+    token is the guard. Made here, in this process's environment (``RAY_AUTH_TOKEN``: only the
+    owner of the process can read ``/proc/PID/environ``), it reaches the Ray processes the run
+    starts and no file. ``RAY_AUTH_MODE`` and ``RAY_AUTH_TOKEN`` set by the user are kept.
+    """
+    os.environ.setdefault("RAY_AUTH_MODE", "token")
+    os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(32))
+    if "ray._raylet" in sys.modules:  # Ray read its settings at import: make it read them again
+        from ray._raylet import AuthenticationTokenLoader, Config
+
+        Config.initialize("")  # what Ray's own _enable_token_auth does
+        AuthenticationTokenLoader.instance().reset_cache()
+
+
 def whole_batches(frames: int, frames_per_batch: int) -> int:
     """``frames`` rounded up to a whole number of batches: what the collector really collects."""
     return -(-frames // frames_per_batch) * frames_per_batch if frames > 0 else frames
@@ -191,6 +216,8 @@ def make_collector(
         )
     if ray_address is not None:
         check_ray_address(ray_address)
+    else:
+        guard_local_ray_with_a_token_of_its_own()
     try:
         auto_register = common.pop("auto_register_policy_transforms")
         collector = Collector(
@@ -256,3 +283,32 @@ def shutdown_collector(collector: BaseCollector) -> None:
     """
     collector.shutdown()
     close_weight_sync_schemes(collector)
+
+
+# The fields of Ray's ActorDiedError message ("\tpid: 1234"), between its first line and the reason.
+RAY_ACTOR_FIELDS = ("class_name", "actor_id", "pid", "name", "namespace", "ip")
+
+
+def lost_worker(error: BaseException, collector: BaseCollector) -> str | None:
+    """``"Ray collector actor 2 of 2 (pid 1234, ip 10.0.0.3) died: <Ray's reason>"`` if ``error``
+    is Ray's word that one of ``collector``'s actors is gone (``RayActorError``), else None."""
+    ray_exceptions = sys.modules.get("ray.exceptions")  # Ray not imported: no Ray actor
+    if ray_exceptions is None or not isinstance(error, ray_exceptions.RayActorError):
+        return None
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()] or ["(no reason)"]
+    fields, reasons = {}, []
+    for line in lines[1:]:
+        key, _, value = line.partition(": ")
+        if key in RAY_ACTOR_FIELDS:
+            fields[key] = value
+        else:
+            reasons.append(line)
+    actors = [actor._actor_id.hex() for actor in getattr(collector, "remote_collectors", [])]
+    if error.actor_id in actors:
+        which = f"{actors.index(error.actor_id) + 1} of {len(actors)}"
+    else:
+        which = str(error.actor_id or fields.get("actor_id", "?"))
+    where = ", ".join(f"{key} {fields[key]}" for key in ("pid", "ip") if key in fields)
+    return f"Ray collector actor {which}{f' ({where})' if where else ''} died: " + (
+        reasons[0] if reasons else lines[0]
+    )

@@ -18,6 +18,7 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from trl_cartpole.config import flat_fields
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.interval_estimates import Estimate, interval_estimate
 
 __all__ = [
@@ -27,6 +28,7 @@ __all__ = [
     "load_runs",
     "markdown_table",
     "median_to_solve",
+    "read_summary",
 ]
 
 
@@ -127,18 +129,78 @@ def load_runs(run_dirs: Sequence[Path]) -> list[dict[str, Any]]:
         if not summary_path.is_file() or not config_path.is_file():
             print(f"skipped {run_dir}: no summary.json/config.yaml", file=sys.stderr)
             continue
-        summary = json.loads(summary_path.read_text())
+        summary = read_summary(summary_path)
         if "eval_curve" not in summary:
             print(f"skipped {run_dir}: summary.json has no eval_curve (older run)", file=sys.stderr)
             continue
-        runs.append(
-            {
-                "run_dir": run_dir,
-                "summary": summary,
-                "config": OmegaConf.to_container(OmegaConf.load(config_path)),
-            }
-        )
+        runs.append({"run_dir": run_dir, "summary": summary, "config": _read_config(config_path)})
     return runs
+
+
+# What the comparison reads of a summary.json: key -> the types its value may have.
+_NUMBER = (int, float)
+SUMMARY_FIELDS: dict[str, tuple[type, ...]] = {
+    "solved": (bool,),
+    "solve_threshold": _NUMBER,
+    "frames_to_solve": (int, type(None)),
+    "seconds_to_solve": (*_NUMBER, type(None)),
+    "final_eval_return_mean": _NUMBER,
+    "wall_seconds": _NUMBER,
+}
+
+
+def _damaged(path: Path, what: str) -> ConfigError:
+    return ConfigError(f"{path} is damaged ({what}); re-run that run or leave its directory out")
+
+
+def read_summary(path: Path) -> dict[str, Any]:
+    """A run's ``summary.json``, checked for what the comparison reads; damage is a one-line
+    :class:`ConfigError` naming the file (a summary older than ``eval_curve`` is returned as is
+    for the caller to skip)."""
+    try:
+        summary = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise _damaged(path, f"not JSON: {error}") from None
+    if not isinstance(summary, dict):
+        raise _damaged(path, f"a JSON {type(summary).__name__}, not an object")
+    if "eval_curve" not in summary:
+        return summary  # older than the evaluation curve: the caller skips it
+    for key, types in SUMMARY_FIELDS.items():
+        if key not in summary:
+            raise _damaged(path, f"no {key!r}")
+        value = summary[key]
+        if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
+            raise _damaged(path, f"{key!r} is {value!r}")
+    _check_eval_curve(path, summary["eval_curve"])
+    return summary
+
+
+def _check_eval_curve(path: Path, curve: Any) -> None:
+    """``eval_curve``: equally long, non-empty lists of numbers under frames and returns (and
+    seconds, where the run recorded them)."""
+    if not isinstance(curve, dict) or not {"frames", "returns"} <= set(curve):
+        raise _damaged(path, "'eval_curve' lacks its frames and returns")
+    lengths = set()
+    for key in ("frames", "returns", "seconds"):
+        values = curve.get(key, curve["frames"])
+        if not isinstance(values, list) or not all(
+            isinstance(v, _NUMBER) and not isinstance(v, bool) and math.isfinite(v) for v in values
+        ):
+            raise _damaged(path, f"'eval_curve.{key}' is not a list of finite numbers")
+        lengths.add(len(values))
+    if len(lengths) != 1 or 0 in lengths:
+        raise _damaged(path, "'eval_curve' lists are empty or of different lengths")
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    """A run's ``config.yaml`` as a dict; damage is a one-line :class:`ConfigError`."""
+    try:
+        config = OmegaConf.to_container(OmegaConf.load(path))
+    except Exception as error:  # YAML's and OmegaConf's errors alike
+        raise _damaged(path, str(error).splitlines()[0]) from None
+    if not isinstance(config, dict):
+        raise _damaged(path, "not a mapping of settings")
+    return config
 
 
 def group_runs(runs: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:

@@ -1,4 +1,4 @@
-"""The three ways a run ends other than by finishing; imported by every module that raises them.
+"""The ways a run ends other than by finishing; imported by every module that raises them.
 
 They live in a module of their own, which imports nothing of the package, so that the schema
 (``config``), the factories and the training loop can all raise them without importing one
@@ -7,7 +7,7 @@ another.
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "TrainingFailed", "TrainingInterrupted"]
+__all__ = ["ConfigError", "DiskFull", "TrainingFailed", "TrainingInterrupted", "WorkerLost"]
 
 
 class ConfigError(ValueError):
@@ -24,3 +24,13 @@ class TrainingInterrupted(Exception):
     def __init__(self, message: str, signum: int) -> None:
         super().__init__(message)
         self.exit_code = 128 + signum  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
+
+
+class DiskFull(Exception):
+    """The run stopped because a checkpoint did not fit on its disk; the message names the path,
+    the space it needs and the resume command (the previous checkpoint is whole)."""
+
+
+class WorkerLost(Exception):
+    """A collector worker (a Ray actor) died; the run saved the batches trained so far and the
+    message names the worker and the resume command."""

@@ -37,7 +37,7 @@ from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActo
 from trl_cartpole.compat import gym_env
 from trl_cartpole.envs import OBSERVATION_KEY
 from trl_cartpole.models import expected_action_values
-from trl_cartpole.progress import Progress
+from trl_cartpole.progress import Progress, resident_mb
 
 __all__ = [
     "EpsilonGreedy",
@@ -269,6 +269,7 @@ class EvalCurve:
     seconds: list[float] = field(default_factory=list)  # training seconds, evaluation excluded
     returns: list[float] = field(default_factory=list)  # greedy mean return
     initial_values: list[float] = field(default_factory=list)  # mean max_a Q(s_0, a)
+    rss_mb: list[float | None] = field(default_factory=list)  # resident memory (MiB) then
 
 
 @dataclass
@@ -325,6 +326,7 @@ class Evaluator:
         self.curve.seconds.append(round(seconds, 3))
         self.curve.returns.append(result.mean)
         self.curve.initial_values.append(result.initial_value)
+        self.curve.rss_mb.append(resident_mb())
         new_best = result.mean > self.best_return
         if new_best:
             self.best_return = result.mean
@@ -358,3 +360,5 @@ class Evaluator:
         self.last_eval_frame = state["last_eval_frame"]
         for name, values in state["curve"].items():
             getattr(self.curve, name)[:] = values
+        missing = len(self.curve.frames) - len(self.curve.rss_mb)  # a state from before it
+        self.curve.rss_mb[:0] = [None] * missing

@@ -9,11 +9,19 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["write_atomic", "write_json_atomic", "write_text_atomic"]
+__all__ = [
+    "free_bytes",
+    "megabytes",
+    "tree_bytes",
+    "write_atomic",
+    "write_json_atomic",
+    "write_text_atomic",
+]
 
 
 def write_atomic(path: str | Path, write: Callable[[Path], Any]) -> Path:
@@ -39,3 +47,21 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
 def write_json_atomic(path: str | Path, payload: Any) -> Path:
     """Write ``payload`` as indented JSON to ``path`` atomically."""
     return write_text_atomic(path, json.dumps(payload, indent=2) + "\n")
+
+
+def free_bytes(path: str | Path) -> int:
+    """Bytes free to this user on the filesystem that holds ``path`` (or its nearest parent)."""
+    path = Path(path).absolute()
+    while not path.exists():
+        path = path.parent
+    return shutil.disk_usage(path).free
+
+
+def tree_bytes(path: str | Path) -> int:
+    """The total size of the files under ``path`` (0 if it does not exist)."""
+    return sum(file.stat().st_size for file in Path(path).rglob("*") if file.is_file())
+
+
+def megabytes(size: int) -> str:
+    """``size`` bytes in MB with one decimal, as the disk messages write it."""
+    return f"{size / 1e6:.1f} MB"

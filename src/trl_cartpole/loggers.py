@@ -8,6 +8,7 @@ for a run directory, resumable (a resumed run logs its frames again without doub
 from __future__ import annotations
 
 import secrets
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -114,12 +115,31 @@ def make_logger(
 def truncate_csv_metrics(run_dir: str | Path, frames: int) -> None:
     """Drop the CSV rows logged after ``frames`` (``run_dir/metrics/scalars/**.csv``).
 
-    A resumed run logs those frames again; each file is rewritten atomically.
+    A resumed run logs those frames again; each file is rewritten atomically. A row that is
+    not ``step,value`` (a write cut off by a kill, a damaged file) is dropped with a line on
+    stderr saying how many and where.
     """
     for path in (Path(run_dir) / "metrics" / "scalars").rglob("*.csv"):
-        rows = path.read_text().splitlines(keepends=True)
-        kept = [row for row in rows if row.strip() and int(row.split(",", 1)[0]) <= frames]
+        kept, damaged = [], 0
+        for row in path.read_text(errors="replace").splitlines():
+            step = _csv_step(row)
+            if step is None:
+                damaged += bool(row.strip())
+            elif step <= frames:
+                kept.append(f"{row}\n")
+        if damaged:
+            print(f"dropped {damaged} damaged row(s) of {path} (not step,value)", file=sys.stderr)
         write_text_atomic(path, "".join(kept))
+
+
+def _csv_step(row: str) -> int | None:
+    """The step of a ``step,value`` CSV row, or None if the row is not one."""
+    step, _, value = row.strip().partition(",")
+    try:
+        float(value)
+        return int(step)
+    except ValueError:
+        return None
 
 
 class MetricsLog:

@@ -4,20 +4,32 @@
 evaluation and checkpoints, so ``train_seconds`` and ``seconds_to_solve`` count training only.
 ``phase(name)`` times a block of the loop under a name the loop gives it (``collect``,
 ``update``...); the summary reports those seconds (``phase_seconds``), which is what
-``python -m benchmarks profile`` prints.
+``python -m benchmarks profile`` prints. :func:`resident_mb` is the process's memory now, which
+each evaluation records.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, TypeVar
 
-__all__ = ["Progress", "Stopwatch"]
+__all__ = ["Progress", "Stopwatch", "resident_mb"]
 
 T = TypeVar("T")
+
+
+def resident_mb() -> float | None:
+    """This process's resident memory now, in MiB (Linux's ``/proc/self/statm``; else None)."""
+    try:
+        pages = int(Path("/proc/self/statm").read_text().split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+    return round(pages * os.sysconf("SC_PAGE_SIZE") / 2**20, 1)
 
 
 class Stopwatch:

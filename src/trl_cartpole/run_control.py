@@ -105,6 +105,12 @@ class StopRequest:
                 self._previous[signum] = signal.signal(signum, self._handle)
         return self
 
+    def rearm(self) -> None:
+        """Install the handlers again, over any a library set since (``ray.init`` installs a
+        SIGTERM handler in C that prints a stack trace and kills the process)."""
+        for signum in self._previous:
+            signal.signal(signum, self._handle)
+
     def __exit__(self, *exc_info: object) -> None:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)

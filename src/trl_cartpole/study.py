@@ -14,8 +14,10 @@ failed) across all processes; parallel workers may finish a few more.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import shutil
+import sqlite3
 import sys
 import warnings
 from collections.abc import Sequence
@@ -52,6 +54,48 @@ class StudyResult:
     pruned: int
     summary: str
     preset: Path
+
+
+SQLITE_HEADER = b"SQLite format 3\x00"  # the first 16 bytes of every SQLite database file
+OPTUNA_TABLES = {"studies", "trials", "version_info"}  # tables every Optuna RDB storage has
+
+
+def check_sqlite_storage(url: str) -> None:
+    """Refuse, in one line and before Optuna writes to it, an SQLite ``storage`` that is damaged
+    or belongs to another program (Optuna would add its tables to any database it opens)."""
+    if not url.startswith("sqlite:///"):
+        return
+    path = Path(url.removeprefix("sqlite:///"))
+    if not path.exists() or path.stat().st_size == 0:
+        return  # a new study
+    fix = "move it away or name another storage="
+    with path.open("rb") as file:
+        if file.read(len(SQLITE_HEADER)) != SQLITE_HEADER:
+            raise ConfigError(f"storage={url} is not an SQLite database (damaged?); {fix}")
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
+            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master")}
+            check = db.execute("PRAGMA quick_check").fetchall()
+    except sqlite3.DatabaseError as error:
+        check = [(str(error),)]
+    if check != [("ok",)]:
+        raise ConfigError(f"storage={url} is a damaged SQLite database ({check[0][0]}); {fix}")
+    if tables and not OPTUNA_TABLES.issubset(tables):
+        shown = ", ".join(sorted(tables)[:5])
+        raise ConfigError(
+            f"storage={url} is another program's SQLite database (tables {shown}), not an "
+            f"Optuna study; {fix}"
+        )
+
+
+def check_study_space(study: Any, space: dict[str, Any], storage: str) -> None:
+    """Refuse to continue a study whose trials were sampled over other parameters."""
+    tuned = {name for trial in _finished(study) for name in trial.params}
+    if tuned and tuned != set(space):
+        raise ConfigError(
+            f"study {study.study_name!r} in {storage} was tuned over {', '.join(sorted(tuned))}; "
+            f"this search space is over {', '.join(sorted(space))}: name another study="
+        )
 
 
 def _storage(url: str) -> Any:
@@ -171,6 +215,7 @@ def run_study(
     if objective not in OBJECTIVES:
         raise ConfigError(f"objective={objective!r}; choose one of {', '.join(OBJECTIVES)}")
     direction = OBJECTIVES[objective]
+    check_sqlite_storage(storage)
     study = optuna.create_study(
         study_name=study_name, storage=_storage(storage), direction=direction, load_if_exists=True
     )
@@ -179,6 +224,7 @@ def run_study(
             f"study {study_name!r} in {storage} was made to {study.direction.name.lower()} its "
             f"score; objective={objective} needs one that is to {direction}: name another study="
         )
+    check_study_space(study, space, storage)
     spec = {
         "study_name": study_name,
         "storage": storage,

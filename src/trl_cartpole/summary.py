@@ -138,6 +138,7 @@ def run_summary(
             "frames": evaluator.curve.frames,
             "seconds": evaluator.curve.seconds,  # training seconds, evaluation excluded
             "returns": evaluator.curve.returns,
+            "rss_mb": evaluator.curve.rss_mb,  # resident memory (MiB) at each evaluation
         },
         **extra,
         "peak_rss_mb": round(peak_rss_mb(), 1),

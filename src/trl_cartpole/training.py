@@ -20,6 +20,7 @@ from tensordict import TensorDictBase
 
 from trl_cartpole.buffers import annealed_beta, extend_with_batch
 from trl_cartpole.build import TRANSITION_KEYS, Components, build_components
+from trl_cartpole.collectors import lost_worker
 from trl_cartpole.config import Config, to_config
 from trl_cartpole.console import quiet_libraries
 from trl_cartpole.errors import TrainingFailed
@@ -46,7 +47,8 @@ def train(
     ``resume`` is a training-state checkpoint (``checkpoint.find_resume_checkpoint``) and
     ``cfg`` its stored config (``checkpoint.resume_config``): the run continues exactly where
     it stopped. A stop signal (SIGINT, SIGTERM, SIGHUP, SIGUSR1) writes a checkpoint and raises
-    ``TrainingInterrupted``; a non-finite TD loss raises ``TrainingFailed``. ``build`` makes
+    ``TrainingInterrupted``; a non-finite TD loss raises ``TrainingFailed``; a Ray collector
+    actor that dies writes a checkpoint and raises ``WorkerLost``. ``build`` makes
     the components (a test may wrap it to inject a fault). ``on_evaluation(evaluation)`` gets
     each periodic :class:`~trl_cartpole.evaluation.Evaluation` after the run has recorded it
     (the tuner reports it to Optuna, which may stop the run by raising).
@@ -54,6 +56,7 @@ def train(
     cfg = validate(to_config(cfg))
     # the stop request first: its unbreakable console is the one the progress bar writes to
     with quiet_libraries(cfg.logger.verbose), StopRequest() as stop, build(cfg, resume) as run:
+        stop.rearm()  # a Ray collector's ray.init has just replaced the SIGTERM handler
         progress, phase = run.progress, run.progress.phase
         progress.clock.start()
         try:
@@ -91,6 +94,11 @@ def train(
                 _record_evaluation(run, run.evaluator.run(progress), on_evaluation)
         except TrainingFailed as failure:
             raise record_failure(run, failure) from None
+        except Exception as error:
+            lost = lost_worker(error, run.collector)  # a Ray actor died: checkpoint, then stop
+            if lost is None:
+                raise
+            raise run.checkpointer.stop_for_lost_worker(progress, lost) from None
         return finish(run)
 
 
@@ -136,14 +144,15 @@ def _record_evaluation(
 ) -> None:
     """Log the evaluation, show it, redraw the live plot, save a new best; then the caller's."""
     result = evaluation.result
-    run.metrics.log(
-        {
-            "eval/return_mean": result.mean,
-            "eval/return_std": result.std,
-            "eval/initial_value": result.initial_value,
-        },
-        evaluation.frames,
-    )
+    scalars = {
+        "eval/return_mean": result.mean,
+        "eval/return_std": result.std,
+        "eval/initial_value": result.initial_value,
+    }
+    rss_mb = run.evaluator.curve.rss_mb[-1]
+    if rss_mb is not None:
+        scalars["eval/rss_mb"] = rss_mb  # resident memory: a long run's leak shows here
+    run.metrics.log(scalars, evaluation.frames)
     run.progress_bar.evaluation(result.mean, evaluation.best_return, evaluation.frames)
     if evaluation.new_best:
         run.checkpointer.save_best(run.actor, evaluation.frames, result.mean)

@@ -7,12 +7,13 @@ and how to fix it, before anything is built or written.
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import shutil
 import sys
 from typing import Any
 
-from trl_cartpole.config import Config
+from trl_cartpole.config import Config, flat_fields
 from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
 
@@ -45,6 +46,9 @@ def validate(cfg: Config) -> Config:
     Imports neither torch nor TorchRL for a CPU config (Gymnasium only, for the env id), so a
     command line is checked in well under a second.
     """
+    for key, value in flat_fields(cfg).items():  # NaN slips through every comparison below
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{key}={value} must be a finite number")
     for key, options in _CHOICES.items():
         if _get(cfg, key) not in options:
             raise ConfigError(
