@@ -126,9 +126,8 @@ def performance_tables() -> str:
         algos = [name for name in names if name not in PEERS]
         peers = [name for name in names if name in PEERS]
         seeds = len(results[names[0]])
-        parts.append(
-            f"#### Evaluation every {int(interval):,} frames, {seeds} seeds".replace(",", " ")
-        )
+        every = f"{int(interval):,}".replace(",", " ")  # 1 000, as the docs write numbers
+        parts.append(f"#### Evaluation every {every} frames, {seeds} seeds")
         parts.append(protocol_text(results, algos, peers))
     return "\n\n".join(parts)
 
