@@ -291,7 +291,9 @@ RAY_ACTOR_FIELDS = ("class_name", "actor_id", "pid", "name", "namespace", "ip")
 
 def lost_worker(error: BaseException, collector: BaseCollector) -> str | None:
     """``"Ray collector actor 2 of 2 (pid 1234, ip 10.0.0.3) died: <Ray's reason>"`` if ``error``
-    is Ray's word that one of ``collector``'s actors is gone (``RayActorError``), else None."""
+    is Ray's word that one of ``collector``'s actors is gone (``RayActorError``), else None.
+    The actor is named by its place among the collector's actors while the collector still
+    lists them, else by Ray's actor id."""
     ray_exceptions = sys.modules.get("ray.exceptions")  # Ray not imported: no Ray actor
     if ray_exceptions is None or not isinstance(error, ray_exceptions.RayActorError):
         return None
