@@ -142,6 +142,16 @@ LONG = [
 ]
 
 
+def _resume(python: str, run_dir: Path) -> subprocess.CompletedProcess:
+    """``scripts/train.py resume=run_dir`` in a new process, to its end."""
+    return subprocess.run(
+        [python, str(SCRIPTS / "train.py"), f"resume={run_dir}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
 def _start(python: str, run_dir: Path, *overrides: str) -> subprocess.Popen:
     return subprocess.Popen(
         [python, str(SCRIPTS / "train.py"), *overrides, f"run_dir={run_dir}"],
@@ -182,12 +192,7 @@ def test_signal_checkpoints_and_the_resumed_run_equals_the_uninterrupted_one(
     assert "Traceback" not in stderr
     assert not (run_dir / "summary.json").exists()  # the run is not over
 
-    resumed = subprocess.run(
-        [python, str(SCRIPTS / "train.py"), f"resume={run_dir}"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    resumed = _resume(python, run_dir)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     expected = train(compose(*LONG, f"run_dir={tmp_path / 'whole'}"))
     got = json.loads((run_dir / "summary.json").read_text())
@@ -637,12 +642,7 @@ def test_a_run_on_a_real_small_filesystem_stops_in_one_line(python, tmp_path, me
     good = find_resume_checkpoint(copy)
     frames = Checkpoint.manifest(good)["metadata"]["counters"]["frames"]
     assert 1000 <= frames < 2000  # the first periodic state (whole batches of 32 frames)
-    resumed = subprocess.run(
-        [python, str(SCRIPTS / "train.py"), f"resume={copy}"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    resumed = _resume(python, copy)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert json.loads((copy / "summary.json").read_text())["frames"] >= 3000
 
