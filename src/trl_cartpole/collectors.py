@@ -131,13 +131,14 @@ def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
 def guard_local_ray_with_a_token_of_its_own() -> None:
     """Token authentication for the Ray instance a run starts, with a token made for it.
 
-    Ray (2.52 on) turns token authentication on for a new local instance and, finding no token,
+    Ray 2.60 turns token authentication on for a new local instance and, finding no token,
     writes one to ``~/.ray/auth_token`` with the user's umask: mode 644, readable by every user
     of the machine, and the same for every later instance. Its ports listen on every interface
     whatever ``_node_ip_address`` says (Ray has no setting to bind them to the loopback), so the
-    token is the guard. Made here, in this process's environment (``RAY_AUTH_TOKEN``: only the
-    owner of the process can read ``/proc/PID/environ``), it reaches the Ray processes the run
-    starts and no file. ``RAY_AUTH_MODE`` and ``RAY_AUTH_TOKEN`` set by the user are kept.
+    token is the guard. Made here and put in ``os.environ`` (``RAY_AUTH_TOKEN``), it reaches the
+    Ray processes the run starts through their environment, which only their owner can read
+    (``/proc/PID/environ`` is mode 0400), and no file. ``RAY_AUTH_MODE`` and ``RAY_AUTH_TOKEN``
+    set by the user are kept.
     """
     os.environ.setdefault("RAY_AUTH_MODE", "token")
     os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(32))
