@@ -87,6 +87,8 @@ def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
         (["optim.lr=inf"], r"optim.lr=inf must be a finite number"),
         (["network.v_min=-inf"], r"network.v_min=-inf must be a finite number"),
         (["buffer.alpha=nan"], r"buffer.alpha=nan must be a finite number"),
+        # found by tests/test_fuzz.py: OmegaConf took any integer for a switch
+        (["checkpoint.save_best=512"], r"checkpoint.save_best=512 is not a switch value"),
         (
             ["env.num_envs=3", "collector.frames_per_batch=16"],
             "frames_per_batch=16 must be a multiple of env.num_envs=3",
