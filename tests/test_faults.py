@@ -441,6 +441,7 @@ def test_a_training_state_of_another_format_is_refused_naming_both(tmp_path, fin
         (["env.id=Acrobot-v1"], "env.id cannot change"),
         (["network.hidden_sizes=[64]"], "network.hidden_sizes cannot change"),
         (["loss.gama=1"], "Key 'gama' not in"),
+        (["logger.plots=512"], "logger.plots=512 is not a switch value"),
         ([], "leaves nothing to train: the run has 600 frames"),  # a distributed one never ended
     ],
 )

@@ -14,11 +14,11 @@ import pytest
 from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
-from trl_cartpole.cli import BOOLEAN_WORDS, _one_line, compose_run_config
+from trl_cartpole.cli import _one_line, compose_run_config
 from trl_cartpole.config import Config, flat_fields, to_config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.presets import PRESETS_DIR
-from trl_cartpole.validation import validate
+from trl_cartpole.validation import BOOLEAN_WORDS, validate
 
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402

@@ -36,7 +36,7 @@ from trl_cartpole.errors import ConfigError, DiskFull, TrainingInterrupted, Work
 from trl_cartpole.files import free_bytes, megabytes, tree_bytes, write_json_atomic
 from trl_cartpole.pickle_scan import no_unpickling, refuse_code
 from trl_cartpole.progress import Progress
-from trl_cartpole.validation import validate
+from trl_cartpole.validation import check_boolean_overrides, validate
 
 __all__ = [
     "RESUMABLE_FIELDS",
@@ -289,6 +289,7 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
     stored = read_checkpoint_config(checkpoint)
     # Trust in pickled env state comes from whoever resumes, not from the checkpoint's config.
     stored.checkpoint.trust_pickled_envs = False
+    check_boolean_overrides(overrides)
     merged = OmegaConf.merge(OmegaConf.structured(stored), OmegaConf.from_dotlist(list(overrides)))
     cfg = validate(to_config(merged))
     before, after = flat_fields(stored), flat_fields(cfg)

@@ -33,7 +33,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from trl_cartpole.cli_help import shown_value
-from trl_cartpole.config import Config, flat_fields, register_configs, to_config
+from trl_cartpole.config import flat_fields, register_configs, to_config
 from trl_cartpole.console import command, quiet_libraries, set_scripts_dir
 from trl_cartpole.errors import (
     ConfigError,
@@ -44,6 +44,7 @@ from trl_cartpole.errors import (
 )
 from trl_cartpole.presets import PRESETS_DIR, with_search_path
 from trl_cartpole.run_control import install_unbreakable_console
+from trl_cartpole.validation import check_boolean_overrides
 
 __all__ = [
     "COMMANDS",
@@ -75,21 +76,6 @@ def compose_config(
     check_boolean_overrides(overrides)
     with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base="1.3"):
         return compose(config_name="config", overrides=with_search_path(overrides))
-
-
-# What a switch may be set to on the command line. OmegaConf would also take any integer (a
-# nonzero one as true): `checkpoint.save_best=512` was a run with the switch on.
-BOOLEAN_WORDS = ("true", "false", "yes", "no", "on", "off", "1", "0")
-
-
-def check_boolean_overrides(overrides: Sequence[str]) -> None:
-    """Refuse ``switch=value`` for a boolean field of the schema unless ``value`` says yes or no."""
-    switches = {key for key, value in flat_fields(Config()).items() if isinstance(value, bool)}
-    for override in overrides:
-        key, _, value = override.lstrip("+").partition("=")
-        words = value.lower().split(",")  # a sweep's list: loss.double_dqn=true,false
-        if key in switches and not all(word.strip() in BOOLEAN_WORDS for word in words):
-            raise ConfigError(f"{key}={value} is not a switch value; use {key}=true or false")
 
 
 # Fields that do not change what is learnt: left out of a run directory's name.

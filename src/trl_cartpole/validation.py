@@ -11,13 +11,21 @@ import math
 import os
 import shutil
 import sys
+from collections.abc import Sequence
 from typing import Any
 
 from trl_cartpole.config import Config, flat_fields
 from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
 
-__all__ = ["ACTIVATION_NAMES", "HEAD_NAMES", "check_network_choices", "validate"]
+__all__ = [
+    "ACTIVATION_NAMES",
+    "BOOLEAN_WORDS",
+    "HEAD_NAMES",
+    "check_boolean_overrides",
+    "check_network_choices",
+    "validate",
+]
 
 # network.head and network.activation: the keys of trl_cartpole.models.HEADS and ACTIVATIONS
 HEAD_NAMES = ("dueling", "plain")
@@ -31,6 +39,21 @@ _CHOICES = {
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
     "collector.backend": ("local", "ray"),
 }
+
+
+# What a switch may be set to on the command line. OmegaConf would also take any integer (a
+# nonzero one as true): `checkpoint.save_best=512` was a run with the switch on.
+BOOLEAN_WORDS = ("true", "false", "yes", "no", "on", "off", "1", "0")
+
+
+def check_boolean_overrides(overrides: Sequence[str]) -> None:
+    """Refuse ``switch=value`` for a boolean field of the schema unless ``value`` says yes or no."""
+    switches = {key for key, value in flat_fields(Config()).items() if isinstance(value, bool)}
+    for override in overrides:
+        key, _, value = override.lstrip("+").partition("=")
+        words = value.lower().split(",")  # a sweep's list: loss.double_dqn=true,false
+        if key in switches and not all(word.strip() in BOOLEAN_WORDS for word in words):
+            raise ConfigError(f"{key}={value} is not a switch value; use {key}=true or false")
 
 
 def _get(cfg: Config, dotted: str) -> Any:
