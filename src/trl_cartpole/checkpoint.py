@@ -424,7 +424,7 @@ class Checkpointer:
     def _disk_full(self, path: Path, needed: int) -> DiskFull:
         free = free_bytes(path)
         if find_complete_checkpoints(self.run_dir):
-            then = f"then resume with: {command('train')} resume={shown_path(self.run_dir)}"
+            then = f"then resume with: {self.resume_command()}"
         else:
             then = "then start the run again (no training state was written before this one)"
         if free >= needed:  # the write failed all the same: something else fills the disk
@@ -448,16 +448,11 @@ class Checkpointer:
         due = progress.frames - self.last_saved_frame >= self.interval
         if not (due or stop.requested):
             return
-        progress.clock.pause()
-        self.save(
-            self.run_dir / "checkpoints" / "periodic", progress, self.cfg.checkpoint.keep_last
-        )
-        self.last_saved_frame = progress.frames
+        self._save_periodic(progress)
         if stop.requested:
             raise TrainingInterrupted(
                 f"stopped by {signal.Signals(stop.signum).name} at frame {progress.frames}; "
-                f"checkpoint written; resume with: {command('train')} "
-                f"resume={shown_path(self.run_dir)}",
+                f"checkpoint written; resume with: {self.resume_command()}",
                 stop.signum,
             )
         progress.clock.start()
@@ -465,14 +460,23 @@ class Checkpointer:
     def stop_for_lost_worker(self, progress: Progress, lost: str) -> WorkerLost:
         """Save a periodic state of the batches trained so far; return the error that ends the
         run, naming the ``lost`` worker and the resume command."""
+        self._save_periodic(progress)
+        return WorkerLost(
+            f"{lost}; the run stopped at frame {progress.frames} with a checkpoint; resume with: "
+            f"{self.resume_command()}"
+        )
+
+    def _save_periodic(self, progress: Progress) -> None:
+        """Stop the training clock and save a state under ``checkpoints/periodic``."""
         progress.clock.pause()
         self.save(
             self.run_dir / "checkpoints" / "periodic", progress, self.cfg.checkpoint.keep_last
         )
-        return WorkerLost(
-            f"{lost}; the run stopped at frame {progress.frames} with a checkpoint; resume with: "
-            f"{command('train')} resume={shown_path(self.run_dir)}"
-        )
+        self.last_saved_frame = progress.frames
+
+    def resume_command(self) -> str:
+        """The command that continues this run from its newest checkpoint."""
+        return f"{command('train')} resume={shown_path(self.run_dir)}"
 
     def save_best(self, policy: nn.Module, frames: int, eval_return_mean: float) -> None:
         """The best policy so far (``checkpoints/best``), if ``checkpoint.save_best``."""
