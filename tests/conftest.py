@@ -31,7 +31,8 @@ SMOKE_OVERRIDES = [
     "logger.progress_bar=false",
 ]
 
-# summary.json keys that differ between two runs of one config: timings, throughput, paths.
+# summary.json keys that differ between two runs of one config: timings, throughput, paths,
+# the node ids of a Ray run.
 TIMING_KEYS = {
     "train_seconds",
     "wall_seconds",
@@ -42,6 +43,7 @@ TIMING_KEYS = {
     "phase_seconds",
     "run_dir",
     "checkpoint",
+    "ray_nodes",
 }
 
 

@@ -16,12 +16,13 @@ import pytest
 import torch
 from tensordict.nn import TensorDictSequential
 
+import trl_cartpole
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
 from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.collectors import (
+    default_ray_init_config,
     make_collector,
     needs_weight_sync,
-    ray_init_config,
     shutdown_collector,
     worker_env_constructors,
 )
@@ -67,7 +68,7 @@ def test_a_local_ray_instance_is_started_apart_from_any_other_on_the_machine():
     a ``ray start`` recorded in /tmp/ray/ray_current_cluster (machine-wide state)."""
     from ray._private.services import canonicalize_bootstrap_address
 
-    config = ray_init_config(None, 2)
+    config = default_ray_init_config(None, 2)
     assert config["address"] == "local" and config["num_cpus"] >= 2
     os.environ["RAY_ADDRESS"] = "10.0.0.1:6379"  # (conftest removes it again after the session)
     try:
@@ -75,7 +76,7 @@ def test_a_local_ray_instance_is_started_apart_from_any_other_on_the_machine():
         assert canonicalize_bootstrap_address(None) == "10.0.0.1:6379"  # what None would join
     finally:
         del os.environ["RAY_ADDRESS"]
-    assert ray_init_config("10.0.0.2:6379", 2)["address"] == "10.0.0.2:6379"
+    assert default_ray_init_config("10.0.0.2:6379", 2)["address"] == "10.0.0.2:6379"
 
 
 @pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])
@@ -141,6 +142,23 @@ def test_each_worker_seeds_its_own_envs(compose):
         (["collector.ray_address=127.0.0.1:6379"], "only read by the Ray backend"),
         (["collector.workers=0"], "collector.workers=0 must be >= 1"),
         (["collector.backend=spark"], "collector.backend='spark' is not a known option"),
+        (["collector.ray_resources={gpu_node: 1}"], "is only read by the Ray backend"),
+        (
+            ["collector.backend=ray", "collector.ray_resources={gpu_node: 1}"],
+            "the Ray instance a run starts on this machine has no custom resources",
+        ),
+        (
+            ["collector.backend=ray", "collector.ray_runtime_env={pip: [gymnasium]}"],
+            "collector.ray_runtime_env ships code to the nodes of a cluster",
+        ),
+        (
+            [
+                "collector.backend=ray",
+                "collector.ray_address=10.0.0.2:6379",
+                "collector.ray_resources={gpu_node: 0}",
+            ],
+            "collector.ray_resources.gpu_node=0.0 must be a positive number",
+        ),
     ],
 )
 def test_impossible_scaling_configs_are_refused(compose, overrides, message):
@@ -229,54 +247,70 @@ def _free_port() -> int:
         return probe.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def ray_head(tmp_path_factory):
-    """A Ray head started with ``ray start --block`` on 127.0.0.1, token authentication on.
-
-    Stopping the blocking ``ray start`` stops the processes it started and no other Ray.
-    """
-    pytest.importorskip("ray")
-    port = _free_port()
-    # The cluster's token is made here (not read from ~/.ray, which a fresh machine lacks).
-    env = {
+def _ray_cluster_env() -> dict[str, str]:
+    """The environment of a test cluster: token authentication on, with a token made here (not
+    read from ~/.ray, which a fresh machine lacks), no usage report."""
+    return {
         **os.environ,
         "RAY_AUTH_MODE": "token",
         "RAY_AUTH_TOKEN": secrets.token_hex(32),
         "RAY_USAGE_STATS_ENABLED": "0",
     }
-    temp_dir = tmp_path_factory.mktemp("ray")
-    head = subprocess.Popen(
-        [
-            str(Path(sys.executable).with_name("ray")),
-            "start",
-            "--head",
-            "--block",
-            "--node-ip-address=127.0.0.1",
-            f"--port={port}",
-            "--num-cpus=2",
-            "--include-dashboard=false",
-            f"--temp-dir={temp_dir}",
-        ],
+
+
+def _ray_start(env: dict[str, str], *options: str) -> subprocess.Popen:
+    """``ray start --block OPTIONS`` in its own process group: stopping it stops the Ray
+    processes it started and no other Ray."""
+    return subprocess.Popen(
+        [str(Path(sys.executable).with_name("ray")), "start", "--block", *options],
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         start_new_session=True,
     )
+
+
+def _ray_stop(node: subprocess.Popen) -> None:
+    os.killpg(node.pid, signal.SIGTERM)  # the node and the Ray processes it started
+    try:
+        node.wait(timeout=5)
+    except subprocess.TimeoutExpired:  # its graceful stop takes about 30 s: not needed here
+        os.killpg(node.pid, signal.SIGKILL)
+        node.wait()
+
+
+def _start_ray_head(env: dict[str, str], temp_dir: Path, *options: str):
+    """A Ray head on 127.0.0.1 at a free port; returns it and its address once its GCS
+    accepts connections."""
+    port = _free_port()
+    head = _ray_start(
+        env,
+        "--head",
+        "--node-ip-address=127.0.0.1",
+        f"--port={port}",
+        "--include-dashboard=false",
+        f"--temp-dir={temp_dir}",
+        *options,
+    )
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:  # the head's GCS accepts connections
+    while time.monotonic() < deadline:
         try:
             socket.create_connection(("127.0.0.1", port), timeout=1).close()
             break
         except OSError:
             assert head.poll() is None, "ray start --head exited"
             time.sleep(0.5)
-    yield {"address": f"127.0.0.1:{port}", "env": env}
-    os.killpg(head.pid, signal.SIGTERM)  # the head and the Ray processes it started
-    try:
-        head.wait(timeout=5)
-    except subprocess.TimeoutExpired:  # its graceful stop takes about 30 s: not needed here
-        os.killpg(head.pid, signal.SIGKILL)
-        head.wait()
+    return head, f"127.0.0.1:{port}"
+
+
+@pytest.fixture(scope="module")
+def ray_head(tmp_path_factory):
+    """A Ray head started with ``ray start --block`` on 127.0.0.1, token authentication on."""
+    pytest.importorskip("ray")
+    env = _ray_cluster_env()
+    head, address = _start_ray_head(env, tmp_path_factory.mktemp("ray"), "--num-cpus=2")
+    yield {"address": address, "env": env}
+    _ray_stop(head)
 
 
 @pytest.mark.slow  # imports Ray in a subprocess
@@ -313,6 +347,151 @@ def test_two_ray_actors_on_a_local_head_solve_cartpole(ray_head, tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["solved"], summary
     assert summary["final_eval_return_mean"] >= 400.0
+
+
+# What a client of the cluster sees: each node's id and resources.
+_LIST_NODES = """
+import json, sys, ray
+ray.init(address=sys.argv[1], logging_level="ERROR")
+print(json.dumps([(n["NodeID"], n["Resources"]) for n in ray.nodes() if n["Alive"]]))
+"""
+
+
+def _cluster_nodes(address: str, env: dict[str, str]) -> list[tuple[str, dict[str, float]]]:
+    listed = subprocess.run(
+        [sys.executable, "-c", _LIST_NODES, address],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    return json.loads(listed.stdout.splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def two_node_cluster(tmp_path_factory):
+    """A head and a worker node started with ``ray start`` on this machine; the worker node is
+    told apart by a custom resource, ``collector_node``, as a real cluster's worker would be."""
+    pytest.importorskip("ray")
+    env = _ray_cluster_env()
+    head, address = _start_ray_head(env, tmp_path_factory.mktemp("ray"), "--num-cpus=1")
+    worker = _ray_start(
+        env,
+        f"--address={address}",
+        "--node-ip-address=127.0.0.1",
+        "--num-cpus=2",
+        '--resources={"collector_node": 2}',
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while len(nodes := _cluster_nodes(address, env)) < 2:
+            assert worker.poll() is None, "ray start --address exited"
+            assert time.monotonic() < deadline, f"the worker node never joined: {nodes}"
+            time.sleep(1)
+        yield {"address": address, "env": env, "nodes": nodes}
+    finally:
+        _ray_stop(worker)
+        _ray_stop(head)
+
+
+@pytest.mark.slow  # two Ray nodes: 40 s to start
+def test_the_actors_run_on_the_worker_node_and_the_learner_on_the_head(two_node_cluster, tmp_path):
+    (head_id,) = [i for i, held in two_node_cluster["nodes"] if "node:__internal_head__" in held]
+    (worker_id,) = [i for i, held in two_node_cluster["nodes"] if "collector_node" in held]
+    assert head_id != worker_id
+    proc = run_script(
+        "train.py",
+        *SMOKE_OVERRIDES,
+        "collector.backend=ray",
+        f"collector.ray_address={two_node_cluster['address']}",
+        "collector.ray_resources={collector_node: 1}",
+        # as docs/scaling.md tells: the package shipped by a path relative to the checkout
+        "collector.ray_runtime_env={py_modules: [src/trl_cartpole]}",
+        *TWO_WORKERS,
+        "collector.frames_per_batch=32",
+        "collector.total_frames=1024",
+        f"run_dir={tmp_path}",
+        env=two_node_cluster["env"],
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["frames"] == 1024
+    assert summary["ray_nodes"] == {
+        "learner_node": head_id,
+        "collector_nodes": [worker_id, worker_id],
+    }
+
+
+# Collectors on the cluster's worker node with this package shipped in Ray's runtime
+# environment; prints where each actor imported trl_cartpole from.
+_SHIPPED_PACKAGE = """
+import json, sys
+from pathlib import Path
+import ray, trl_cartpole
+from trl_cartpole.collectors import make_collector, worker_env_constructors
+from trl_cartpole.config import Config
+from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.envs import make_env_from_config
+
+cfg = Config()
+cfg.env.num_envs, cfg.collector.workers = 2, 2
+actor = make_q_actor_for_env(make_env_from_config(cfg.env, seed=0), cfg.network)
+collector = make_collector(
+    worker_env_constructors(cfg), actor, frames_per_batch=8, total_frames=16,
+    init_random_frames=0, backend="ray", ray_address=sys.argv[1],
+    remote_configs={"num_cpus": 1, "resources": {"collector_node": 1}},
+    ray_init_config={"runtime_env": {"py_modules": [str(Path(trl_cartpole.__file__).parent)]}},
+)
+files = ray.get([a.__ray_call__.remote(lambda self: __import__("trl_cartpole").__file__)
+                 for a in collector.remote_collectors])
+frames = sum(batch.numel() for batch in collector)
+collector.shutdown()
+print(json.dumps({"frames": frames, "files": files}))
+"""
+
+
+@pytest.mark.slow  # two Ray nodes
+def test_the_package_shipped_in_a_runtime_env_is_what_the_actors_import(two_node_cluster):
+    """``ray_init_config={"runtime_env": {"py_modules": [...]}}`` (``collector.ray_runtime_env``)
+    uploads the package: the actors import Ray's copy, not this checkout's."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _SHIPPED_PACKAGE, two_node_cluster["address"]],
+        env=two_node_cluster["env"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    shipped = json.loads(proc.stdout.splitlines()[-1])
+    assert shipped["frames"] == 16
+    here = str(Path(trl_cartpole.__file__).parent)
+    assert len(shipped["files"]) == 2
+    for file in shipped["files"]:
+        assert "runtime_resources/py_modules_files" in file and not file.startswith(here), file
+
+
+@pytest.mark.slow  # two Ray nodes
+def test_actors_asking_for_a_resource_no_node_has_are_refused_in_one_line(
+    two_node_cluster, tmp_path
+):
+    """Ray would wait without end for a node with the resource; the run stops at once."""
+    proc = run_script(
+        "train.py",
+        *SMOKE_OVERRIDES,
+        "collector.backend=ray",
+        f"collector.ray_address={two_node_cluster['address']}",
+        "collector.ray_resources={collector_node: 1.5}",  # 3 in all; the worker node has 2
+        *TWO_WORKERS,
+        "collector.frames_per_batch=32",
+        f"run_dir={tmp_path / 'run'}",
+        env=two_node_cluster["env"],
+        timeout=300,
+    )
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-1500:]
+    assert "collector_node=3 in all" in lines[0] and "collector_node=2" in lines[0], lines[0]
 
 
 # --- sweeps ---------------------------------------------------------------------------------
@@ -463,9 +642,9 @@ def test_a_killed_ray_actor_stops_the_run_with_a_checkpoint_that_resumes(tmp_pat
 
 _START_LOCAL_RAY = """
 import sys, ray
-from trl_cartpole.collectors import guard_local_ray_with_a_token_of_its_own, ray_init_config
+from trl_cartpole.collectors import guard_local_ray_with_a_token_of_its_own, default_ray_init_config
 guard_local_ray_with_a_token_of_its_own()
-ray.init(**ray_init_config(None, 1))
+ray.init(**default_ray_init_config(None, 1))
 print(ray.get_runtime_context().gcs_address, flush=True)
 sys.stdin.read()  # until the test closes it
 """

@@ -22,6 +22,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -36,10 +37,12 @@ from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActo
 from trl_cartpole.buffers import make_replay_buffer
 from trl_cartpole.checkpoint import Checkpointer, read_observation_norm
 from trl_cartpole.collectors import (
+    RAY_ACTOR_OPTIONS,
     check_ray_address,
     is_distributed,
     make_collector,
     needs_weight_sync,
+    ray_placement,
     shutdown_collector,
     whole_batches,
     worker_env_constructors,
@@ -257,6 +260,7 @@ class Components:
     threshold: float | None
     learning_starts: int  # no update before the buffer holds this many transitions
     sync_policy_weights: bool  # the collector steps a copy of the policy
+    ray_nodes: dict[str, Any] | None  # Ray runs: the learner's and each actor's node id
     wall_start: float  # perf_counter() when the build began
     _collector_released: bool = field(default=False, init=False, repr=False)
 
@@ -361,6 +365,10 @@ def _assemble(
         sync=cfg.collector.sync,
         backend=cfg.collector.backend,
         ray_address=cfg.collector.ray_address,
+        remote_configs={**RAY_ACTOR_OPTIONS, "resources": dict(cfg.collector.ray_resources)},
+        ray_init_config={"runtime_env": dict(cfg.collector.ray_runtime_env)}
+        if cfg.collector.ray_runtime_env
+        else None,
     )
     on_error.callback(shutdown_collector, collector)  # worker processes, Ray actors
     metrics = MetricsLog(
@@ -442,5 +450,6 @@ def _assemble(
             cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
         ),
         sync_policy_weights=needs_weight_sync(collector, policy),
+        ray_nodes=ray_placement(collector),
         wall_start=wall_start,
     )

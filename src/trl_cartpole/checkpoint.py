@@ -69,6 +69,8 @@ RESUMABLE_FIELDS = (
     "logger.live_plot_seconds",
     "logger.plots",
     "collector.ray_address",  # a restarted cluster may listen elsewhere
+    "collector.ray_resources",  # ... and name its nodes otherwise
+    "collector.ray_runtime_env",
     TRUST_PICKLE,  # read from the resuming command only, never from the checkpoint
 )
 

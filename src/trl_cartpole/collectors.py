@@ -41,12 +41,14 @@ __all__ = [
     "BACKENDS",
     "WorkerEnvFactory",
     "check_ray_address",
+    "check_ray_resources",
+    "default_ray_init_config",
     "guard_local_ray_with_a_token_of_its_own",
     "is_distributed",
     "lost_worker",
     "make_collector",
     "needs_weight_sync",
-    "ray_init_config",
+    "ray_placement",
     "shutdown_collector",
     "whole_batches",
     "worker_env_constructors",
@@ -107,7 +109,7 @@ def is_distributed(workers: int, backend: str) -> bool:
     return workers > 1 or backend != "local"
 
 
-def ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
+def default_ray_init_config(address: str | None, workers: int) -> dict[str, Any]:
     """``ray.init`` arguments: connect to ``address``, or start Ray here on 127.0.0.1.
 
     A local instance declares at least one CPU per worker (more workers than cores then share
@@ -165,6 +167,8 @@ def make_collector(
     sync: bool = True,
     backend: str = "local",
     ray_address: str | None = None,
+    remote_configs: dict[str, Any] | None = None,
+    ray_init_config: dict[str, Any] | None = None,
     **collector_kwargs: Any,
 ) -> BaseCollector:
     """Return a collector yielding batches of ``frames_per_batch`` transitions.
@@ -177,8 +181,13 @@ def make_collector(
     synchronous multi-worker batch. The defaults are the default config's ``collector`` section;
     ``collector_kwargs`` go to TorchRL's ``Collector`` (``storing_device``, ``compile_policy``,
     ``split_trajs``, ...). ``total_frames`` and ``init_random_frames`` are rounded up to whole
-    batches (:func:`whole_batches`), as TorchRL would do with a warning. TorchRL's defaults:
-    ``total_frames=-1`` (endless), no random frames, ``device`` the policy's.
+    batches (:func:`whole_batches`), as TorchRL would do with a warning. ``remote_configs``
+    are the Ray options of each actor (``RayCollector``'s argument: ``num_cpus``, ``memory``,
+    ``resources``...); None: :data:`RAY_ACTOR_OPTIONS`. ``ray_init_config`` (``RayCollector``'s
+    too) adds to or replaces the ``ray.init`` arguments of :func:`default_ray_init_config` (e.g.
+    ``{"runtime_env": {"py_modules": [...]}}``). TorchRL's defaults:
+    ``total_frames=-1`` (endless), no random frames, ``device`` the policy's, 1 CPU and 2 GiB
+    per Ray actor.
 
     Example::
 
@@ -219,6 +228,9 @@ def make_collector(
         check_ray_address(ray_address)
     else:
         guard_local_ray_with_a_token_of_its_own()
+    actor_options = RAY_ACTOR_OPTIONS if remote_configs is None else remote_configs
+    if ray_address is not None and _custom_resources(actor_options):
+        check_ray_resources(ray_address, actor_options, len(create_env_fn))
     try:
         auto_register = common.pop("auto_register_policy_transforms")
         collector = Collector(
@@ -228,8 +240,11 @@ def make_collector(
             num_collectors=len(create_env_fn),
             sync=sync,
             backend_options={
-                "ray_init_config": ray_init_config(ray_address, len(create_env_fn)),
-                "remote_configs": RAY_ACTOR_OPTIONS,
+                "ray_init_config": {
+                    **default_ray_init_config(ray_address, len(create_env_fn)),
+                    **(ray_init_config or {}),
+                },
+                "remote_configs": actor_options,
                 "collector_kwargs": {"auto_register_policy_transforms": auto_register},
             },
             **common,
@@ -243,6 +258,45 @@ def make_collector(
         ) from None
     collector.update_policy_weights_(policy)  # registers the learner's policy as the source
     return collector
+
+
+def _custom_resources(remote_configs: dict[str, Any] | list[dict[str, Any]]) -> bool:
+    options = remote_configs if isinstance(remote_configs, list) else [remote_configs]
+    return any(entry.get("resources") for entry in options)
+
+
+def check_ray_resources(
+    address: str, remote_configs: dict[str, Any] | list[dict[str, Any]], actors: int
+) -> None:
+    """Raise a one-line ConfigError unless the Ray cluster at ``address`` holds the custom
+    resources that ``actors`` actors ask for (``remote_configs["resources"]``, per actor).
+
+    Ray would otherwise wait without end for a node that has them (TorchRL's ``RayCollector``
+    blocks in its constructor). The check joins the cluster and leaves it again (about 2 s).
+    """
+    import ray
+
+    per_actor = remote_configs if isinstance(remote_configs, list) else [remote_configs] * actors
+    wanted: dict[str, float] = {}
+    for options in per_actor:
+        for name, amount in (options.get("resources") or {}).items():
+            wanted[name] = wanted.get(name, 0.0) + amount
+    try:
+        ray.init(**default_ray_init_config(address, actors))
+        held = ray.cluster_resources()
+    except ConnectionError:
+        return  # make_collector's own join says what is wrong with the address
+    finally:
+        ray.shutdown()
+    short = {name: amount for name, amount in wanted.items() if held.get(name, 0.0) < amount}
+    if short:
+        needs = ", ".join(f"{name}={amount:g}" for name, amount in short.items())
+        has = ", ".join(f"{name}={held.get(name, 0.0):g}" for name in short)
+        raise ConfigError(
+            f"collector.ray_resources: the {actors} Ray actors need {needs} in all and the "
+            f"cluster has {has}; start nodes with `ray start --resources='{{\"NAME\": N}}'`, "
+            "lower the amounts or fix the names"
+        )
 
 
 def check_ray_address(address: str, timeout: float = 5.0) -> None:
@@ -273,6 +327,31 @@ def needs_weight_sync(collector: BaseCollector, policy: TensorDictModuleBase) ->
     if hasattr(collector, "remote_collectors"):  # Ray actors
         return True
     return getattr(collector, "policy", None) is not policy
+
+
+def _node_id_of(_actor: Any) -> str:
+    """Run inside a Ray actor (``__ray_call__``): the id of the node it lives on."""
+    import ray
+
+    return ray.get_runtime_context().get_node_id()
+
+
+def ray_placement(collector: BaseCollector) -> dict[str, Any] | None:
+    """Where a Ray run lives: ``{"learner_node": id, "collector_nodes": [id per actor]}``.
+
+    The learner is this process (the Ray driver, on the node it joined); each collector actor
+    says its node. Ray node ids are those ``ray.nodes()`` lists as ``NodeID``. None for a
+    collector that is not a ``RayCollector``.
+    """
+    if not hasattr(collector, "remote_collectors"):
+        return None
+    import ray
+
+    actors = collector.remote_collectors
+    return {
+        "learner_node": ray.get_runtime_context().get_node_id(),
+        "collector_nodes": ray.get([actor.__ray_call__.remote(_node_id_of) for actor in actors]),
+    }
 
 
 def shutdown_collector(collector: BaseCollector) -> None:

@@ -119,6 +119,12 @@ class CollectorConfig:
     sync: bool = True  # workers > 1: batches from all workers (true) or the first ready (false)
     backend: str = "local"  # local (this machine) | ray (TorchRL's RayCollector)
     ray_address: str | None = None  # ray: a running cluster's host:port; null: start one here
+    # ray: custom resources each actor needs (Ray's `resources`); {collector_node: 1} places the
+    # actors on nodes started with `ray start --resources='{"collector_node": N}'`
+    ray_resources: dict[str, float] = field(default_factory=dict)
+    # ray (a cluster): Ray's runtime environment for the run's actors, e.g. {py_modules:
+    # [src/trl_cartpole]} ships this package to nodes that lack it (docs/scaling.md)
+    ray_runtime_env: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -184,10 +190,18 @@ if not OmegaConf.has_resolver("now"):
 
 
 def register_configs() -> None:
-    """Register the schema with Hydra's ConfigStore as ``base_config``."""
+    """Register the schema with Hydra's ConfigStore as ``base_config``.
+
+    Hydra composes in struct mode (an unknown key is an error); a dict field whose keys are the
+    user's to name (``collector.ray_resources``, ``ray_runtime_env``) is left open, so that
+    ``collector.ray_resources={collector_node: 1}`` sets it without Hydra's ``+``.
+    """
     from hydra.core.config_store import ConfigStore
 
-    ConfigStore.instance().store(name="base_config", node=Config)
+    schema = OmegaConf.structured(Config)
+    for open_dict in (schema.collector.ray_resources, schema.collector.ray_runtime_env):
+        OmegaConf.set_struct(open_dict, False)
+    ConfigStore.instance().store(name="base_config", node=schema)
 
 
 def to_config(cfg: Config | DictConfig | dict[str, Any]) -> Config:

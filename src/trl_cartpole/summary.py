@@ -84,6 +84,7 @@ def finish(run: Components) -> dict[str, Any]:
         updates_per_second=round(progress.updates / max(phases["update"], 1e-9), 1),
         phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
         checkpoint=str(run.run_dir / "checkpoints" / "best") if cfg.checkpoint.save_best else None,
+        **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
         versions={
             "torch": torch.__version__,
             "torchrl": torchrl.__version__,

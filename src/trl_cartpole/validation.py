@@ -246,6 +246,27 @@ def _check_combination(cfg: Config) -> None:
             f"collector.ray_address={collector.ray_address!r} is only read by the Ray backend; "
             "set collector.backend=ray or drop the address"
         )
+    if collector.ray_resources and collector.backend != "ray":
+        raise ConfigError(
+            f"collector.ray_resources={dict(collector.ray_resources)} is only read by the Ray "
+            "backend; set collector.backend=ray or drop the resources"
+        )
+    if collector.ray_resources and collector.ray_address is None:
+        raise ConfigError(
+            "collector.ray_resources places actors on the nodes of a cluster; the Ray instance a "
+            "run starts on this machine has no custom resources: set collector.ray_address"
+        )
+    if collector.ray_runtime_env and collector.ray_address is None:
+        raise ConfigError(
+            "collector.ray_runtime_env ships code to the nodes of a cluster; the Ray instance a "
+            "run starts on this machine runs this Python: set collector.ray_address or drop it"
+        )
+    for name, amount in collector.ray_resources.items():
+        if not (math.isfinite(amount) and amount > 0):
+            raise ConfigError(
+                f"collector.ray_resources.{name}={amount} must be a positive number of that "
+                "resource per actor (as Ray's resources option)"
+            )
     if not collector.sync and collector.workers == 1 and collector.backend == "local":
         raise ConfigError(
             "collector.sync=false needs collector.workers > 1 (one local worker collects in the "
