@@ -262,3 +262,12 @@ def test_a_typo_is_refused_before_torch_is_imported(argv, tmp_path):
     )
     assert proc.stdout.split() == ["no", "torch", "2"], proc.stdout + proc.stderr
     assert proc.stderr.startswith("error: ") and proc.stderr.count("\n") == 1
+
+
+def test_an_error_whose_causes_loop_is_still_one_line():
+    """A cause chain that loops (found by tests/test_fuzz.py: the line never came)."""
+    from trl_cartpole.cli import _one_line
+
+    first, second = ValueError("first"), KeyError("second")
+    first.__cause__, second.__cause__ = second, first
+    assert _one_line(first) == "first: 'second'"

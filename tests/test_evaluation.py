@@ -92,3 +92,24 @@ def test_evaluate_cli_epsilon_is_reported(smoke_checkpoint, tmp_path):
     assert "epsilon=0.05 return over 30 episodes" in proc.stdout
     bad = run_script_in_process("evaluate.py", f"checkpoint={smoke_checkpoint}", "epsilon=2")
     assert bad.returncode == 2 and "error: epsilon=2.0 must lie in [0, 1]" in bad.stderr
+
+
+@pytest.mark.parametrize(
+    ("argument", "message"),
+    [  # found by tests/test_fuzz.py: each was a traceback
+        ("episodes=,", "'episodes=,' is not key=value with a value YAML can read"),
+        ("seed='", "is not key=value with a value YAML can read"),
+        ("seed=-1", "seed=-1 must be >= 0"),
+        ("episodes=100000", "episodes=100000 would build that many envs at once; at most 4096"),
+    ],
+)
+def test_evaluate_refuses_unreadable_or_impossible_arguments_in_one_line(
+    smoke_checkpoint, tmp_path, argument, message
+):
+    output = tmp_path / "report.json"
+    proc = run_script_in_process(
+        "evaluate.py", f"checkpoint={smoke_checkpoint}", f"output={output}", argument
+    )
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
+    assert not output.exists()

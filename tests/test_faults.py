@@ -385,6 +385,15 @@ BAD_INPUTS = [
         marks=pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA"),
     ),
     ("unwritable run dir", ["run_dir=/proc/trl_cartpole"], "is not writable"),
+    ("a buffer beyond memory", ["buffer.size=1000000000000"], "lower buffer.size"),
+    # 4 x 2**20 + 2**20, 2**40 + 2**20, 2 x 2**20 + 2 weights and biases
+    (
+        "networks beyond memory",
+        ["network.hidden_sizes=[1048576,1048576]"],
+        "(1099520016386 parameters",
+    ),
+    ("a seed beyond 64 bits", ["seed=1180591620717411303424"], "integer settings stop at 2**62"),
+    ("envs by the billion", ["eval.final_episodes=1000000000"], "at most 4096"),
     ("missing checkpoint", ["resume=/nonexistent/run"], "does not exist"),
 ]
 

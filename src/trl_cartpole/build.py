@@ -58,6 +58,12 @@ from trl_cartpole.history import History
 from trl_cartpole.learner import Learner
 from trl_cartpole.loggers import MetricsLog, make_logger, truncate_csv_metrics
 from trl_cartpole.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.memory_needs import (
+    MemoryNeed,
+    available_memory_bytes,
+    check_fits_in_memory,
+    memory_need,
+)
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.plotting import LiveDurationPlot
 from trl_cartpole.progress import Progress
@@ -155,6 +161,16 @@ def build_env(
         num_envs,
         observation_norm=observation_norm,
         render_mode=render_mode,
+    )
+
+
+def run_memory_need(cfg: Config, env: TransformedEnv) -> MemoryNeed:
+    """The lower bound of what ``cfg``'s replay buffer and networks take in memory."""
+    return memory_need(
+        env,
+        cfg.buffer.size,
+        partial(make_q_actor_for_env, env, cfg.network),
+        amsgrad=cfg.optim.amsgrad,
     )
 
 
@@ -311,6 +327,8 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     with ExitStack() as on_error:  # an error while building the rest closes what it holds
         on_error.callback(eval_env.close)
         on_error.callback(env.close)
+        if cfg.device == "cpu":  # a buffer or network that cannot fit stops here, not midway
+            check_fits_in_memory(run_memory_need(cfg, env), available_memory_bytes())
         if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
             check_ray_address(cfg.collector.ray_address)  # before anything is written
         run_dir = prepare_run_dir(cfg.run_dir)

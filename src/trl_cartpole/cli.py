@@ -137,10 +137,15 @@ _NOISE = (
 
 
 def _one_line(error: BaseException) -> str:
-    """Join the informative lines of ``error`` and its cause into one line."""
+    """Join the informative lines of ``error`` and its causes into one line.
+
+    A chain of causes may loop (OmegaConf's errors can name each other): each is read once.
+    """
     parts: list[str] = []
+    seen: set[int] = set()
     current: BaseException | None = error
-    while current is not None:
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
         for line in str(current).splitlines():
             line = line.strip().rstrip(".:")
             if line and not line.startswith(_NOISE) and line not in parts:

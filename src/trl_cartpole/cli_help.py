@@ -19,7 +19,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+import yaml
 from omegaconf import OmegaConf
+
+from trl_cartpole.errors import ConfigError
 
 __all__ = ["HELP_FLAGS", "field_help", "parse_args", "shown_value", "wants_help"]
 
@@ -137,9 +140,17 @@ def parse_args(schema: type[T], argv: Sequence[str], usage: str) -> T:
         print(f"{usage.strip()}\n\narguments (key=default (type) meaning):")
         print(format_fields(field_help(schema)))
         raise SystemExit(0)
-    return OmegaConf.to_object(
-        OmegaConf.merge(OmegaConf.structured(schema), OmegaConf.from_dotlist(list(argv)))
-    )
+    given = OmegaConf.create()
+    for arg in argv:
+        try:
+            given.merge_with_dotlist([arg])
+        except (yaml.YAMLError, ValueError) as error:  # YAML cannot read the value
+            reason = str(error).splitlines()[0]
+            raise ConfigError(
+                f"{arg!r} is not key=value with a value YAML can read ({reason}); quote text "
+                "that holds YAML's signs (\"'text, with signs'\")"
+            ) from None
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), given))
 
 
 def preset_lines(config_dirs: Sequence[Path], group: str, width: int = 100) -> list[str]:

@@ -22,8 +22,13 @@ __all__ = [
     "ACTIVATION_NAMES",
     "BOOLEAN_WORDS",
     "HEAD_NAMES",
+    "MAX_ENVS_AT_ONCE",
+    "MAX_INTEGER",
     "check_boolean_overrides",
+    "check_envs_at_once",
+    "check_integer_size",
     "check_network_choices",
+    "check_seed",
     "validate",
 ]
 
@@ -43,6 +48,12 @@ _CHOICES = {
 
 # What a switch may be set to on the command line. OmegaConf would also take any integer (a
 # nonzero one as true): `checkpoint.save_best=512` was a run with the switch on.
+# The largest integer setting: torch and numpy take 64-bit integers, and seeds and frame counts
+# are added together (seed + 2 * eval.seed_offset + env index), so there is room for sums.
+MAX_INTEGER = 2**62
+# The most envs built at once in one vector env (env.num_envs per worker, one per evaluation
+# episode); far above any use here, and below the memory and time a bad value would take.
+MAX_ENVS_AT_ONCE = 4096
 BOOLEAN_WORDS = ("true", "false", "yes", "no", "on", "off", "1", "0")
 
 
@@ -72,6 +83,10 @@ def validate(cfg: Config) -> Config:
     for key, value in flat_fields(cfg).items():  # NaN slips through every comparison below
         if isinstance(value, float) and not math.isfinite(value):
             raise ConfigError(f"{key}={value} must be a finite number")
+        for number in value if isinstance(value, (list, tuple)) else [value]:
+            check_integer_size(key, number)
+    for key in ("env.num_envs", "eval.episodes", "eval.final_episodes"):
+        check_envs_at_once(key, _get(cfg, key))
     for key, options in _CHOICES.items():
         if _get(cfg, key) not in options:
             raise ConfigError(
@@ -143,6 +158,10 @@ def validate(cfg: Config) -> Config:
         (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
         (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
         (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
+        (
+            cfg.num_threads <= (os.cpu_count() or 1),
+            f"num_threads={cfg.num_threads} is more than this machine's {os.cpu_count()} cores",
+        ),
         (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
         (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),
     ]
@@ -156,6 +175,31 @@ def validate(cfg: Config) -> Config:
     check_network_choices(cfg.network.head, cfg.network.activation)
     resolve_env_id(cfg.env.id, cfg.env.imports)
     return cfg
+
+
+def check_integer_size(key: str, value: Any) -> None:
+    """Refuse an integer setting beyond :data:`MAX_INTEGER` either way (a 64-bit overflow)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_INTEGER:
+        raise ConfigError(
+            f"{key}={value} is too large: integer settings stop at 2**62 = {MAX_INTEGER} "
+            "(torch and numpy count in 64-bit integers)"
+        )
+
+
+def check_seed(key: str, seed: int | None) -> None:
+    """Refuse a seed that Gymnasium and torch cannot take (None: the default seeds)."""
+    if seed is not None:
+        check_integer_size(key, seed)
+        if seed < 0:
+            raise ConfigError(f"{key}={seed} must be >= 0 (Gymnasium takes no negative seed)")
+
+
+def check_envs_at_once(key: str, value: int) -> None:
+    """Refuse more than :data:`MAX_ENVS_AT_ONCE` envs built together for ``key``."""
+    if value > MAX_ENVS_AT_ONCE:
+        raise ConfigError(
+            f"{key}={value} would build that many envs at once; at most {MAX_ENVS_AT_ONCE}"
+        )
 
 
 def check_network_choices(head: str, activation: str | None) -> None:

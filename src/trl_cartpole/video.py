@@ -126,6 +126,11 @@ class Recording:
         )
 
 
+# Frames are kept until the file is written: a 500-step CartPole episode at scale 0.5 is
+# 500 x 300 x 200 x 3 bytes = 90 MB.
+MAX_EPISODES_IN_A_VIDEO = 20
+
+
 def record_agent(
     run_dir_or_checkpoint: str | Path,
     episodes: int = 1,
@@ -142,6 +147,11 @@ def record_agent(
     """
     if episodes < 1 or fps < 1 or not 0 < scale <= 4:
         raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
+    if episodes > MAX_EPISODES_IN_A_VIDEO:
+        raise ConfigError(
+            f"episodes={episodes}: a video holds at most {MAX_EPISODES_IN_A_VIDEO} episodes (their "
+            "frames are kept in memory until the file is written); make several"
+        )
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only, no window
     frames, returns = [], []
     with quiet_libraries():  # no TorchRL INFO lines (spec checks), as in the scripts

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from trl_cartpole.cli_help import parse_args
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.validation import check_envs_at_once, check_seed
 
 
 @dataclass
@@ -33,6 +34,8 @@ def main(argv: list[str]) -> None:
 
     if args.episodes < 1:
         raise ConfigError(f"episodes={args.episodes} must be >= 1")
+    check_envs_at_once("episodes", args.episodes)  # the episodes are stepped together
+    check_seed("seed", args.seed)
     if not 0.0 <= args.epsilon <= 1.0:
         raise ConfigError(f"epsilon={args.epsilon} must lie in [0, 1]")
     checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from trl_cartpole.cli_help import parse_args
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.validation import check_seed
 
 
 @dataclass
@@ -32,6 +33,8 @@ def main(argv: list[str]) -> None:
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy_io import load_trained_policy
     from trl_cartpole.video import record_agent
+
+    check_seed("seed", args.seed)
 
     if not args.human:
         print(

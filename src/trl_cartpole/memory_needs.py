@@ -1,0 +1,86 @@
+"""What a run will hold in memory, known before its buffer and networks are allocated.
+
+A replay buffer of ``buffer.size`` transitions and networks of ``network.hidden_sizes`` are
+allocated as the run goes (TorchRL's ``LazyTensorStorage`` fills on the first write); a size
+that cannot fit would end in the allocator's traceback, or in the kernel's out-of-memory kill
+hours into the run. :func:`check_fits_in_memory` refuses such a run before it starts, with a
+lower bound: one transition as the env steps it (the buffer stores a little more: the policy's
+outputs), and each network parameter in float32 five times over (the online and target
+networks, the gradient, Adam's two moments; AMSGrad keeps a sixth copy).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torchrl.envs import EnvBase
+
+from trl_cartpole.errors import ConfigError
+
+__all__ = ["MemoryNeed", "available_memory_bytes", "check_fits_in_memory", "memory_need"]
+
+GIB = 1024**3
+
+
+@dataclass(frozen=True)
+class MemoryNeed:
+    transitions: int  # the buffer's capacity
+    transition_bytes: int  # one transition as the env steps it
+    parameters: int  # parameters of the online network
+    copies_per_parameter: int  # float32 copies kept per parameter during training
+
+    @property
+    def buffer_bytes(self) -> int:
+        return self.transitions * self.transition_bytes
+
+    @property
+    def network_bytes(self) -> int:
+        return self.parameters * 4 * self.copies_per_parameter
+
+    @property
+    def total_bytes(self) -> int:
+        return self.buffer_bytes + self.network_bytes
+
+
+def memory_need(
+    env: EnvBase,
+    transitions: int,
+    make_actor: Callable[[str], torch.nn.Module],
+    amsgrad: bool = True,
+) -> MemoryNeed:
+    """The lower bound of what the buffer and networks take; ``make_actor(device)`` builds the
+    actor, here on PyTorch's ``meta`` device (shapes only, nothing allocated)."""
+    step = env.fake_tensordict()  # [*env.batch_size]: one step of each env, with "next"
+    per_transition = step.bytes() // max(step.batch_size.numel(), 1)
+    with torch.device("meta"):
+        actor = make_actor("meta")
+    parameters = sum(parameter.numel() for parameter in actor.parameters())
+    return MemoryNeed(transitions, per_transition, parameters, 6 if amsgrad else 5)
+
+
+def available_memory_bytes(meminfo: Path = Path("/proc/meminfo")) -> int | None:
+    """The kernel's estimate of memory available to a new process (``MemAvailable``), or None
+    where there is no ``/proc/meminfo``."""
+    try:
+        for line in meminfo.read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024  # kB
+    except OSError:
+        return None
+    return None
+
+
+def check_fits_in_memory(need: MemoryNeed, available: int | None) -> None:
+    """Raise a one-line ConfigError if ``need`` is more than the ``available`` bytes."""
+    if available is None or need.total_bytes <= available:
+        return
+    raise ConfigError(
+        f"the run needs at least {need.total_bytes / GIB:.1f} GiB of memory and "
+        f"{available / GIB:.1f} GiB is available: the replay buffer {need.buffer_bytes / GIB:.1f}"
+        f" GiB (buffer.size={need.transitions} x {need.transition_bytes} bytes), the networks "
+        f"{need.network_bytes / GIB:.1f} GiB ({need.parameters} parameters, with their target, "
+        "gradients and optimizer state); lower buffer.size or network.hidden_sizes"
+    )
