@@ -32,12 +32,12 @@ import torch
 from benchmarks.harness import CONFIG_DIR, VARIANT_PRESETS
 from trl_cartpole.buffers import extend_with_batch, sample_minibatches
 from trl_cartpole.build import (
-    TRANSITION_KEYS,
     build_actor,
     build_env,
     build_learner,
     build_replay_buffer,
     seed_everything,
+    transition_keys,
 )
 from trl_cartpole.cli import compose_config
 from trl_cartpole.config import to_config
@@ -118,7 +118,7 @@ def time_learner(
     learner = build_learner(cfg, build_actor(cfg, env), build_replay_buffer(cfg))
     steps = math.ceil(RANDOM_FRAMES / env.batch_size.numel())
     rollout = env.rollout(steps, break_when_any_done=False)  # [envs, T] or [T]: random actions
-    extend_with_batch(learner.buffer, rollout.select(*TRANSITION_KEYS))
+    extend_with_batch(learner.buffer, rollout.select(*transition_keys()))
     raw_step = None if raw is None else raw_update(cfg, *_sizes(env))
     env.close()
     count = cfg.collector.updates_per_batch

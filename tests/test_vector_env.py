@@ -7,7 +7,7 @@ import json
 import torch
 
 from trl_cartpole.buffers import NStepTransform, extend_with_batch, make_replay_buffer
-from trl_cartpole.build import TRANSITION_KEYS
+from trl_cartpole.build import transition_keys
 from trl_cartpole.envs import make_env
 from trl_cartpole.training import train
 
@@ -16,7 +16,7 @@ from .conftest import SMOKE_OVERRIDES
 
 def _rollout(num_envs: int, steps: int):
     env = make_env("CartPole-v1", seed=3, num_envs=num_envs)
-    rollout = env.rollout(steps, break_when_any_done=False).select(*TRANSITION_KEYS)
+    rollout = env.rollout(steps, break_when_any_done=False).select(*transition_keys())
     env.close()
     return rollout  # [num_envs, steps]
 

@@ -31,7 +31,7 @@ from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.checkpoint import Checkpoint
 from torchrl.collectors import BaseCollector
 from torchrl.data import TensorDictReplayBuffer
-from torchrl.envs import TransformedEnv
+from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
 from trl_cartpole.buffers import make_replay_buffer
@@ -72,7 +72,6 @@ from trl_cartpole.run_lock import RunLock
 from trl_cartpole.update import make_optimizer, make_update
 
 __all__ = [
-    "TRANSITION_KEYS",
     "Components",
     "build_actor",
     "build_components",
@@ -80,21 +79,34 @@ __all__ = [
     "build_exploration",
     "build_learner",
     "build_replay_buffer",
+    "close_env",
     "prepare_run_dir",
     "run_title",
     "seed_everything",
+    "transition_keys",
 ]
 
-# What the replay buffer stores of a collected frame; the rest (Q-values, counters) is dropped.
-TRANSITION_KEYS = (
-    "observation",
-    "action",
-    ("next", "observation"),
-    ("next", "reward"),
-    ("next", "done"),
-    ("next", "terminated"),
-    ("next", "truncated"),
-)
+
+def transition_keys(observation_key: str = "observation") -> tuple[Any, ...]:
+    """What the replay buffer stores of a collected frame: the observation the network reads
+    (``"observation"``, or ``"pixels"``), the action, and the next step's observation, reward
+    and flags. The rest (Q-values, counters) is dropped."""
+    return (
+        observation_key,
+        "action",
+        ("next", observation_key),
+        ("next", "reward"),
+        ("next", "done"),
+        ("next", "terminated"),
+        ("next", "truncated"),
+    )
+
+
+def close_env(env: EnvBase) -> None:
+    """Close ``env`` unless it already is (TorchRL's ``SerialEnv`` refuses a second close; the
+    collector closes the env it steps)."""
+    if not getattr(env, "is_closed", False):
+        env.close()
 
 
 def seed_everything(seed: int) -> None:
@@ -277,6 +289,7 @@ class Components:
     learning_starts: int  # no update before the buffer holds this many transitions
     sync_policy_weights: bool  # the collector steps a copy of the policy
     ray_nodes: dict[str, Any] | None  # Ray runs: the learner's and each actor's node id
+    transition_keys: tuple[Any, ...]  # what the buffer stores of each frame (transition_keys)
     wall_start: float  # perf_counter() when the build began
     _collector_released: bool = field(default=False, init=False, repr=False)
 
@@ -291,7 +304,7 @@ class Components:
         self.progress_bar.close()
         self.release_collector()
         for env in (self.env, self.eval_env):
-            env.close()
+            close_env(env)
         self.metrics.close()
         self.lock.release()
 
@@ -325,8 +338,8 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     env = build_env(cfg, cfg.seed, observation_norm=observation_norm)
     eval_env = build_env(cfg, cfg.seed + cfg.eval.seed_offset, cfg.eval.episodes, observation_norm)
     with ExitStack() as on_error:  # an error while building the rest closes what it holds
-        on_error.callback(eval_env.close)
-        on_error.callback(env.close)
+        on_error.callback(close_env, eval_env)
+        on_error.callback(close_env, env)
         if cfg.device == "cpu":  # a buffer or network that cannot fit stops here, not midway
             check_fits_in_memory(run_memory_need(cfg, env), available_memory_bytes())
         if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
@@ -372,7 +385,11 @@ def _assemble(
     # a resumed run gives them only the frames still to collect (a single-process collector's
     # own frame counter is restored from the checkpoint instead).
     distributed = is_distributed(cfg.collector.workers, cfg.collector.backend)
-    frames_not_counted = frames_done if distributed else 0
+    # The collector's own state (its frame counter, its env's) is saved for a single-process
+    # collector over a state-vector env; a pixel env's (TorchRL's SerialEnv, restarted with
+    # fresh transforms once the collector has closed it) is not, and counts as workers' do.
+    collector_state_saved = not distributed and not cfg.env.from_pixels
+    frames_not_counted = 0 if collector_state_saved else frames_done
     collector = make_collector(
         worker_env_constructors(cfg, observation_norm) if distributed else env,
         policy,
@@ -418,7 +435,7 @@ def _assemble(
             "optimizer": learner.optimizer,
             **({} if exploration is None else {"exploration": exploration}),
             **({"replay_buffer": buffer} if cfg.checkpoint.include_buffer else {}),
-            **({} if distributed else {"collector": collector}),
+            **({"collector": collector} if collector_state_saved else {}),
             "progress": progress,
             "learner": learner,
             "evaluator": evaluator,
@@ -469,5 +486,6 @@ def _assemble(
         ),
         sync_policy_weights=needs_weight_sync(collector, policy),
         ray_nodes=ray_placement(collector),
+        transition_keys=transition_keys(actor.in_keys[0]),
         wall_start=wall_start,
     )

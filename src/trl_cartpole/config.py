@@ -47,6 +47,12 @@ class EnvConfig:
     num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
     normalize_observations: bool = False  # TorchRL ObservationNorm, stats from random rollouts
     normalization_frames: int = 10_000  # random-policy frames the stats are estimated from
+    # Learning from pixels (docs/environments.md): the rendered frame instead of the state
+    from_pixels: bool = False  # the network sees only the env's rendered frames
+    # [top, bottom, left, right] rows and columns of the frame kept (null: up to the edge)
+    pixels_crop: list[int | None] = field(default_factory=lambda: [None, None, None, None])
+    pixels_pool: int = 1  # average the kept patch over pool x pool blocks (a smaller image)
+    pixels_frames: int = 1  # the last N patches stacked (CatFrames): the motion
 
 
 @dataclass
@@ -57,6 +63,10 @@ class AlgoConfig:
 @dataclass
 class NetworkConfig:
     head: str = "plain"  # plain | dueling (Wang et al. 2016), see trl_cartpole.models.HEADS
+    torso: str = "mlp"  # mlp (TorchRL MLP) | cnn (TorchRL ConvNet, then the MLP; for pixels)
+    cnn_channels: list[int] = field(default_factory=lambda: [16, 32, 32])  # cnn: channels
+    cnn_kernels: list[int] = field(default_factory=lambda: [5, 5, 5])  # cnn: kernel sizes
+    cnn_strides: list[int] = field(default_factory=lambda: [2, 2, 2])  # cnn: strides
     hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])  # MLP torso widths
     activation: str = "relu"  # relu | tanh | elu | gelu
     noisy: bool = False  # NoisyLinear layers (Fortunato et al. 2018); needs exploration=none

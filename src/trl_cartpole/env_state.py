@@ -36,7 +36,7 @@ import numpy as np
 from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, GymWrapper, TransformedEnv
 
 from trl_cartpole.compat import (
     autoreset_state,
@@ -100,13 +100,23 @@ def _envs_of(gymnasium_env: Any) -> list[Any]:
     return gymnasium_env.envs if isinstance(gymnasium_env, SyncVectorEnv) else [gymnasium_env]
 
 
+def _stores_its_state(env: EnvBase) -> bool:
+    """Whether ``env`` is a Gymnasium env (or vector env) in a ``GymWrapper`` seen through its
+    state. Pixel envs are not: the frames stacked by their transforms are not stored (and
+    several of them are a ``SerialEnv``); a resumed pixel run starts new episodes."""
+    base = env.base_env if isinstance(env, TransformedEnv) else env
+    return isinstance(base, GymWrapper) and not base.from_pixels
+
+
 def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | None:
     """The state of the Gymnasium env (or ``SyncVectorEnv``) behind ``env``, or None.
 
     ``{"data": ...}`` (nested dicts, lists, numbers and arrays) for classic-control envs;
     ``{"pickle": bytes}`` for other envs only with ``trust_pickle``; None where neither holds
-    the env's state.
+    the env's state (and for pixel envs).
     """
+    if not _stores_its_state(env):
+        return None
     gymnasium_env = gym_env(env)
     envs = _envs_of(gymnasium_env)
     if all(type(e.unwrapped).__module__.startswith(DATA_STATE_MODULE) for e in envs):
@@ -127,7 +137,7 @@ def restore_env_snapshot(
 
     A pickled snapshot is loaded only with ``trust_pickle``.
     """
-    if snapshot is None:
+    if snapshot is None or not _stores_its_state(env):
         return False
     gymnasium_env = gym_env(env)
     if "data" in snapshot:
@@ -153,6 +163,8 @@ def restore_env_snapshot(
 
 def _autoreset_snapshot(env: EnvBase) -> dict[str, Any] | None:
     """TorchRL's autoreset memo (``done``: Tensor, ``saved_next``: TensorDict or None) as data."""
+    if not _stores_its_state(env):
+        return None
     memo = autoreset_state(env)
     if memo is None:
         return None

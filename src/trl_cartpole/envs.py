@@ -11,7 +11,9 @@ subclass, registered here as ``module.EnvClass``), or an id registered by a modu
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
+from functools import partial
 from typing import Any
 
 import gymnasium as gym
@@ -19,9 +21,11 @@ import torch
 from torchrl.envs import (
     DoubleToFloat,
     DTypeCastTransform,
+    EnvBase,
     GymWrapper,
     ObservationNorm,
     RewardSum,
+    SerialEnv,
     StepCounter,
     TransformedEnv,
 )
@@ -29,6 +33,7 @@ from torchrl.envs import (
 from trl_cartpole.config import EnvConfig
 from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id, solve_threshold
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.pixels import pixel_transforms
 
 __all__ = [
     "GYM_WRAPPER_KEYWORDS",
@@ -36,6 +41,7 @@ __all__ = [
     "estimate_observation_norm",
     "make_env",
     "make_env_from_config",
+    "make_pixel_env",
     "make_sync_vector_env",
     "resolve_env_id",
     "solve_threshold",
@@ -199,6 +205,8 @@ def make_env_from_config(
     """
     if env_cfg.normalize_observations and observation_norm is None:
         raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
+    if env_cfg.from_pixels and render_mode is None:
+        return make_pixel_env(env_cfg, seed, device, num_envs)
     return make_env(
         resolve_env_id(env_cfg.id, env_cfg.imports),
         device,
@@ -208,6 +216,43 @@ def make_env_from_config(
         render_mode=render_mode,
         observation_norm=observation_norm if env_cfg.normalize_observations else None,
     )
+
+
+def make_pixel_env(
+    env_cfg: EnvConfig,
+    seed: int | None = None,
+    device: str | torch.device = "cpu",
+    num_envs: int | None = None,
+) -> EnvBase:
+    """The env of ``env_cfg`` seen through its rendered frames only (``trl_cartpole.pixels``).
+
+    One env is ``make_env(..., from_pixels=True, pixels_only=True)`` plus the pixel transforms:
+    its only observation is ``"pixels"`` ``[frames, h, w]`` uint8. Gymnasium renders one env
+    at a time, so ``num_envs > 1`` is TorchRL's ``SerialEnv`` of such envs, seeded ``seed``,
+    ``seed + 1``, ... (batch ``[num_envs]``).
+    """
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
+    count = env_cfg.num_envs if num_envs is None else num_envs
+    build = partial(_one_pixel_env, env_cfg, device)
+    env = build() if count == 1 else SerialEnv(count, build, device=device)
+    if seed is not None:
+        env.set_seed(seed)
+    return env
+
+
+def _one_pixel_env(env_cfg: EnvConfig, device: str | torch.device) -> TransformedEnv:
+    env = make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        device,
+        max_episode_steps=env_cfg.max_episode_steps,
+        from_pixels=True,
+        pixels_only=True,
+    )
+    for transform in pixel_transforms(
+        env_cfg.pixels_crop, env_cfg.pixels_pool, env_cfg.pixels_frames
+    ):
+        env = env.append_transform(transform)
+    return env
 
 
 def estimate_observation_norm(env_cfg: EnvConfig, seed: int) -> dict[str, list[float]]:

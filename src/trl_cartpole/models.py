@@ -23,6 +23,7 @@ from torchrl.data import Categorical, Composite, OneHot, TensorSpec
 from torchrl.envs import EnvBase
 from torchrl.modules import (
     MLP,
+    ConvNet,
     DistributionalQValueActor,
     NoisyLinear,
     QValueActor,
@@ -33,6 +34,7 @@ from trl_cartpole.aliases import resolve_alias
 from trl_cartpole.compat import use_first_greedy_action
 from trl_cartpole.config import NetworkConfig
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.pixels import PIXELS_KEY, ScaleImage
 from trl_cartpole.validation import ACTIVATION_NAMES, HEAD_NAMES, check_network_choices
 
 __all__ = [
@@ -41,6 +43,7 @@ __all__ = [
     "DuelingHead",
     "check_network_choices",
     "expected_action_values",
+    "make_cnn_features",
     "make_q_actor",
     "make_q_actor_for_env",
     "make_q_network",
@@ -150,6 +153,33 @@ def make_q_network(
     return nn.Sequential(torso, HEADS[head](widths[-1], num_actions, atoms or 1, linear))
 
 
+def make_cnn_features(
+    image_shape: Sequence[int],
+    channels: Sequence[int] = (16, 32, 32),
+    kernel_sizes: Sequence[int] = (5, 5, 5),
+    strides: Sequence[int] = (2, 2, 2),
+    activation_class: type[nn.Module] = nn.ReLU,
+) -> tuple[nn.Module, int]:
+    """``[*B, C, H, W]`` uint8 pixels -> ``[*B, F]`` features, and ``F``.
+
+    The pixels are scaled to [0, 1] (:class:`~trl_cartpole.pixels.ScaleImage`), then go through
+    TorchRL's ``ConvNet`` (a convolution and ``activation_class`` per entry of ``channels``,
+    flattened at the end). The defaults are the three 5x5, stride-2 convolutions of 16, 32 and
+    32 channels of the PyTorch DQN tutorial's first, pixel version (without its batch norm).
+    """
+    conv = ConvNet(
+        in_features=image_shape[0],
+        num_cells=list(channels),
+        kernel_sizes=list(kernel_sizes),
+        strides=list(strides),
+        activation_class=activation_class,
+    )
+    features = nn.Sequential(ScaleImage(), conv)
+    with torch.device("meta"):  # the flattened size, found on shapes only
+        width = conv(torch.zeros(1, *image_shape)).shape[-1]
+    return features, width
+
+
 def _widths(num_cells: Sequence[int] | int, mlp_kwargs: dict[str, Any]) -> list[int]:
     """The hidden layers' widths: ``num_cells``, or ``depth`` times an int ``num_cells``."""
     depth = mlp_kwargs.pop("depth", None)
@@ -184,6 +214,8 @@ def make_q_actor(
     action_spec: TensorSpec | None = None,
     hidden_sizes: Sequence[int] | None = None,
     activation: str | None = None,
+    torso: str = "mlp",
+    cnn_kwargs: dict[str, Any] | None = None,
     **kwargs: Any,
 ) -> QValueActor | DistributionalQValueActor:
     """Return TorchRL's ``QValueActor`` reading ``in_keys`` and writing the greedy ``"action"``.
@@ -207,6 +239,10 @@ def make_q_actor(
     ``hidden_sizes`` and ``activation`` (a name: relu, tanh, elu, gelu) are this project's
     earlier names, kept as aliases.
 
+    ``torso="cnn"`` reads an image entry (``in_keys`` ``["pixels"]``, ``[C, H, W]`` uint8)
+    through :func:`make_cnn_features` (``cnn_kwargs``: its ``channels``, ``kernel_sizes``,
+    ``strides``) before the MLP and the head, so every head and switch composes with it.
+
     Without ``support`` it is a ``QValueActor`` writing ``action_value`` ``[*B, num_actions]``
     and ``chosen_action_value`` ``[*B, 1]``; with a ``support`` ``[atoms]`` of returns it is a
     ``DistributionalQValueActor`` writing log-probabilities ``action_value``
@@ -228,7 +264,18 @@ def make_q_actor(
         check_network_choices(head, activation)
         activation_class = ACTIVATIONS[activation]
     mlp_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in _MLP_KEYWORDS}
-    obs_dim, num_actions = _input_size(observation_spec, in_keys), _action_count(spec)
+    features = None
+    if torso == "cnn":
+        features, obs_dim = make_cnn_features(
+            _image_shape(observation_spec, in_keys),
+            activation_class=activation_class,
+            **(cnn_kwargs or {}),
+        )
+    elif torso == "mlp":
+        obs_dim = _input_size(observation_spec, in_keys)
+    else:
+        raise ConfigError(f"torso={torso!r} is not one of ['mlp', 'cnn']")
+    num_actions = _action_count(spec)
     atoms = None if support is None else support.numel()
     module = make_q_network(
         obs_dim,
@@ -241,6 +288,8 @@ def make_q_actor(
         atoms,
         **mlp_kwargs,
     )
+    if features is not None:
+        module = nn.Sequential(features, module)
     if device is not None:
         module, spec = module.to(device), spec.to(device)
     in_keys = list(in_keys)
@@ -270,6 +319,20 @@ def _input_size(observation_spec: TensorSpec, in_keys: Sequence[str]) -> int:
     return shape[-1]
 
 
+def _image_shape(observation_spec: TensorSpec, in_keys: Sequence[str]) -> tuple[int, int, int]:
+    """The ``[C, H, W]`` shape of the one image entry ``in_keys`` names."""
+    key = in_keys[0] if len(in_keys) == 1 else None
+    keys = (
+        list(observation_spec.keys(True, True)) if isinstance(observation_spec, Composite) else []
+    )
+    if key not in keys or len(observation_spec[key].shape) < 3:
+        raise ConfigError(
+            f"the cnn torso reads one [C, H, W] image entry; in_keys={list(in_keys)} and the "
+            f"observation spec has {keys} (an env with from_pixels=True has 'pixels')"
+        )
+    return tuple(observation_spec[key].shape[-3:])  # a batched env's spec leads with [E]
+
+
 def _action_count(action_spec: TensorSpec) -> int:
     """The number of discrete actions of ``action_spec`` (``OneHot`` or ``Categorical``)."""
     if not isinstance(action_spec, (OneHot, Categorical)):
@@ -289,9 +352,19 @@ def make_q_actor_for_env(
         if network.distributional
         else None
     )
+    cnn = network.torso == "cnn"
     return make_q_actor(
         env.observation_spec,
         env.action_spec,
+        in_keys=[PIXELS_KEY] if cnn else ["observation"],
+        torso=network.torso,
+        cnn_kwargs={
+            "channels": network.cnn_channels,
+            "kernel_sizes": network.cnn_kernels,
+            "strides": network.cnn_strides,
+        }
+        if cnn
+        else None,
         num_cells=network.hidden_sizes,
         activation_class=ACTIVATIONS[network.activation],
         head=network.head,

@@ -19,7 +19,7 @@ from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
 from trl_cartpole.buffers import annealed_beta, extend_with_batch
-from trl_cartpole.build import TRANSITION_KEYS, Components, build_components
+from trl_cartpole.build import Components, build_components
 from trl_cartpole.collectors import lost_worker
 from trl_cartpole.config import Config, to_config
 from trl_cartpole.console import quiet_libraries
@@ -65,7 +65,7 @@ def train(
                 batch = batch.reshape(-1, batch.shape[-1]) if batch.ndim > 2 else batch
                 with phase("store"):
                     progress.frames += batch.numel()
-                    extend_with_batch(run.buffer, batch.select(*TRANSITION_KEYS))
+                    extend_with_batch(run.buffer, batch.select(*run.transition_keys))
                     for episode in run.history.record_episodes(batch, progress.frames):
                         run.metrics.log(
                             {

@@ -43,6 +43,7 @@ _CHOICES = {
     "optim.grad_clip": ("value", "norm", "none"),
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
     "collector.backend": ("local", "ray"),
+    "network.torso": ("mlp", "cnn"),
 }
 
 
@@ -157,6 +158,34 @@ def validate(cfg: Config) -> Config:
         (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
         (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
         (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
+        (cfg.env.pixels_pool >= 1, f"env.pixels_pool={cfg.env.pixels_pool} must be >= 1"),
+        (cfg.env.pixels_frames >= 1, f"env.pixels_frames={cfg.env.pixels_frames} must be >= 1"),
+        (
+            len(cfg.env.pixels_crop) == 4,
+            f"env.pixels_crop={list(cfg.env.pixels_crop)} must be [top, bottom, left, right]",
+        ),
+        (
+            len(cfg.network.cnn_channels)
+            == len(cfg.network.cnn_kernels)
+            == len(cfg.network.cnn_strides)
+            >= 1,
+            "network.cnn_channels, cnn_kernels and cnn_strides need one entry per layer each",
+        ),
+        (
+            min([*cfg.network.cnn_channels, *cfg.network.cnn_kernels, *cfg.network.cnn_strides])
+            >= 1,
+            "network.cnn_channels, cnn_kernels and cnn_strides must all be >= 1",
+        ),
+        (
+            cfg.env.from_pixels == (cfg.network.torso == "cnn"),
+            f"env.from_pixels={cfg.env.from_pixels} with network.torso={cfg.network.torso}: "
+            "pixels need the cnn torso and the cnn torso needs pixels (env=cartpole_pixels sets "
+            "both)",
+        ),
+        (
+            not (cfg.env.from_pixels and cfg.env.normalize_observations),
+            "env.normalize_observations=true normalises a state vector; pixels have none",
+        ),
         (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
         (
             cfg.num_threads <= (os.cpu_count() or 1),

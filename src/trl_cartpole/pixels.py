@@ -1,0 +1,111 @@
+"""Learning from pixels: the env's rendered frames through TorchRL's image transforms.
+
+The PyTorch DQN tutorial first learnt CartPole from "the difference between the current and
+previous screen patches". Here the frames come from TorchRL's ``GymWrapper(from_pixels=True,
+pixels_only=True)`` (the state vector is dropped), then TorchRL transforms:
+
+:class:`CropFrame` (a band of rows and columns of the ``[H, W, 3]`` uint8 frame, first so
+that the rest touch only the patch), ``ToTensorImage`` (``[3, h, w]`` float, values kept in
+0-255), ``GrayScale`` (``[1, h, w]``), :class:`PoolImage` (averaged over ``pool x pool``
+blocks, back to uint8) and ``CatFrames`` (the last ``frames`` patches stacked: ``[frames, h /
+pool, w / pool]``, the motion a single frame cannot show).
+
+The pixels stay uint8 to the replay buffer (a quarter of float32) and become floats in
+[0, 1] in the network's first layer (:class:`ScaleImage`). TorchRL's own ``Resize`` and
+``Crop`` call torchvision, whose CPU build this project cannot install beside torch's CPU
+wheel from PyPI (PyPI's torchvision is built for CUDA torch and fails to load its operators);
+:class:`CropFrame` slices and :class:`PoolImage` uses ``torch.nn.functional.avg_pool2d``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+from torchrl.data.tensor_specs import Bounded, TensorSpec
+from torchrl.envs.transforms import (
+    CatFrames,
+    GrayScale,
+    ObservationTransform,
+    ToTensorImage,
+    Transform,
+)
+from torchrl.envs.transforms.utils import _set_missing_tolerance
+
+__all__ = ["PIXELS_KEY", "CropFrame", "PoolImage", "ScaleImage", "pixel_transforms"]
+
+PIXELS_KEY = "pixels"
+
+
+class _ImageTransform(ObservationTransform):
+    """An observation transform of ``pixels`` whose output spec is its output on zeros."""
+
+    def __init__(self, in_keys: Sequence[str] = (PIXELS_KEY,)):
+        super().__init__(in_keys=list(in_keys), out_keys=list(in_keys))
+
+    def _reset(self, tensordict, tensordict_reset):
+        with _set_missing_tolerance(self, True):
+            return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: TensorSpec) -> TensorSpec:
+        for key in self.in_keys:
+            spec = observation_spec[key]
+            out = self._apply_transform(torch.zeros(spec.shape, dtype=spec.dtype))
+            observation_spec[key] = Bounded(
+                0, 255, shape=out.shape, dtype=out.dtype, device=spec.device
+            )
+        return observation_spec
+
+
+class CropFrame(_ImageTransform):
+    """Keep rows ``[top, bottom)`` and columns ``[left, right)`` of a ``[*B, H, W, C]`` frame
+    (``None``: up to the edge). First, so that the later transforms touch only the patch."""
+
+    def __init__(self, crop: Sequence[int | None], in_keys: Sequence[str] = (PIXELS_KEY,)):
+        super().__init__(in_keys)
+        self.top, self.bottom, self.left, self.right = crop
+
+    def _apply_transform(self, frame: torch.Tensor) -> torch.Tensor:
+        return frame[..., self.top : self.bottom, self.left : self.right, :]
+
+
+class PoolImage(_ImageTransform):
+    """Average a ``[*B, C, H, W]`` image (floats in 0-255) over ``pool x pool`` blocks and round
+    it to uint8: ``[*B, C, H // pool, W // pool]``. Area averaging keeps a thin pole visible
+    where a nearest-pixel downscale can drop it."""
+
+    def __init__(self, pool: int, in_keys: Sequence[str] = (PIXELS_KEY,)):
+        super().__init__(in_keys)
+        self.pool = pool
+
+    def _apply_transform(self, image: torch.Tensor) -> torch.Tensor:
+        lead = image.shape[:-3]
+        flat = image.reshape(-1, *image.shape[-3:]).float()  # [N, C, H, W]
+        if self.pool > 1:
+            flat = nn.functional.avg_pool2d(flat, self.pool)  # [N, C, H // pool, W // pool]
+        return flat.round().clamp(0, 255).to(torch.uint8).reshape(*lead, *flat.shape[-3:])
+
+
+class ScaleImage(nn.Module):
+    """``[*B, C, H, W]`` uint8 pixels -> float32 in [0, 1]: the network's first step, so that
+    the replay buffer keeps uint8."""
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        return pixels.float() / 255.0
+
+
+def pixel_transforms(
+    crop: Sequence[int | None] = (None, None, None, None), pool: int = 1, frames: int = 1
+) -> list[Transform]:
+    """TorchRL transforms from a ``GymWrapper(from_pixels=True)`` frame ``[H, W, 3]`` uint8 to
+    the network's input ``[frames, h, w]`` uint8 (module docstring)."""
+    transforms: list[Transform] = [
+        CropFrame(crop),  # [h0, w0, 3] uint8
+        ToTensorImage(from_int=False, in_keys=[PIXELS_KEY]),  # [3, h0, w0] float, 0-255
+        GrayScale(in_keys=[PIXELS_KEY]),  # [1, h0, w0]
+        PoolImage(pool),  # [1, h0 // pool, w0 // pool] uint8
+    ]
+    if frames > 1:
+        transforms.append(CatFrames(N=frames, dim=-3, in_keys=[PIXELS_KEY]))  # [frames, h, w]
+    return transforms

@@ -1,0 +1,104 @@
+"""CartPole from pixels (env=cartpole_pixels): TorchRL's pixel transforms and a CNN torso."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from tests.conftest import run_script_in_process
+from trl_cartpole.build import build_env, run_memory_need
+from trl_cartpole.config import to_config
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.pixels import CropFrame, PoolImage
+from trl_cartpole.validation import validate
+
+# A pixel run small enough for the default tier: 2 envs, 200 frames, evaluations of 2 episodes.
+TINY_PIXEL_RUN = [
+    "env=cartpole_pixels",
+    "env.num_envs=2",
+    "collector.total_frames=200",
+    "collector.init_random_frames=64",
+    "collector.frames_per_batch=8",
+    "buffer.size=500",
+    "buffer.batch_size=16",
+    "eval.interval_frames=100",
+    "eval.episodes=2",
+    "eval.final_episodes=2",
+    "eval.max_steps=50",
+    "checkpoint.interval_frames=100",
+    "logger.progress_bar=false",
+    "logger.plots=false",
+]
+
+
+def test_crop_keeps_the_band_and_pool_averages_blocks_to_uint8():
+    frame = torch.arange(6 * 8 * 3, dtype=torch.uint8).reshape(6, 8, 3)  # [H, W, C]
+    band = CropFrame([1, 5, 2, None])._apply_transform(frame)
+    assert band.shape == (4, 6, 3) and torch.equal(band, frame[1:5, 2:])
+    image = torch.tensor([[[0.0, 2.0, 10.0, 10.0], [4.0, 6.0, 10.0, 11.0]]])  # [1, 2, 4]
+    pooled = PoolImage(2)._apply_transform(image)
+    # block means (0 + 2 + 4 + 6) / 4 = 3 and (10 + 10 + 10 + 11) / 4 = 10.25 -> 10
+    assert pooled.dtype == torch.uint8 and pooled.tolist() == [[[3, 10]]]
+
+
+def test_the_preset_shows_the_network_pixels_only(compose):
+    cfg = validate(to_config(compose("env=cartpole_pixels", "env.num_envs=2")))
+    env = build_env(cfg, seed=0)
+    spec = env.observation_spec
+    assert "observation" not in spec.keys()  # noqa: SIM118 (a spec): the state is not there
+    pixels = spec["pixels"]
+    assert pixels.dtype == torch.uint8 and tuple(pixels.shape) == (2, 2, 40, 120)  # [E, 2, h, w]
+    actor = make_q_actor_for_env(env, cfg.network)
+    assert actor.in_keys == ["pixels"]
+    frames = env.reset()
+    assert frames["pixels"].float().std() > 0  # a rendered scene, not a blank
+    # The actor acts on the frames alone: a tensordict holding nothing else.
+    only_pixels = TensorDict({"pixels": frames["pixels"]}, batch_size=[2])
+    assert actor(only_pixels)["action"].shape == (2, 2)
+    # The buffer keeps uint8: a transition is at least the frames now and next, a byte each.
+    need = run_memory_need(cfg, env)
+    assert need.transition_bytes >= 2 * 2 * 40 * 120
+    assert need.transition_bytes < 2 * 2 * 40 * 120 + 200  # not float32 (4 bytes a pixel)
+    env.close()
+
+
+@pytest.mark.parametrize("algo", ["dqn", "double", "dueling", "noisy", "c51", "rainbow"])
+def test_the_cnn_torso_composes_with_every_head_and_variant(compose, algo):
+    cfg = validate(to_config(compose(f"algo={algo}", "env=cartpole_pixels", "env.num_envs=2")))
+    assert cfg.network.torso == "cnn"
+    env = build_env(cfg, seed=0)
+    actor = make_q_actor_for_env(env, cfg.network)
+    values = actor(env.reset())["action_value"]
+    assert values.shape == ((2, cfg.network.atoms, 2) if cfg.network.distributional else (2, 2))
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["env.from_pixels=true"], "pixels need the cnn torso"),
+        (["network.torso=cnn"], "the cnn torso needs pixels"),
+        (["env=cartpole_pixels", "network.cnn_kernels=[5,5]"], "one entry per layer"),
+        (["env=cartpole_pixels", "env.normalize_observations=true"], "pixels have none"),
+    ],
+)
+def test_impossible_pixel_configs_are_refused(compose, overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        validate(to_config(compose(*overrides)))
+
+
+def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path):
+    run_dir = tmp_path / "run"
+    proc = run_script_in_process("train.py", *TINY_PIXEL_RUN, f"run_dir={run_dir}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["frames"] == 200 and summary["updates"] > 0
+    assert len(summary["final_eval_returns"]) == 2
+    # A resume starts new episodes (stacked frames are not stored) and adds the frames asked.
+    more = run_script_in_process("train.py", f"resume={run_dir}", "collector.total_frames=296")
+    assert more.returncode == 0, more.stderr[-2000:]
+    assert json.loads((run_dir / "summary.json").read_text())["frames"] == 296
