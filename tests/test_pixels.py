@@ -102,3 +102,35 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path):
     more = run_script_in_process("train.py", f"resume={run_dir}", "collector.total_frames=296")
     assert more.returncode == 0, more.stderr[-2000:]
     assert json.loads((run_dir / "summary.json").read_text())["frames"] == 296
+
+
+@pytest.mark.slow  # a pixel run, then its video and its exported policy
+def test_render_and_export_take_the_agents_frames(tmp_path):
+    onnxruntime = pytest.importorskip("onnxruntime")
+    from PIL import Image
+
+    from trl_cartpole.export import greedy_q_network
+    from trl_cartpole.policy_io import load_trained_policy
+
+    run_dir = tmp_path / "run"
+    proc = run_script_in_process("train.py", *TINY_PIXEL_RUN, f"run_dir={run_dir}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    gif = tmp_path / "agent.gif"
+    shown = run_script_in_process(
+        "render.py", f"checkpoint={run_dir}", f"output={gif}", "episodes=1", "scale=0.5"
+    )
+    assert shown.returncode == 0, shown.stderr[-2000:]
+    # the scene (300 x 200 at scale 0.5) above what the agent saw (40 rows, enlarged twice)
+    assert Image.open(gif).size == (300, 200 + 2 * 40)
+    onnx_file = tmp_path / "policy.onnx"
+    exported = run_script_in_process("export.py", f"checkpoint={run_dir}", f"output={onnx_file}")
+    assert exported.returncode == 0, exported.stderr[-2000:]
+    assert "pixels [batch, 2, 40, 120] uint8" in exported.stdout
+    trained = load_trained_policy(run_dir, num_envs=3)
+    frames = trained.env.reset()["pixels"]  # [3, 2, 40, 120] uint8
+    session = onnxruntime.InferenceSession(str(onnx_file))
+    (values,) = session.run(None, {"pixels": frames.numpy()})
+    expected = trained.actor(TensorDict({"pixels": frames}, batch_size=[3]))["action_value"]
+    assert torch.allclose(torch.from_numpy(values), expected, atol=1e-5)
+    assert greedy_q_network(run_dir).input_shape == (2, 40, 120)
+    trained.env.close()

@@ -205,7 +205,12 @@ def make_env_from_config(
     """
     if env_cfg.normalize_observations and observation_norm is None:
         raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
-    if env_cfg.from_pixels and render_mode is None:
+    if env_cfg.from_pixels:
+        if render_mode not in (None, "rgb_array"):
+            raise ConfigError(
+                f"render_mode={render_mode!r}: a policy from pixels plays on rendered frames "
+                "(rgb_array); write a file instead (output=x.gif)"
+            )
         return make_pixel_env(env_cfg, seed, device, num_envs)
     return make_env(
         resolve_env_id(env_cfg.id, env_cfg.imports),

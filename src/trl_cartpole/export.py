@@ -1,7 +1,8 @@
 """A trained policy as a plain network: observations in, action values out, for ONNX or .pt2.
 
 :func:`greedy_q_network` turns the Q-actor of a checkpoint into an ``nn.Module`` mapping a
-float32 observation ``[batch, obs_dim]`` to action values ``[batch, num_actions]``: the env's
+float32 observation ``[batch, obs_dim]`` (a policy from pixels: uint8 frames ``[batch, frames,
+h, w]``, input ``pixels``) to action values ``[batch, num_actions]``: the env's
 ``ObservationNorm`` comes first, noisy layers use their mean weights (the noise is off in
 evaluation, ``ExplorationType.DETERMINISTIC``) and a C51 network returns the expected value
 over its support. The greedy action is the arg-max of those values. :func:`export_onnx` and
@@ -25,6 +26,7 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_atomic
+from trl_cartpole.pixels import PIXELS_KEY
 from trl_cartpole.policy_io import load_trained_policy
 
 __all__ = [
@@ -52,16 +54,21 @@ class GreedyQNetwork(nn.Module):
     def __init__(
         self,
         network: nn.Module,
-        obs_dim: int,
+        obs_dim: int | tuple[int, ...],
         num_actions: int,
         loc: torch.Tensor | None = None,
         scale: torch.Tensor | None = None,
         standard_normal: bool = True,
         support: torch.Tensor | None = None,
+        input_name: str = INPUT_NAME,
+        input_dtype: torch.dtype = torch.float32,
     ) -> None:
         super().__init__()
         self.network = network
         self.obs_dim, self.num_actions = obs_dim, num_actions
+        # one observation's shape and dtype: [obs_dim] float32, or [frames, h, w] uint8 pixels
+        self.input_shape = (obs_dim,) if isinstance(obs_dim, int) else tuple(obs_dim)
+        self.input_name, self.input_dtype = input_name, input_dtype
         self.normalize = loc is not None
         self.standard_normal = bool(standard_normal)  # ObservationNorm holds it as a tensor
         self.distributional = support is not None
@@ -105,7 +112,10 @@ def greedy_q_network_of(
 ) -> GreedyQNetwork:
     """:func:`greedy_q_network` for an ``actor`` and the (transformed) ``env`` it acts in."""
     network = _deterministic(_q_network(actor))
-    obs_dim = env.observation_spec["observation"].shape[-1]
+    key = actor.module[0].in_keys[0]  # "observation", or "pixels" for a policy from pixels
+    spec = env.observation_spec[key]
+    pixels = key == PIXELS_KEY
+    obs_dim = tuple(spec.shape[-3:]) if pixels else spec.shape[-1]
     num_actions = env.action_spec.space.n
     norm = _observation_norm(env)
     support = actor.support if isinstance(actor, DistributionalQValueActor) else None
@@ -117,6 +127,8 @@ def greedy_q_network_of(
         scale=None if norm is None else norm.scale,
         standard_normal=True if norm is None else norm.standard_normal,
         support=support,
+        input_name=key,
+        input_dtype=spec.dtype,
     )
     return module.eval().requires_grad_(False)
 
@@ -124,10 +136,10 @@ def greedy_q_network_of(
 def _q_network(actor: nn.Module) -> nn.Module:
     """The network of a Q-actor: the module of its first ``TensorDictModule`` (obs -> values)."""
     first = actor.module[0]  # TensorDictModule(network, ["observation"] -> ["action_value"])
-    if list(first.in_keys) != ["observation"]:
+    if list(first.in_keys) not in (["observation"], [PIXELS_KEY]):
         raise ConfigError(
             f"the actor's first module reads {list(first.in_keys)}; export expects a Q-actor "
-            "reading 'observation' (trl_cartpole.models.make_q_actor)"
+            "reading 'observation' or 'pixels' (trl_cartpole.models.make_q_actor)"
         )
     return first.module
 
@@ -158,13 +170,15 @@ def _observation_norm(env: EnvBase) -> ObservationNorm | None:
     return norms[0] if norms else None
 
 
-def _example(obs_dim: int) -> tuple[torch.Tensor]:
-    """An example input ``[2, obs_dim]`` (2, not 1, so the batch size is not specialised)."""
-    return (torch.zeros(2, obs_dim, dtype=torch.float32),)
+def _example(module: nn.Module, obs_dim: int | tuple[int, ...]) -> tuple[torch.Tensor]:
+    """An example input ``[2, *shape]`` (2, not 1, so the batch size is not specialised)."""
+    shape = (obs_dim,) if isinstance(obs_dim, int) else tuple(obs_dim)
+    return (torch.zeros(2, *shape, dtype=getattr(module, "input_dtype", torch.float32)),)
 
 
 def _batch_dim() -> dict[str, dict[int, torch.export.Dim]]:
-    return {INPUT_NAME: {0: torch.export.Dim("batch", min=1)}}
+    # keyed by GreedyQNetwork.forward's argument, whatever the ONNX input is named
+    return {"observation": {0: torch.export.Dim("batch", min=1)}}
 
 
 @contextmanager
@@ -181,10 +195,11 @@ def _quiet_onnx_exporter() -> Iterator[None]:
         logger.setLevel(level)
 
 
-def export_onnx(module: nn.Module, obs_dim: int, path: str | Path) -> Path:
+def export_onnx(module: nn.Module, obs_dim: int | tuple[int, ...], path: str | Path) -> Path:
     """Write ``module`` as ONNX to ``path``, with a dynamic batch dimension.
 
-    Input ``observation`` ``[batch, obs_dim]`` float32, output ``action_values``
+    Input ``observation`` ``[batch, obs_dim]`` float32 (a policy from pixels: ``pixels``
+    ``[batch, frames, h, w]`` uint8, ``obs_dim`` the tuple of its shape), output ``action_values``
     ``[batch, num_actions]``. Raises a one-line ``ConfigError`` when the ``onnx`` or
     ``onnxscript`` package is missing or too old for this torch's exporter.
     """
@@ -200,9 +215,9 @@ def export_onnx(module: nn.Module, obs_dim: int, path: str | Path) -> Path:
             with _quiet_onnx_exporter():
                 torch.onnx.export(
                     module,
-                    _example(obs_dim),
+                    _example(module, obs_dim),
                     str(tmp),
-                    input_names=[INPUT_NAME],
+                    input_names=[getattr(module, "input_name", INPUT_NAME)],
                     output_names=[OUTPUT_NAME],
                     dynamic_shapes=_batch_dim(),
                     external_data=False,  # one self-contained file
@@ -217,10 +232,10 @@ def export_onnx(module: nn.Module, obs_dim: int, path: str | Path) -> Path:
     return write_atomic(path, write)
 
 
-def export_program(module: nn.Module, obs_dim: int, path: str | Path) -> Path:
+def export_program(module: nn.Module, obs_dim: int | tuple[int, ...], path: str | Path) -> Path:
     """Write ``module`` as a ``torch.export`` program (``.pt2``) to ``path``, batch dynamic.
 
     ``torch.export.load(path).module()`` maps ``[batch, obs_dim]`` to ``[batch, num_actions]``.
     """
-    program = torch.export.export(module, _example(obs_dim), dynamic_shapes=_batch_dim())
+    program = torch.export.export(module, _example(module, obs_dim), dynamic_shapes=_batch_dim())
     return write_atomic(path, lambda tmp: torch.export.save(program, tmp))

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 from PIL import Image, ImageDraw
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
@@ -24,6 +25,7 @@ from trl_cartpole.compat import gym_env
 from trl_cartpole.console import quiet_libraries, shown_path
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_atomic
+from trl_cartpole.pixels import PIXELS_KEY
 from trl_cartpole.policy_io import load_trained_policy
 
 __all__ = [
@@ -55,6 +57,16 @@ def _captioned(frame: np.ndarray, text: str, scale: float) -> np.ndarray:
 
 
 @torch.no_grad()
+def _with_agent_view(scene: np.ndarray, pixels: torch.Tensor) -> np.ndarray:
+    """``scene`` ``[H, W, 3]`` above the agent's newest patch (``pixels`` ``[frames, h, w]``
+    uint8), enlarged to the scene's width by whole pixels and shown in gray."""
+    patch = pixels[-1].numpy()  # [h, w]
+    factor = max(scene.shape[1] // patch.shape[1], 1)
+    view = np.repeat(np.repeat(patch, factor, axis=0), factor, axis=1)  # [h * f, w * f]
+    view = np.pad(view, ((0, 0), (0, scene.shape[1] - view.shape[1])), constant_values=255)
+    return np.concatenate([scene, np.repeat(view[..., None], 3, axis=-1)], axis=0)
+
+
 def render_episodes(
     actor: TensorDictModuleBase,
     env: EnvBase,
@@ -65,19 +77,26 @@ def render_episodes(
     """Play ``episodes`` greedy episodes on ``env`` (made with ``render_mode="rgb_array"``).
 
     Yields each episode's frames: the reset state, then one frame after every step, each
-    resized by ``scale`` and captioned with the episode, step and return so far.
+    resized by ``scale`` and captioned with the episode, step and return so far. For a policy
+    from pixels (``env`` writes ``"pixels"``), what the agent saw (its newest gray patch,
+    enlarged) is drawn under the scene.
     """
     gymnasium_env = gym_env(env)  # the Gymnasium env behind TorchRL's GymWrapper
+
+    def frame(td: TensorDictBase, caption: str) -> np.ndarray:
+        scene = _captioned(gymnasium_env.render(), caption, scale)
+        return scene if PIXELS_KEY not in td else _with_agent_view(scene, td[PIXELS_KEY])
+
     for episode in range(1, episodes + 1):
         td = env.reset()
-        frames = [_captioned(gymnasium_env.render(), f"episode {episode}  step 0  return 0", scale)]
+        frames = [frame(td, f"episode {episode}  step 0  return 0")]
         episode_return = 0.0
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             for step in range(1, max_steps + 1):
                 td = env.step(actor(td))
                 episode_return += td["next", "reward"].item()
                 caption = f"episode {episode}  step {step}  return {episode_return:g}"
-                frames.append(_captioned(gymnasium_env.render(), caption, scale))
+                frames.append(frame(td["next"], caption))
                 if td["next", "done"].item():
                     break
                 td = td["next"]

@@ -46,8 +46,10 @@ def main(argv: list[str]) -> None:
     kind, exporter = FORMATS[output.suffix]
     module = export.greedy_q_network(args.checkpoint)
     getattr(export, exporter)(module, module.obs_dim, output)
+    shape = ", ".join(str(size) for size in module.input_shape)
+    dtype = str(module.input_dtype).removeprefix("torch.")
     print(
-        f"wrote the {kind} {output}: observation [batch, {module.obs_dim}] float32 -> "
+        f"wrote the {kind} {output}: {module.input_name} [batch, {shape}] {dtype} -> "
         f"action_values [batch, {module.num_actions}] (greedy action: their arg-max); "
         "how to run it: docs/export.md"
     )
