@@ -115,10 +115,11 @@ def time_learner(
     torch.set_num_threads(cfg.num_threads)
     seed_everything(seed)
     env = build_env(cfg, seed)
-    learner = build_learner(cfg, build_actor(cfg, env), build_replay_buffer(cfg))
+    actor = build_actor(cfg, env)
+    learner = build_learner(cfg, actor, build_replay_buffer(cfg))
     steps = math.ceil(RANDOM_FRAMES / env.batch_size.numel())
     rollout = env.rollout(steps, break_when_any_done=False)  # [envs, T] or [T]: random actions
-    extend_with_batch(learner.buffer, rollout.select(*transition_keys()))
+    extend_with_batch(learner.buffer, rollout.select(*transition_keys(actor.in_keys[0])))
     raw_step = None if raw is None else raw_update(cfg, *_sizes(env))
     env.close()
     count = cfg.collector.updates_per_batch

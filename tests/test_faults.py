@@ -392,6 +392,7 @@ BAD_INPUTS = [
         ["network.hidden_sizes=[1048576,1048576]"],
         "(1099520016386 parameters",
     ),
+    ("a negative eval seed", ["eval.seed_offset=-1000001"], "eval.seed_offset=-1000001 must be"),
     ("a seed beyond 64 bits", ["seed=1180591620717411303424"], "integer settings stop at 2**62"),
     ("envs by the billion", ["eval.final_episodes=1000000000"], "at most 4096"),
     ("missing checkpoint", ["resume=/nonexistent/run"], "does not exist"),

@@ -192,6 +192,11 @@ def validate(cfg: Config) -> Config:
             f"num_threads={cfg.num_threads} is more than this machine's {os.cpu_count()} cores",
         ),
         (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
+        (  # found by tests/test_fuzz.py: a negative offset gave Gymnasium a negative seed
+            cfg.eval.seed_offset >= 0,
+            f"eval.seed_offset={cfg.eval.seed_offset} must be >= 0 (Gymnasium takes no "
+            "negative seed)",
+        ),
         (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),
     ]
     for ok, message in checks:
