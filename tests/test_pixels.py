@@ -51,7 +51,7 @@ def test_the_preset_shows_the_network_pixels_only(compose):
     spec = env.observation_spec
     assert "observation" not in spec.keys()  # noqa: SIM118 (a spec): the state is not there
     pixels = spec["pixels"]
-    assert pixels.dtype == torch.uint8 and tuple(pixels.shape) == (2, 2, 40, 120)  # [E, 2, h, w]
+    assert pixels.dtype == torch.uint8 and tuple(pixels.shape) == (2, 2, 20, 60)  # [E, 2, h, w]
     actor = make_q_actor_for_env(env, cfg.network)
     assert actor.in_keys == ["pixels"]
     frames = env.reset()
@@ -61,8 +61,8 @@ def test_the_preset_shows_the_network_pixels_only(compose):
     assert actor(only_pixels)["action"].shape == (2, 2)
     # The buffer keeps uint8: a transition is at least the frames now and next, a byte each.
     need = run_memory_need(cfg, env)
-    assert need.transition_bytes >= 2 * 2 * 40 * 120
-    assert need.transition_bytes < 2 * 2 * 40 * 120 + 200  # not float32 (4 bytes a pixel)
+    assert need.transition_bytes >= 2 * 2 * 20 * 60
+    assert need.transition_bytes < 2 * 2 * 20 * 60 + 200  # not float32 (4 bytes a pixel)
     env.close()
 
 
@@ -120,17 +120,17 @@ def test_render_and_export_take_the_agents_frames(tmp_path):
         "render.py", f"checkpoint={run_dir}", f"output={gif}", "episodes=1", "scale=0.5"
     )
     assert shown.returncode == 0, shown.stderr[-2000:]
-    # the scene (300 x 200 at scale 0.5) above what the agent saw (40 rows, enlarged twice)
-    assert Image.open(gif).size == (300, 200 + 2 * 40)
+    # the scene (300 x 200 at scale 0.5) above what the agent saw (20 rows, enlarged 5 times)
+    assert Image.open(gif).size == (300, 200 + 5 * 20)
     onnx_file = tmp_path / "policy.onnx"
     exported = run_script_in_process("export.py", f"checkpoint={run_dir}", f"output={onnx_file}")
     assert exported.returncode == 0, exported.stderr[-2000:]
-    assert "pixels [batch, 2, 40, 120] uint8" in exported.stdout
+    assert "pixels [batch, 2, 20, 60] uint8" in exported.stdout
     trained = load_trained_policy(run_dir, num_envs=3)
     frames = trained.env.reset()["pixels"]  # [3, 2, 40, 120] uint8
     session = onnxruntime.InferenceSession(str(onnx_file))
     (values,) = session.run(None, {"pixels": frames.numpy()})
     expected = trained.actor(TensorDict({"pixels": frames}, batch_size=[3]))["action_value"]
     assert torch.allclose(torch.from_numpy(values), expected, atol=1e-5)
-    assert greedy_q_network(run_dir).input_shape == (2, 40, 120)
+    assert greedy_q_network(run_dir).input_shape == (2, 20, 60)
     trained.env.close()
