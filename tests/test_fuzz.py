@@ -53,6 +53,18 @@ OVERRIDES = st.lists(
 OUTCOMES: dict[str, int] = {"accepted": 0, "refused": 0}
 
 
+def drawn(examples: int) -> settings:
+    """Hypothesis settings for ``examples`` draws, the same on every run and machine
+    (``derandomize``, and no example database replaying earlier failures first)."""
+    return settings(
+        max_examples=examples,
+        deadline=None,
+        derandomize=True,
+        database=None,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+    )
+
+
 def check(overrides: list[str]) -> str:
     """``accepted`` or ``refused``; any other exception propagates to the test."""
     try:
@@ -67,13 +79,7 @@ def check(overrides: list[str]) -> str:
     return "accepted"
 
 
-@settings(
-    max_examples=200,  # about 25 s here
-    deadline=None,
-    derandomize=True,  # the same draws on every run: a failure is repeatable
-    database=None,  # and no replay of earlier failures, so every machine draws the same
-    suppress_health_check=[HealthCheck.too_slow],
-)
+@drawn(200)  # about 25 s here
 @given(OVERRIDES)
 def test_every_drawn_command_line_is_accepted_or_refused_in_one_line(overrides):
     OUTCOMES[check(overrides)] += 1
@@ -115,13 +121,7 @@ def _one_error_line(proc) -> str:
 
 
 @pytest.mark.slow  # trains each accepted draw: about 2 s each
-@settings(
-    max_examples=200,
-    deadline=None,
-    derandomize=True,
-    database=None,  # no replay of earlier failures: the same draws on every machine
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
-)
+@drawn(200)
 @given(overrides=OVERRIDES)
 def test_every_accepted_draw_trains_a_tiny_budget_and_a_refusal_writes_nothing(
     overrides, tmp_path_factory
@@ -167,13 +167,7 @@ SCRIPT_ARGUMENTS = {
 
 
 @pytest.mark.slow  # evaluates or renders each accepted draw
-@settings(
-    max_examples=100,
-    deadline=None,
-    derandomize=True,
-    database=None,  # no replay of earlier failures: the same draws on every machine
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
-)
+@drawn(100)
 @given(
     script_and_arguments=st.sampled_from(sorted(SCRIPT_ARGUMENTS)).flatmap(
         lambda script: st.tuples(

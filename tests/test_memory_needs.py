@@ -15,11 +15,10 @@ def test_the_default_runs_need_is_counted_by_hand():
     cfg = Config()
     env = build_env(cfg, seed=0, num_envs=1)
     need = run_memory_need(cfg, env)
-    # One CartPole step: observation 4 float32 twice (now and next) = 32 bytes; reward and
-    # episode_reward 4 each (next only... both sides for episode_reward) and the flags.
-    # The sum TorchRL's fake step holds: action one-hot 2 x int64 = 16, observation 16,
-    # step_count 8, done/terminated/truncated 3 x 1, episode_reward 4; next: observation 16,
-    # reward 4, episode_reward 4, step_count 8, done/terminated/truncated 3.
+    # One step as TorchRL's fake step holds it: the action one-hot 2 x int64 = 16 bytes, the
+    # observation 4 x float32 = 16, step_count 8, done/terminated/truncated 3 x 1 bool,
+    # episode_reward 4; under "next": observation 16, reward 4, episode_reward 4, step_count 8
+    # and the three flags 3.
     assert need.transition_bytes == 16 + 16 + 8 + 3 + 4 + (16 + 4 + 4 + 8 + 3)
     # MLP 4 -> 128 -> 128 -> 2, weights and biases
     assert need.parameters == (4 * 128 + 128) + (128 * 128 + 128) + (128 * 2 + 2)
