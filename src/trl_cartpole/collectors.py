@@ -272,7 +272,8 @@ def check_ray_resources(
     resources that ``actors`` actors ask for (``remote_configs["resources"]``, per actor).
 
     Ray would otherwise wait without end for a node that has them (TorchRL's ``RayCollector``
-    blocks in its constructor). The check joins the cluster and leaves it again (about 2 s).
+    blocks in its constructor). The check joins the cluster and leaves it again (about 2 s),
+    or asks the Ray session this process already has.
     """
     import ray
 
@@ -281,13 +282,16 @@ def check_ray_resources(
     for options in per_actor:
         for name, amount in (options.get("resources") or {}).items():
             wanted[name] = wanted.get(name, 0.0) + amount
+    joined_here = not ray.is_initialized()  # a caller's own Ray session is left as it is
     try:
-        ray.init(**default_ray_init_config(address, actors))
+        if joined_here:
+            ray.init(**default_ray_init_config(address, actors))
         held = ray.cluster_resources()
     except ConnectionError:
         return  # make_collector's own join says what is wrong with the address
     finally:
-        ray.shutdown()
+        if joined_here:
+            ray.shutdown()
     short = {name: amount for name, amount in wanted.items() if held.get(name, 0.0) < amount}
     if short:
         needs = ", ".join(f"{name}={amount:g}" for name, amount in short.items())
