@@ -229,7 +229,7 @@ def make_collector(
     else:
         guard_local_ray_with_a_token_of_its_own()
     actor_options = RAY_ACTOR_OPTIONS if remote_configs is None else remote_configs
-    if ray_address is not None and _custom_resources(actor_options):
+    if ray_address is not None and resources_wanted(actor_options, len(create_env_fn)):
         check_ray_resources(ray_address, actor_options, len(create_env_fn))
     try:
         auto_register = common.pop("auto_register_policy_transforms")
@@ -260,9 +260,17 @@ def make_collector(
     return collector
 
 
-def _custom_resources(remote_configs: dict[str, Any] | list[dict[str, Any]]) -> bool:
-    options = remote_configs if isinstance(remote_configs, list) else [remote_configs]
-    return any(entry.get("resources") for entry in options)
+def resources_wanted(
+    remote_configs: dict[str, Any] | list[dict[str, Any]], actors: int
+) -> dict[str, float]:
+    """The custom resources ``actors`` actors ask for in all (``remote_configs["resources"]``:
+    one dict for every actor, or one per actor)."""
+    per_actor = remote_configs if isinstance(remote_configs, list) else [remote_configs] * actors
+    wanted: dict[str, float] = {}
+    for options in per_actor:
+        for name, amount in (options.get("resources") or {}).items():
+            wanted[name] = wanted.get(name, 0.0) + amount
+    return wanted
 
 
 def check_ray_resources(
@@ -277,11 +285,7 @@ def check_ray_resources(
     """
     import ray
 
-    per_actor = remote_configs if isinstance(remote_configs, list) else [remote_configs] * actors
-    wanted: dict[str, float] = {}
-    for options in per_actor:
-        for name, amount in (options.get("resources") or {}).items():
-            wanted[name] = wanted.get(name, 0.0) + amount
+    wanted = resources_wanted(remote_configs, actors)
     joined_here = not ray.is_initialized()  # a caller's own Ray session is left as it is
     try:
         if joined_here:
