@@ -12,7 +12,9 @@ wrote, never from a hand copy:
 - ``algo-presets`` (docs/guide.md): what each ``configs/algo/`` preset sets, read from the YAML;
 - ``train-listing`` (docs/architecture.md): ``train()`` as the code has it;
 - ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
-  ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it).
+  ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
+- ``pixel-seeds`` (docs/environments.md): ``env=cartpole_pixels`` seed by seed, from
+  ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``).
 
 ``tests/test_docs_in_sync.py`` runs the check, so CI fails when a doc drifts from its source.
 """
@@ -33,6 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "src" / "trl_cartpole"
 RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
+PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
 SEEDS = [0]
 OUT = Path("runs/bench/docs")
 
@@ -132,6 +135,49 @@ def performance_tables() -> str:
     return "\n\n".join(parts)
 
 
+def _spaced(number: float) -> str:
+    """``12 345``: a whole number as the docs write it."""
+    return f"{number:,.0f}".replace(",", " ")
+
+
+def pixel_seeds() -> str:
+    """docs/environments.md's per-seed table of ``env=cartpole_pixels``, from
+    ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs --envs cartpole_pixels
+    ... --record`` writes it), with the target's verdict."""
+    from benchmarks.envs import target_met, target_text
+
+    record = json.loads(PIXELS.read_text())
+    runs = record["runs"]
+    rows = [
+        "| seed | frames | train s | greedy return at each evaluation | best | "
+        "final (100 episodes) | frames/s, updates/s | memory, MiB |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for run in runs:
+        curve, finals = run["eval_curve"], run["final_eval_returns"]
+        memory = max([run["peak_rss_mb"], *(mb for mb in curve["rss_mb"] if mb is not None)])
+        rows.append(
+            f"| {run['seed']} | {_spaced(run['frames'])} | {_spaced(run['train_seconds'])} | "
+            f"{', '.join(f'{value:.0f}' for value in curve['returns'])} | "
+            f"{run['best_eval_return_mean']:.1f} | {run['final_eval_return_mean']:.1f} +/- "
+            f"{run['final_eval_return_std']:.1f} ({min(finals):.0f} to {max(finals):.0f}) | "
+            f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "
+            f"{_spaced(memory)} |"
+        )
+    finals = [run["final_eval_return_mean"] for run in runs]
+    verdict = "met" if target_met("cartpole_pixels", finals) else "**not met**"
+    return "\n".join(
+        [
+            _fenced(record["command"], "bash"),
+            provenance_line(record),
+            "",
+            *rows,
+            "",
+            f"Target ({target_text('cartpole_pixels')}, final 100-episode return): {verdict}.",
+        ]
+    )
+
+
 def train_listing() -> str:
     """``train()`` as ``src/trl_cartpole/training.py`` has it."""
     from trl_cartpole.training import train
@@ -146,6 +192,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "algo-presets": ("docs/guide.md", algo_presets),
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
+    "pixel-seeds": ("docs/environments.md", pixel_seeds),
 }
 
 

@@ -2,7 +2,7 @@
 
     python -m benchmarks envs [--envs acrobot mountaincar lunarlander cartpole_pixels]
         [--seeds 0 1 2]
-        [--jobs 2] [--out runs/envs] [key=value ...]
+        [--jobs 2] [--out runs/envs] [--record docs/results/PRESET.json] [key=value ...]
 
 Each (env preset, seed) is one ``scripts/train.py env=<preset> seed=<seed>`` run in its own
 process (``--jobs`` at a time), into ``OUT/<preset>/dqn-seed<seed>``; a finished run is not
@@ -19,11 +19,13 @@ and training seconds: median over seeds with the interquartile band).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import statistics
+import sys
 from pathlib import Path
 
-from benchmarks.harness import ENV_MEDIAN_TARGETS, ENV_TARGETS, run_presets
+from benchmarks.harness import ENV_MEDIAN_TARGETS, ENV_TARGETS, provenance, run_presets
 from trl_cartpole.interval_estimates import interval_estimate
 from trl_cartpole.plotting import plot_comparison
 
@@ -101,9 +103,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[preset for preset in ENV_TARGETS if preset != "cartpole_pixels"],
         choices=list(ENV_TARGETS),
     )
+    parser.add_argument(
+        "--record",
+        type=Path,
+        help="also write every summary to this results file (docs/results), for one preset",
+    )
+
+
+def write_record(path: Path, command: str, runs: list[dict]) -> None:
+    """``path`` (docs/results/*.json): the command, when and where it ran, and every seed's
+    summary; ``python -m benchmarks docs`` renders the per-seed table from it."""
+    record = {**provenance(), "command": command, "runs": runs}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record, indent=2) + "\n")
 
 
 def main(args: argparse.Namespace) -> None:
+    if args.record is not None and len(args.envs) != 1:
+        raise SystemExit("error: --record writes one preset's runs; name one with --envs")
     results = {}
     for preset in args.envs:
         out = args.out / preset
@@ -114,3 +131,6 @@ def main(args: argparse.Namespace) -> None:
     text = table(results)
     print(text)
     (args.out / "results.md").write_text(text + "\n")
+    if args.record is not None:
+        command = "python -m benchmarks envs " + " ".join(sys.argv[2:])
+        write_record(args.record, command, results[args.envs[0]])

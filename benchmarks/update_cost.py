@@ -106,8 +106,9 @@ def time_learner(
 ) -> list[Timing]:
     """Per-update (sample, update, priority) seconds of each timed ``Learner.step``.
 
-    With ``raw`` (a list), a :func:`raw_update` follows each of the learner's updates and its
-    per-update seconds of each batch are appended to ``raw`` (priority 0).
+    With ``raw`` (a list) and a state-vector env, a :func:`raw_update` follows each of the
+    learner's updates and its per-update seconds of each batch are appended to ``raw``
+    (priority 0).
     """
     cfg = validate(
         to_config(compose_config(CONFIG_DIR, [f"algo={algo}", f"seed={seed}", *overrides]))
@@ -120,7 +121,8 @@ def time_learner(
     steps = math.ceil(RANDOM_FRAMES / env.batch_size.numel())
     rollout = env.rollout(steps, break_when_any_done=False)  # [envs, T] or [T]: random actions
     extend_with_batch(learner.buffer, rollout.select(*transition_keys(actor.in_keys[0])))
-    raw_step = None if raw is None else raw_update(cfg, *_sizes(env))
+    vector = "observation" in env.observation_spec  # the raw MLP reads a state vector
+    raw_step = None if raw is None or not vector else raw_update(cfg, *_sizes(env))
     env.close()
     count = cfg.collector.updates_per_batch
     timings: list[Timing] = []
@@ -148,7 +150,7 @@ def time_learner(
                 raw_update_s += raw_update_seconds
         if step >= warmup_steps:
             timings.append((sample_s / count, update_s / count, priority_s / count))
-            if raw is not None:
+            if raw_step is not None:
                 raw.append((raw_sample_s / count, raw_update_s / count, 0.0))
     return timings
 

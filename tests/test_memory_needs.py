@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -9,6 +14,7 @@ from trl_cartpole.build import build_env, run_memory_need
 from trl_cartpole.config import Config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.memory_needs import MemoryNeed, available_memory_bytes, check_fits_in_memory
+from trl_cartpole.progress import resident_mb
 
 
 def test_the_default_runs_need_is_counted_by_hand():
@@ -56,3 +62,21 @@ def test_available_memory_is_read_from_meminfo(tmp_path):
     meminfo.write_text("MemTotal:       1000 kB\nMemAvailable:    512 kB\n")
     assert available_memory_bytes(meminfo) == 512 * 1024
     assert available_memory_bytes(tmp_path / "absent") is None
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads Linux's /proc")
+def test_resident_memory_counts_the_processes_the_run_started():
+    """A collector worker's memory is the run's too: a child holding 200 MiB shows in it."""
+    before = resident_mb()
+    child = subprocess.Popen(
+        [sys.executable, "-c", "import sys; b = bytearray(200 * 2**20); sys.stdin.read()"],
+        stdin=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while resident_mb() - before < 200 and time.monotonic() < deadline:
+            time.sleep(0.05)  # until the child has touched its 200 MiB
+        assert resident_mb() - before >= 200
+    finally:
+        child.communicate(b"")
+    assert resident_mb() - before < 50  # an ended worker no longer counts

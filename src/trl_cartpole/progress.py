@@ -4,13 +4,12 @@
 evaluation and checkpoints, so ``train_seconds`` and ``seconds_to_solve`` count training only.
 ``phase(name)`` times a block of the loop under a name the loop gives it (``collect``,
 ``update``...); the summary reports those seconds (``phase_seconds``), which is what
-``python -m benchmarks profile`` prints. :func:`resident_mb` is the process's memory now, which
-each evaluation records.
+``python -m benchmarks profile`` prints. :func:`resident_mb` is the memory of the process and its
+workers now, which each evaluation records.
 """
 
 from __future__ import annotations
 
-import os
 import time
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
@@ -24,12 +23,36 @@ T = TypeVar("T")
 
 
 def resident_mb() -> float | None:
-    """This process's resident memory now, in MiB (Linux's ``/proc/self/statm``; else None)."""
+    """Resident memory now, in MiB, of this process and the processes it started (its collector
+    workers, their children): the sum of each one's ``VmRSS`` in Linux's ``/proc``, so pages
+    they share (the workers' copy of the policy weights) count once per process. Ray's actors
+    are the Ray node's children, not this process's, and are not counted. None off Linux."""
     try:
-        pages = int(Path("/proc/self/statm").read_text().split()[1])
+        return round(sum(_resident_kib(pid) for pid in _process_tree("self")) / 1024, 1)
     except (OSError, IndexError, ValueError):
         return None
-    return round(pages * os.sysconf("SC_PAGE_SIZE") / 2**20, 1)
+
+
+def _process_tree(pid: str) -> list[str]:
+    """``pid`` and every live descendant, from ``/proc/PID/task/TID/children``."""
+    tree, index = [pid], 0
+    while index < len(tree):
+        for children in Path(f"/proc/{tree[index]}/task").glob("*/children"):
+            try:
+                tree.extend(children.read_text().split())
+            except OSError:  # the thread ended meanwhile
+                continue
+        index += 1
+    return tree
+
+
+def _resident_kib(pid: str) -> int:
+    """``VmRSS`` of ``pid`` in KiB; 0 for a process that ended meanwhile."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return 0
+    return next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:"))
 
 
 class Stopwatch:

@@ -142,7 +142,10 @@ def run_summary(
             "rss_mb": evaluator.curve.rss_mb,  # resident memory (MiB) at each evaluation
         },
         **extra,
-        "peak_rss_mb": round(peak_rss_mb(), 1),
+        # this process's peak, or more where its workers and it held more at an evaluation
+        "peak_rss_mb": round(
+            max([peak_rss_mb(), *(mb for mb in evaluator.curve.rss_mb if mb is not None)]), 1
+        ),
         "run_dir": str(run_dir),
     }
 
