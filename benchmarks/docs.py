@@ -145,24 +145,35 @@ def pixel_seeds() -> str:
     ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs --envs cartpole_pixels
     ... --record`` writes it), with the target's verdict."""
     from benchmarks.envs import target_met, target_text
+    from benchmarks.harness import ENV_TARGETS
 
     record = json.loads(PIXELS.read_text())
-    runs = record["runs"]
+    runs, target = record["runs"], ENV_TARGETS["cartpole_pixels"]
     rows = [
-        "| seed | frames | train s | greedy return at each evaluation | best | "
-        "final (100 episodes) | frames/s, updates/s | memory, MiB |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| seed | frames | train s | greedy return at each evaluation | first evaluation >= "
+        f"{target:g}: frames, train s | best | final (100 episodes) | frames/s, updates/s | "
+        "peak memory, MiB |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for run in runs:
         curve, finals = run["eval_curve"], run["final_eval_returns"]
-        memory = max([run["peak_rss_mb"], *(mb for mb in curve["rss_mb"] if mb is not None)])
+        reached = next(
+            (
+                f"{_spaced(frames)}, {_spaced(seconds)}"
+                for frames, seconds, value in zip(
+                    curve["frames"], curve["seconds"], curve["returns"], strict=True
+                )
+                if value >= target
+            ),
+            "never",
+        )
         rows.append(
             f"| {run['seed']} | {_spaced(run['frames'])} | {_spaced(run['train_seconds'])} | "
-            f"{', '.join(f'{value:.0f}' for value in curve['returns'])} | "
+            f"{', '.join(f'{value:.0f}' for value in curve['returns'])} | {reached} | "
             f"{run['best_eval_return_mean']:.1f} | {run['final_eval_return_mean']:.1f} +/- "
             f"{run['final_eval_return_std']:.1f} ({min(finals):.0f} to {max(finals):.0f}) | "
             f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "
-            f"{_spaced(memory)} |"
+            f"{_spaced(run['peak_rss_mb'])} |"
         )
     finals = [run["final_eval_return_mean"] for run in runs]
     verdict = "met" if target_met("cartpole_pixels", finals) else "**not met**"

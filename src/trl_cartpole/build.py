@@ -30,7 +30,7 @@ from omegaconf import OmegaConf
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.checkpoint import Checkpoint
 from torchrl.collectors import BaseCollector
-from torchrl.data import TensorDictReplayBuffer
+from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
@@ -61,7 +61,9 @@ from trl_cartpole.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.memory_needs import (
     MemoryNeed,
     available_memory_bytes,
+    check_buffer_fits_on_disk,
     check_fits_in_memory,
+    free_disk_bytes,
     memory_need,
 )
 from trl_cartpole.models import make_q_actor_for_env
@@ -204,10 +206,26 @@ def build_exploration(cfg: Config, env: TransformedEnv) -> EGreedyModule | None:
     )
 
 
-def build_replay_buffer(cfg: Config) -> TensorDictReplayBuffer:
-    """The replay buffer of ``cfg.buffer`` (n-step returns discounted by ``cfg.loss.gamma``)."""
+# Where buffer.storage=memmap keeps its files, in the run directory.
+REPLAY_FILES = "replay_buffer"
+
+
+def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictReplayBuffer:
+    """The replay buffer of ``cfg.buffer`` (n-step returns discounted by ``cfg.loss.gamma``).
+
+    ``buffer.storage=memmap`` stores it in TorchRL's ``LazyMemmapStorage``, in files under
+    ``run_dir/replay_buffer`` (TorchRL's temporary directory without ``run_dir``).
+    """
     buffer = cfg.buffer
+    storage = None  # make_replay_buffer's LazyTensorStorage
+    if buffer.storage == "memmap":
+        scratch_dir = None if run_dir is None else str(run_dir / REPLAY_FILES)
+        # existsok: a resumed run writes over the files its stopped run left
+        storage = LazyMemmapStorage(
+            buffer.size, scratch_dir=scratch_dir, device=cfg.device, existsok=True
+        )
     return make_replay_buffer(
+        storage=storage,
         max_size=buffer.size,
         batch_size=buffer.batch_size,
         device=cfg.device,
@@ -341,7 +359,11 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         on_error.callback(close_env, eval_env)
         on_error.callback(close_env, env)
         if cfg.device == "cpu":  # a buffer or network that cannot fit stops here, not midway
-            check_fits_in_memory(run_memory_need(cfg, env), available_memory_bytes())
+            need, in_files = run_memory_need(cfg, env), cfg.buffer.storage == "memmap"
+            check_fits_in_memory(need, available_memory_bytes(), buffer_in_memory=not in_files)
+            if in_files:
+                files = Path(cfg.run_dir) / REPLAY_FILES
+                check_buffer_fits_on_disk(need, files, free_disk_bytes(files))
         if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
             check_ray_address(cfg.collector.ray_address)  # before anything is written
         run_dir = prepare_run_dir(cfg.run_dir)
@@ -379,7 +401,7 @@ def _assemble(
     actor = build_actor(cfg, env)
     exploration = build_exploration(cfg, env)
     policy = actor if exploration is None else TensorDictSequential(actor, exploration)
-    buffer = build_replay_buffer(cfg)
+    buffer = build_replay_buffer(cfg, run_dir)
     learner = build_learner(cfg, actor, buffer)
     # Workers (processes or Ray actors) build their own envs; their counters are not saved, so
     # a resumed run gives them only the frames still to collect (a single-process collector's

@@ -87,7 +87,10 @@ class ExplorationConfig:
 
 @dataclass
 class BufferConfig:
-    size: int = 50_000  # transitions kept (LazyTensorStorage; the oldest are overwritten)
+    size: int = 50_000  # transitions kept (the oldest are overwritten)
+    # memory: TorchRL's LazyTensorStorage, in RAM | memmap: its LazyMemmapStorage, files in
+    # RUN_DIR/replay_buffer (removed at the end), for a buffer larger than the RAM to spare
+    storage: str = "memory"
     batch_size: int = 512  # transitions per gradient step
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
     alpha: float = 0.6  # P(i) ~ (|delta_i| + priority_eps) ** alpha

@@ -11,6 +11,7 @@ networks, the gradient, Adam's two moments; AMSGrad keeps a sixth copy).
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +21,15 @@ from torchrl.envs import EnvBase
 
 from trl_cartpole.errors import ConfigError
 
-__all__ = ["MemoryNeed", "available_memory_bytes", "check_fits_in_memory", "memory_need"]
+__all__ = [
+    "MemoryNeed",
+    "available_memory_bytes",
+    "check_buffer_fits_on_disk",
+    "check_fits_in_memory",
+    "disk_bytes_under",
+    "free_disk_bytes",
+    "memory_need",
+]
 
 GIB = 1024**3
 
@@ -73,14 +82,55 @@ def available_memory_bytes(meminfo: Path = Path("/proc/meminfo")) -> int | None:
     return None
 
 
-def check_fits_in_memory(need: MemoryNeed, available: int | None) -> None:
-    """Raise a one-line ConfigError if ``need`` is more than the ``available`` bytes."""
-    if available is None or need.total_bytes <= available:
+def check_fits_in_memory(
+    need: MemoryNeed, available: int | None, buffer_in_memory: bool = True
+) -> None:
+    """Raise a one-line ConfigError if ``need`` is more than the ``available`` bytes (without
+    the buffer where it lives in files: ``buffer_in_memory=False``)."""
+    total = need.total_bytes if buffer_in_memory else need.network_bytes
+    if available is None or total <= available:
+        return
+    buffer = (
+        f"the replay buffer {need.buffer_bytes / GIB:.1f} GiB (buffer.size={need.transitions} x "
+        f"{need.transition_bytes} bytes), "
+        if buffer_in_memory
+        else ""
+    )
+    raise ConfigError(
+        f"the run needs at least {total / GIB:.1f} GiB of memory and "
+        f"{available / GIB:.1f} GiB is available: {buffer}the networks "
+        f"{need.network_bytes / GIB:.1f} GiB ({need.parameters} parameters, with their target, "
+        "gradients and optimizer state); lower "
+        + ("buffer.size, set buffer.storage=memmap, or lower " if buffer_in_memory else "")
+        + "network.hidden_sizes"
+    )
+
+
+def free_disk_bytes(path: Path) -> int:
+    """Free bytes on the filesystem that holds ``path`` (or its nearest existing parent)."""
+    path = Path(path).absolute()
+    while not path.exists():
+        path = path.parent
+    return shutil.disk_usage(path).free
+
+
+def disk_bytes_under(directory: Path) -> int:
+    """Bytes the files under ``directory`` take on disk (their allocated blocks: a sparse
+    file takes only what was written)."""
+    if not directory.is_dir():
+        return 0
+    return sum(path.lstat().st_blocks * 512 for path in directory.rglob("*") if path.is_file())
+
+
+def check_buffer_fits_on_disk(need: MemoryNeed, directory: Path, free: int) -> None:
+    """Raise a one-line ConfigError if a memory-mapped buffer's files in ``directory`` cannot
+    grow to their size in ``free`` bytes (what a stopped run left there counts as held): the
+    files are sparse, and a write to a full disk through a memory map is a ``SIGBUS`` that
+    kills the process, not an error (docs/reliability.md)."""
+    if need.buffer_bytes - disk_bytes_under(directory) <= free:
         return
     raise ConfigError(
-        f"the run needs at least {need.total_bytes / GIB:.1f} GiB of memory and "
-        f"{available / GIB:.1f} GiB is available: the replay buffer {need.buffer_bytes / GIB:.1f}"
-        f" GiB (buffer.size={need.transitions} x {need.transition_bytes} bytes), the networks "
-        f"{need.network_bytes / GIB:.1f} GiB ({need.parameters} parameters, with their target, "
-        "gradients and optimizer state); lower buffer.size or network.hidden_sizes"
+        f"buffer.storage=memmap needs {need.buffer_bytes / GIB:.1f} GiB for its files in "
+        f"{directory} and {free / GIB:.1f} GiB is free there; lower buffer.size, free space on "
+        "that disk, or choose another run_dir"
     )

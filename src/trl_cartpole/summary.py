@@ -9,6 +9,7 @@ and writes ``summary.json``, whose keys other tools rely on (docs/architecture.m
 from __future__ import annotations
 
 import resource
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ import tensordict
 import torch
 import torchrl
 
-from trl_cartpole.build import Components, build_env, run_title
+from trl_cartpole.build import REPLAY_FILES, Components, build_env, run_title
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.evaluation import EvalResult, Evaluator, evaluate
 from trl_cartpole.files import write_json_atomic
@@ -39,6 +40,8 @@ def finish(run: Components) -> dict[str, Any]:
     run.progress_bar.close()
     run.checkpointer.save_last(progress)
     run.release_collector()
+    if cfg.buffer.storage == "memmap":  # the training state just saved holds its own copy
+        shutil.rmtree(run.run_dir / REPLAY_FILES, ignore_errors=True)
     # a live plot to a file is the durations.png the end draws anew: no last redraw first
     if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
         run.live_plot.flush()

@@ -43,6 +43,7 @@ _CHOICES = {
     "optim.grad_clip": ("value", "norm", "none"),
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
     "collector.backend": ("local", "ray"),
+    "buffer.storage": ("memory", "memmap"),
     "network.torso": ("mlp", "cnn"),
 }
 
