@@ -9,11 +9,13 @@ import torch
 from tensordict import TensorDict
 
 from tests.conftest import run_script_in_process
+from trl_cartpole import build
 from trl_cartpole.build import build_env, run_memory_need
 from trl_cartpole.config import to_config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.models import make_q_actor_for_env
 from trl_cartpole.pixels import CropFrame, PoolImage
+from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.validation import validate
 
 # A pixel run small enough for the default tier: 2 envs, 200 frames, evaluations of 2 episodes.
@@ -91,7 +93,7 @@ def test_impossible_pixel_configs_are_refused(compose, overrides, message):
         validate(to_config(compose(*overrides)))
 
 
-def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path):
+def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path, monkeypatch):
     run_dir = tmp_path / "run"
     proc = run_script_in_process("train.py", *TINY_PIXEL_RUN, f"run_dir={run_dir}")
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -102,6 +104,17 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path):
     more = run_script_in_process("train.py", f"resume={run_dir}", "collector.total_frames=296")
     assert more.returncode == 0, more.stderr[-2000:]
     assert json.loads((run_dir / "summary.json").read_text())["frames"] == 296
+    # More episodes than pixel envs built at once are played in turns (each env a renderer).
+    monkeypatch.setattr(build, "PIXEL_ENVS_AT_ONCE", 2)
+    sizes, build_env = [], build.build_env
+    monkeypatch.setattr(
+        build,
+        "build_env",
+        lambda cfg, seed, n, *rest: sizes.append(n) or build_env(cfg, seed, n, *rest),
+    )
+    result, _ = evaluate_checkpoint(run_dir, episodes=5)
+    assert sizes == [2, 2, 1] and len(result.returns) == len(result.lengths) == 5
+    assert all(1 <= length <= 50 for length in result.lengths)  # eval.max_steps=50
 
 
 @pytest.mark.slow  # a pixel run, then its video and its exported policy

@@ -51,7 +51,7 @@ from trl_cartpole.config import Config
 from trl_cartpole.env_state import EnvState
 from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, solve_threshold
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.evaluation import Evaluator, evaluate
+from trl_cartpole.evaluation import EvalResult, Evaluator, evaluate
 from trl_cartpole.exploration import make_exploration
 from trl_cartpole.files import write_text_atomic
 from trl_cartpole.history import History
@@ -176,6 +176,37 @@ def build_env(
         observation_norm=observation_norm,
         render_mode=render_mode,
     )
+
+
+# Pixel envs built at once by one evaluation: each holds its own renderer and frames (about
+# 30 MiB here: 100 at once took the final evaluation to 3.1 GiB), so more episodes are played
+# in turns of this many.
+PIXEL_ENVS_AT_ONCE = 20
+
+
+def evaluate_episodes(
+    cfg: Config,
+    actor: TensorDictModuleBase,
+    seed: int,
+    episodes: int,
+    observation_norm: dict[str, list[float]] | None = None,
+    epsilon: float = 0.0,
+) -> EvalResult:
+    """``episodes`` episodes of ``actor`` (:func:`trl_cartpole.evaluation.evaluate`), one per
+    env of ``cfg.env`` seeded ``seed`` onward; envs from pixels are built and played
+    ``PIXEL_ENVS_AT_ONCE`` at a time, the turn starting at episode ``i`` seeded ``seed + i``."""
+    at_once = PIXEL_ENVS_AT_ONCE if cfg.env.from_pixels else episodes
+    result = EvalResult()
+    for start in range(0, episodes, at_once):
+        env = build_env(cfg, seed + start, min(at_once, episodes - start), observation_norm)
+        try:
+            turn = evaluate(actor, env, cfg.eval.max_steps, epsilon)
+        finally:
+            close_env(env)
+        result.returns += turn.returns
+        result.lengths += turn.lengths
+        result.initial_values += turn.initial_values
+    return result
 
 
 def run_memory_need(cfg: Config, env: TransformedEnv) -> MemoryNeed:

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from torchrl.envs import TransformedEnv
 from torchrl.modules import DistributionalQValueActor, QValueActor
 
-from trl_cartpole.build import build_actor, build_env
+from trl_cartpole.build import build_actor, build_env, evaluate_episodes
 from trl_cartpole.checkpoint import (
     load_policy,
     read_checkpoint_config,
@@ -25,7 +25,7 @@ from trl_cartpole.checkpoint import (
 from trl_cartpole.config import Config
 from trl_cartpole.console import quiet_libraries
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.evaluation import EvalResult, evaluate
+from trl_cartpole.evaluation import EvalResult
 
 __all__ = ["TrainedPolicy", "evaluate_checkpoint", "load_trained_policy", "policy_checkpoint"]
 
@@ -93,7 +93,11 @@ def evaluate_checkpoint(
 
     Returns the result and the stored config as a dict.
     """
-    trained = load_trained_policy(checkpoint, num_envs=episodes, seed=seed)
-    result = evaluate(trained.actor, trained.env, trained.cfg.eval.max_steps, epsilon)
+    trained = load_trained_policy(checkpoint, num_envs=1, seed=seed)  # the actor, its config
     trained.env.close()
-    return result, OmegaConf.to_container(OmegaConf.structured(trained.cfg))
+    cfg = trained.cfg
+    seed = cfg.seed + 2 * cfg.eval.seed_offset if seed is None else seed
+    norm = read_observation_norm(trained.checkpoint)
+    with quiet_libraries():
+        result = evaluate_episodes(cfg, trained.actor, seed, episodes, norm, epsilon)
+    return result, OmegaConf.to_container(OmegaConf.structured(cfg))

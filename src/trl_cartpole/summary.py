@@ -19,9 +19,9 @@ import tensordict
 import torch
 import torchrl
 
-from trl_cartpole.build import REPLAY_FILES, Components, build_env, run_title
+from trl_cartpole.build import REPLAY_FILES, Components, evaluate_episodes, run_title
 from trl_cartpole.errors import TrainingFailed
-from trl_cartpole.evaluation import EvalResult, Evaluator, evaluate
+from trl_cartpole.evaluation import EvalResult, Evaluator
 from trl_cartpole.files import write_json_atomic
 from trl_cartpole.plotting import plot_dashboard, plot_durations
 
@@ -46,11 +46,13 @@ def finish(run: Components) -> dict[str, Any]:
     if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
         run.live_plot.flush()
     evaluator.load_best()
-    final_env = build_env(
-        cfg, cfg.seed + 2 * cfg.eval.seed_offset, cfg.eval.final_episodes, run.observation_norm
+    final = evaluate_episodes(
+        cfg,
+        run.actor,
+        cfg.seed + 2 * cfg.eval.seed_offset,
+        cfg.eval.final_episodes,
+        run.observation_norm,
     )
-    final = evaluate(run.actor, final_env, cfg.eval.max_steps)
-    final_env.close()
     run.metrics.log({"eval/final_return_mean": final.mean}, progress.frames)
     run.metrics.close()
     if cfg.logger.plots:
