@@ -157,6 +157,11 @@ def validate(cfg: Config) -> Config:
             "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
         ),
         (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
+        (
+            cfg.env.max_episode_steps is None or cfg.env.max_episode_steps >= 1,
+            f"env.max_episode_steps={cfg.env.max_episode_steps} must be >= 1 (or null for the "
+            "env's registered limit)",
+        ),
         (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
         (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
         (cfg.env.pixels_pool >= 1, f"env.pixels_pool={cfg.env.pixels_pool} must be >= 1"),
