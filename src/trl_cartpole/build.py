@@ -53,7 +53,7 @@ from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, s
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.evaluation import EvalResult, Evaluator, evaluate
 from trl_cartpole.exploration import make_exploration
-from trl_cartpole.files import write_text_atomic
+from trl_cartpole.files import free_bytes, write_text_atomic
 from trl_cartpole.history import History
 from trl_cartpole.learner import Learner
 from trl_cartpole.loggers import MetricsLog, make_logger, truncate_csv_metrics
@@ -63,7 +63,6 @@ from trl_cartpole.memory_needs import (
     available_memory_bytes,
     check_buffer_fits_on_disk,
     check_fits_in_memory,
-    free_disk_bytes,
     memory_need,
 )
 from trl_cartpole.models import make_q_actor_for_env
@@ -394,7 +393,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
             check_fits_in_memory(need, available_memory_bytes(), buffer_in_memory=not in_files)
             if in_files:
                 files = Path(cfg.run_dir) / REPLAY_FILES
-                check_buffer_fits_on_disk(need, files, free_disk_bytes(files))
+                check_buffer_fits_on_disk(need, files, free_bytes(files))
         if cfg.collector.backend == "ray" and cfg.collector.ray_address is not None:
             check_ray_address(cfg.collector.ray_address)  # before anything is written
         run_dir = prepare_run_dir(cfg.run_dir)

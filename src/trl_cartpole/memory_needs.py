@@ -11,7 +11,6 @@ networks, the gradient, Adam's two moments; AMSGrad keeps a sixth copy).
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +26,6 @@ __all__ = [
     "check_buffer_fits_on_disk",
     "check_fits_in_memory",
     "disk_bytes_under",
-    "free_disk_bytes",
     "memory_need",
 ]
 
@@ -104,14 +102,6 @@ def check_fits_in_memory(
         + ("buffer.size, set buffer.storage=memmap, or lower " if buffer_in_memory else "")
         + "network.hidden_sizes"
     )
-
-
-def free_disk_bytes(path: Path) -> int:
-    """Free bytes on the filesystem that holds ``path`` (or its nearest existing parent)."""
-    path = Path(path).absolute()
-    while not path.exists():
-        path = path.parent
-    return shutil.disk_usage(path).free
 
 
 def disk_bytes_under(directory: Path) -> int:
