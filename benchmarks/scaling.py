@@ -37,7 +37,7 @@ from torchrl.envs import EnvBase, ParallelEnv
 from benchmarks.harness import CONFIG_DIR, markdown_table, run_presets
 from trl_cartpole.build import build_actor, build_env, build_exploration
 from trl_cartpole.cli import compose_config
-from trl_cartpole.collectors import (
+from trl_cartpole.parts.collectors import (
     is_distributed,
     make_collector,
     needs_weight_sync,

@@ -30,7 +30,7 @@ from itertools import chain, pairwise
 import torch
 
 from benchmarks.harness import CONFIG_DIR, VARIANT_PRESETS
-from trl_cartpole.buffers import extend_with_batch, sample_minibatches
+from trl_cartpole.parts.replay import extend_with_batch, sample_minibatches
 from trl_cartpole.build import (
     build_actor,
     build_env,
@@ -41,8 +41,8 @@ from trl_cartpole.build import (
 )
 from trl_cartpole.cli import compose_config
 from trl_cartpole.config import to_config
-from trl_cartpole.losses import priority_from_loss
-from trl_cartpole.update import make_optimizer
+from trl_cartpole.parts.losses import priority_from_loss
+from trl_cartpole.parts.optim import make_optimizer
 from trl_cartpole.validation import validate
 
 SEEDS, OUT = [0], "runs/update_cost"

@@ -19,7 +19,7 @@ from tensordict.nn import TensorDictSequential
 
 from trl_cartpole.build import build_actor, build_env, build_exploration
 from trl_cartpole.cli import compose_config
-from trl_cartpole.collectors import (
+from trl_cartpole.parts.collectors import (
     make_collector,
     needs_weight_sync,
     shutdown_collector,

@@ -11,9 +11,9 @@ from torchrl.modules import DistributionalQValueActor
 from torchrl.objectives import DistributionalDQNLoss
 
 from trl_cartpole.config import NetworkConfig
-from trl_cartpole.envs import make_env
-from trl_cartpole.losses import make_dqn_loss
-from trl_cartpole.models import expected_action_values, make_q_actor_for_env
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.losses import make_dqn_loss
+from trl_cartpole.parts.models import expected_action_values, make_q_actor_for_env
 
 SUPPORT = torch.tensor([0.0, 1.0, 2.0])  # z, delta_z = 1
 P_S = torch.tensor([[0.25, 1 / 3], [0.25, 1 / 3], [0.5, 1 / 3]])  # p(s, .): [atoms, actions]
@@ -79,7 +79,7 @@ def test_distributions_sum_to_one_and_the_greedy_action_maximises_their_mean():
 
 def test_tied_expected_values_give_one_greedy_action():
     """TorchRL marks every tied maximum in a one-hot action; a two-hot one broke the C51 loss."""
-    from trl_cartpole.models import make_q_actor
+    from trl_cartpole.parts.models import make_q_actor
 
     env = make_env("CartPole-v1", seed=0)
     support = torch.linspace(0, 100, 51)

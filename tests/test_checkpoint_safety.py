@@ -20,9 +20,9 @@ import pytest
 import torch
 from torchrl.checkpoint import Checkpoint
 
-from trl_cartpole.compat import gym_env
+from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.env_state import env_snapshot, restore_env_snapshot
-from trl_cartpole.envs import make_env
+from trl_cartpole.parts.env import make_env
 from trl_cartpole.pickle_scan import executable_opcode
 
 from .conftest import ROOT, run_script, run_script_in_process

@@ -1,4 +1,4 @@
-"""Every private TorchRL name ``trl_cartpole.compat`` reads: each test fails where it moved.
+"""Every private TorchRL name ``trl_cartpole.parts.compat`` reads: each test fails where it moved.
 
 These tests build the real TorchRL objects and check that the private attribute is where the
 compatibility module reads it, and that reading and writing it does what the callers rely on.
@@ -13,11 +13,11 @@ from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.modules import DistributionalQValueActor
 
-from trl_cartpole import compat
-from trl_cartpole.buffers import extend_with_batch, make_replay_buffer
-from trl_cartpole.collectors import make_collector
-from trl_cartpole.envs import make_env
-from trl_cartpole.models import make_q_actor
+from trl_cartpole.parts import compat
+from trl_cartpole.parts.replay import extend_with_batch, make_replay_buffer
+from trl_cartpole.parts.collectors import make_collector
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.models import make_q_actor
 
 
 def test_carrier_of_is_the_next_step_of_the_in_process_collector():

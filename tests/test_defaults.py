@@ -13,15 +13,15 @@ import pytest
 import torch
 from torchrl.objectives import HardUpdate
 
-from trl_cartpole.buffers import make_replay_buffer
+from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.build import build_actor, build_env, build_exploration, build_replay_buffer
-from trl_cartpole.collectors import make_collector
+from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.config import Config
-from trl_cartpole.envs import make_env
-from trl_cartpole.exploration import make_exploration
-from trl_cartpole.losses import make_dqn_loss, make_target_updater
-from trl_cartpole.models import ACTIVATIONS, make_q_actor
-from trl_cartpole.update import make_optimizer, make_update
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.exploration import make_exploration
+from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
+from trl_cartpole.parts.optim import make_optimizer, make_update
 
 # factory -> {argument: config field}
 FACTORY_FIELDS = {

@@ -15,7 +15,7 @@ import torch
 
 from trl_cartpole.checkpoint import read_observation_norm
 from trl_cartpole.config import EnvConfig, NetworkConfig, to_config
-from trl_cartpole.envs import (
+from trl_cartpole.parts.env import (
     MIN_OBSERVATION_SCALE,
     estimate_observation_norm,
     make_env,
@@ -25,7 +25,7 @@ from trl_cartpole.envs import (
 )
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.evaluation import evaluate
-from trl_cartpole.models import make_q_actor, make_q_actor_for_env
+from trl_cartpole.parts.models import make_q_actor, make_q_actor_for_env
 from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.training import train
 

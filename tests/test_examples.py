@@ -12,7 +12,7 @@ from torchrl.data import TensorDictReplayBuffer
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
-from trl_cartpole.models import DuelingHead
+from trl_cartpole.parts.models import DuelingHead
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

@@ -17,7 +17,7 @@ from trl_cartpole.checkpoint import read_observation_norm
 from trl_cartpole.cli import compose_config
 from trl_cartpole.commands import export as export_command
 from trl_cartpole.config import NetworkConfig
-from trl_cartpole.envs import make_env
+from trl_cartpole.parts.env import make_env
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.export import (
     export_onnx,
@@ -25,7 +25,7 @@ from trl_cartpole.export import (
     greedy_q_network,
     greedy_q_network_of,
 )
-from trl_cartpole.models import expected_action_values, make_q_actor_for_env
+from trl_cartpole.parts.models import expected_action_values, make_q_actor_for_env
 from trl_cartpole.policy_io import evaluate_checkpoint, load_trained_policy
 
 ort = pytest.importorskip("onnxruntime")

@@ -14,13 +14,13 @@ from torchrl.envs import RewardSum, StepCounter, TransformedEnv
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
-from trl_cartpole.buffers import make_replay_buffer, sample_minibatches
-from trl_cartpole.collectors import make_collector
-from trl_cartpole.envs import make_env, solve_threshold
+from trl_cartpole.parts.replay import make_replay_buffer, sample_minibatches
+from trl_cartpole.parts.collectors import make_collector
+from trl_cartpole.parts.env import make_env, solve_threshold
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.exploration import ExponentialEGreedyModule, make_exploration
-from trl_cartpole.losses import FusedSoftUpdate, make_dqn_loss, make_target_updater
-from trl_cartpole.models import make_q_actor
+from trl_cartpole.parts.exploration import ExponentialEGreedyModule, make_exploration
+from trl_cartpole.parts.losses import FusedSoftUpdate, make_dqn_loss, make_target_updater
+from trl_cartpole.parts.models import make_q_actor
 
 
 @pytest.fixture(scope="module")

@@ -43,8 +43,8 @@ def _comparable(summary: dict) -> dict:
 
 def _weights(checkpoint: Path) -> dict[str, torch.Tensor]:
     from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
-    from trl_cartpole.envs import make_env
-    from trl_cartpole.models import make_q_actor_for_env
+    from trl_cartpole.parts.env import make_env
+    from trl_cartpole.parts.models import make_q_actor_for_env
 
     cfg = read_checkpoint_config(checkpoint)
     actor = make_q_actor_for_env(make_env(cfg.env.id), cfg.network)
@@ -503,8 +503,8 @@ def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluat
 
 def test_a_policy_checkpoint_loaded_into_another_network_shape_is_refused(finished_run):
     from trl_cartpole.checkpoint import load_policy
-    from trl_cartpole.envs import make_env
-    from trl_cartpole.models import make_q_actor
+    from trl_cartpole.parts.env import make_env
+    from trl_cartpole.parts.models import make_q_actor
 
     env = make_env("CartPole-v1")
     other = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[64])

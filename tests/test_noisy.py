@@ -7,11 +7,11 @@ from tensordict import TensorDict
 from torchrl.envs import ExplorationType, set_exploration_type
 from torchrl.modules import NoisyLinear
 
-from trl_cartpole.collectors import make_collector
-from trl_cartpole.envs import make_env
-from trl_cartpole.losses import make_dqn_loss
-from trl_cartpole.models import make_q_actor, reset_network_noise
-from trl_cartpole.update import make_optimizer, make_update
+from trl_cartpole.parts.collectors import make_collector
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.losses import make_dqn_loss
+from trl_cartpole.parts.models import make_q_actor, reset_network_noise
+from trl_cartpole.parts.optim import make_optimizer, make_update
 
 
 def _noisy_actor(env):

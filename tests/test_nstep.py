@@ -8,8 +8,8 @@ from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.buffers import make_replay_buffer
-from trl_cartpole.losses import make_dqn_loss
+from trl_cartpole.parts.replay import make_replay_buffer
+from trl_cartpole.parts.losses import make_dqn_loss
 
 GAMMA, N = 0.5, 3
 

@@ -13,8 +13,8 @@ from trl_cartpole import build
 from trl_cartpole.build import build_env, run_memory_need
 from trl_cartpole.config import to_config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.models import make_q_actor_for_env
-from trl_cartpole.pixels import CropFrame, PoolImage
+from trl_cartpole.parts.models import make_q_actor_for_env
+from trl_cartpole.parts.pixels import CropFrame, PoolImage
 from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.validation import validate
 

@@ -10,9 +10,9 @@ from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.buffers import annealed_beta, make_replay_buffer
-from trl_cartpole.losses import make_dqn_loss, priority_from_loss
-from trl_cartpole.update import make_update
+from trl_cartpole.parts.replay import annealed_beta, make_replay_buffer
+from trl_cartpole.parts.losses import make_dqn_loss, priority_from_loss
+from trl_cartpole.parts.optim import make_update
 
 ALPHA, BETA, EPS, GAMMA = 0.5, 0.4, 1e-6, 0.5
 W = torch.tensor([[1.0, -1.0], [0.5, 2.0]])  # Q(s) = W s: [*B, 2] -> [*B, 2]

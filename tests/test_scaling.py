@@ -19,7 +19,7 @@ from tensordict.nn import TensorDictSequential
 import trl_cartpole
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
 from trl_cartpole.checkpoint import resume_config
-from trl_cartpole.collectors import (
+from trl_cartpole.parts.collectors import (
     default_ray_init_config,
     make_collector,
     needs_weight_sync,
@@ -27,10 +27,10 @@ from trl_cartpole.collectors import (
     worker_env_constructors,
 )
 from trl_cartpole.config import to_config
-from trl_cartpole.envs import make_env_from_config
+from trl_cartpole.parts.env import make_env_from_config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.exploration import make_exploration
-from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.parts.exploration import make_exploration
+from trl_cartpole.parts.models import make_q_actor_for_env
 from trl_cartpole.sweeps import expand_grid
 from trl_cartpole.training import train
 from trl_cartpole.validation import validate
@@ -430,10 +430,10 @@ _SHIPPED_PACKAGE = """
 import json, sys
 from pathlib import Path
 import ray, trl_cartpole
-from trl_cartpole.collectors import make_collector, worker_env_constructors
+from trl_cartpole.parts.collectors import make_collector, worker_env_constructors
 from trl_cartpole.config import Config
-from trl_cartpole.models import make_q_actor_for_env
-from trl_cartpole.envs import make_env_from_config
+from trl_cartpole.parts.models import make_q_actor_for_env
+from trl_cartpole.parts.env import make_env_from_config
 
 cfg = Config()
 cfg.env.num_envs, cfg.collector.workers = 2, 2
@@ -642,7 +642,7 @@ def test_a_killed_ray_actor_stops_the_run_with_a_checkpoint_that_resumes(tmp_pat
 
 _START_LOCAL_RAY = """
 import sys, ray
-from trl_cartpole.collectors import guard_local_ray_with_a_token_of_its_own, default_ray_init_config
+from trl_cartpole.parts.collectors import guard_local_ray_with_a_token_of_its_own, default_ray_init_config
 guard_local_ray_with_a_token_of_its_own()
 ray.init(**default_ray_init_config(None, 1))
 print(ray.get_runtime_context().gcs_address, flush=True)

@@ -10,7 +10,7 @@ from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.losses import make_dqn_loss
+from trl_cartpole.parts.losses import make_dqn_loss
 
 
 def _linear_actor() -> QValueActor:

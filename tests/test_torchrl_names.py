@@ -32,7 +32,7 @@ from trl_cartpole import (
     make_replay_buffer,
     make_target_updater,
 )
-from trl_cartpole.envs import GYM_WRAPPER_KEYWORDS
+from trl_cartpole.parts.env import GYM_WRAPPER_KEYWORDS
 
 
 @pytest.fixture(scope="module")

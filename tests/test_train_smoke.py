@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from trl_cartpole.checkpoint import load_policy
-from trl_cartpole.envs import make_env
-from trl_cartpole.models import make_q_actor
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.training import train
 
 from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script

@@ -9,8 +9,8 @@ from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.losses import make_dqn_loss
-from trl_cartpole.update import make_optimizer, make_update
+from trl_cartpole.parts.losses import make_dqn_loss
+from trl_cartpole.parts.optim import make_optimizer, make_update
 
 
 def _setup(scale: float = 100.0):

@@ -12,9 +12,9 @@ from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
 from trl_cartpole.config import flat_fields, to_config
-from trl_cartpole.envs import make_env
-from trl_cartpole.losses import make_dqn_loss
-from trl_cartpole.models import make_q_actor, make_q_network
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.losses import make_dqn_loss
+from trl_cartpole.parts.models import make_q_actor, make_q_network
 from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.training import train
 

@@ -34,9 +34,29 @@ from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
-from trl_cartpole.buffers import make_replay_buffer
 from trl_cartpole.checkpoint import Checkpointer, read_observation_norm
-from trl_cartpole.collectors import (
+from trl_cartpole.config import Config
+from trl_cartpole.configured_envs import (
+    estimate_observation_norm,
+    make_env_from_config,
+    worker_env_constructors,
+)
+from trl_cartpole.env_ids import solve_threshold
+from trl_cartpole.env_state import EnvState
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.evaluation import EvalResult, Evaluator, evaluate
+from trl_cartpole.files import free_bytes, write_text_atomic
+from trl_cartpole.history import History
+from trl_cartpole.learner import Learner
+from trl_cartpole.loggers import MetricsLog, make_logger, truncate_csv_metrics
+from trl_cartpole.memory_needs import (
+    MemoryNeed,
+    available_memory_bytes,
+    check_buffer_fits_on_disk,
+    check_fits_in_memory,
+    memory_need,
+)
+from trl_cartpole.parts.collectors import (
     RAY_ACTOR_OPTIONS,
     check_ray_address,
     is_distributed,
@@ -45,32 +65,17 @@ from trl_cartpole.collectors import (
     ray_placement,
     shutdown_collector,
     whole_batches,
-    worker_env_constructors,
 )
-from trl_cartpole.config import Config
-from trl_cartpole.env_state import EnvState
-from trl_cartpole.envs import estimate_observation_norm, make_env_from_config, solve_threshold
-from trl_cartpole.errors import ConfigError
-from trl_cartpole.evaluation import EvalResult, Evaluator, evaluate
-from trl_cartpole.exploration import make_exploration
-from trl_cartpole.files import free_bytes, write_text_atomic
-from trl_cartpole.history import History
-from trl_cartpole.learner import Learner
-from trl_cartpole.loggers import MetricsLog, make_logger, truncate_csv_metrics
-from trl_cartpole.losses import make_dqn_loss, make_target_updater
-from trl_cartpole.memory_needs import (
-    MemoryNeed,
-    available_memory_bytes,
-    check_buffer_fits_on_disk,
-    check_fits_in_memory,
-    memory_need,
-)
-from trl_cartpole.models import make_q_actor_for_env
+from trl_cartpole.parts.exploration import make_exploration
+from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
+from trl_cartpole.parts.optim import make_optimizer, make_update
+from trl_cartpole.parts.pixels import PIXELS_KEY
+from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.plotting import LiveDurationPlot
 from trl_cartpole.progress import Progress
 from trl_cartpole.progress_bar import ProgressBar
 from trl_cartpole.run_lock import RunLock
-from trl_cartpole.update import make_optimizer, make_update
 
 __all__ = [
     "Components",
@@ -213,14 +218,43 @@ def run_memory_need(cfg: Config, env: TransformedEnv) -> MemoryNeed:
     return memory_need(
         env,
         cfg.buffer.size,
-        partial(make_q_actor_for_env, env, cfg.network),
+        partial(build_actor, cfg, env),
         amsgrad=cfg.optim.amsgrad,
     )
 
 
-def build_actor(cfg: Config, env: TransformedEnv) -> QValueActor | DistributionalQValueActor:
-    """The Q-value actor of ``cfg.network``, sized from ``env``'s specs."""
-    return make_q_actor_for_env(env, cfg.network, cfg.device)
+def build_actor(
+    cfg: Config, env: EnvBase, device: str | None = None
+) -> QValueActor | DistributionalQValueActor:
+    """The Q-value actor of ``cfg.network``, sized from ``env``'s specs (on ``cfg.device``
+    unless ``device`` is given)."""
+    network = cfg.network
+    support = (
+        torch.linspace(network.v_min, network.v_max, network.atoms)
+        if network.distributional
+        else None
+    )
+    cnn = network.torso == "cnn"
+    return make_q_actor(
+        env.observation_spec,
+        env.action_spec,
+        in_keys=[PIXELS_KEY] if cnn else ["observation"],
+        torso=network.torso,
+        cnn_kwargs={
+            "channels": network.cnn_channels,
+            "kernel_sizes": network.cnn_kernels,
+            "strides": network.cnn_strides,
+        }
+        if cnn
+        else None,
+        num_cells=network.hidden_sizes,
+        activation_class=ACTIVATIONS[network.activation],
+        head=network.head,
+        device=cfg.device if device is None else device,
+        noisy=network.noisy,
+        noisy_std=network.noisy_std,
+        support=support,
+    )
 
 
 def build_exploration(cfg: Config, env: TransformedEnv) -> EGreedyModule | None:
@@ -260,12 +294,28 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         batch_size=buffer.batch_size,
         device=cfg.device,
         prioritized=buffer.prioritized,
-        alpha=buffer.alpha,
-        beta=buffer.beta,
-        eps=buffer.priority_eps,
+        **(
+            {
+                "alpha": torchrl_priority_exponent(buffer.alpha, cfg.network.distributional),
+                "beta": buffer.beta,
+                "eps": buffer.priority_eps,
+            }
+            if buffer.prioritized
+            else {}
+        ),
         n_steps=buffer.n_steps,
-        gamma=cfg.loss.gamma,
+        **({"gamma": cfg.loss.gamma} if buffer.n_steps > 1 else {}),
     )
+
+
+def torchrl_priority_exponent(alpha: float, distributional: bool) -> float:
+    """TorchRL's ``alpha`` for Schaul et al.'s exponent ``alpha`` on |delta| (``buffer.alpha``).
+
+    TorchRL stores ``(td_error + eps) ** alpha``, and ``DQNLoss`` writes ``td_error`` =
+    delta ** 2, so |delta| ** alpha is (delta ** 2) ** (alpha / 2). ``DistributionalDQNLoss``
+    writes the cross-entropy, Rainbow's priority itself (Hessel et al. 2018), so C51 keeps it.
+    """
+    return alpha if distributional else alpha / 2
 
 
 def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayBuffer) -> Learner:

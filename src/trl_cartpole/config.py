@@ -40,7 +40,7 @@ __all__ = [
 @dataclass
 class EnvConfig:
     # Any Gymnasium id with a vector observation and discrete actions: a registered id, or
-    # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.envs.
+    # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.parts.env.
     id: str = "CartPole-v1"  # a Gymnasium id (vector observation, discrete actions), or module:Id
     imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
     max_episode_steps: int | None = None  # null: Gymnasium's registered TimeLimit
@@ -62,7 +62,7 @@ class AlgoConfig:
 
 @dataclass
 class NetworkConfig:
-    head: str = "plain"  # plain | dueling (Wang et al. 2016), see trl_cartpole.models.HEADS
+    head: str = "plain"  # plain | dueling (Wang et al. 2016), see trl_cartpole.parts.models.HEADS
     torso: str = "mlp"  # mlp (TorchRL MLP) | cnn (TorchRL ConvNet, then the MLP; for pixels)
     cnn_channels: list[int] = field(default_factory=lambda: [16, 32, 32])  # cnn: channels
     cnn_kernels: list[int] = field(default_factory=lambda: [5, 5, 5])  # cnn: kernel sizes

@@ -23,7 +23,7 @@ setting is read from the command that loads, never from the checkpoint. Gymnasiu
 env never reset, so they are reset even then. The training envs of worker processes or Ray
 actors (``env=None``) are not saved: the resumed workers start new episodes.
 
-The private TorchRL names these live under are read through :mod:`trl_cartpole.compat`.
+The private TorchRL names these live under are read through :mod:`trl_cartpole.parts.compat`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase, GymWrapper, TransformedEnv
 
-from trl_cartpole.compat import (
+from trl_cartpole.parts.compat import (
     autoreset_state,
     carrier_of,
     gym_env,

@@ -34,9 +34,9 @@ from torchrl.envs import (
 from torchrl.envs.transforms import VecGymEnvTransform
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
-from trl_cartpole.compat import gym_env
-from trl_cartpole.envs import OBSERVATION_KEY
-from trl_cartpole.models import expected_action_values
+from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.parts.env import OBSERVATION_KEY
+from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.progress import Progress, resident_mb
 
 __all__ = [

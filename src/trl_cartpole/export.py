@@ -26,7 +26,7 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_atomic
-from trl_cartpole.pixels import PIXELS_KEY
+from trl_cartpole.parts.pixels import PIXELS_KEY
 from trl_cartpole.policy_io import load_trained_policy
 
 __all__ = [
@@ -139,7 +139,7 @@ def _q_network(actor: nn.Module) -> nn.Module:
     if list(first.in_keys) not in (["observation"], [PIXELS_KEY]):
         raise ConfigError(
             f"the actor's first module reads {list(first.in_keys)}; export expects a Q-actor "
-            "reading 'observation' or 'pixels' (trl_cartpole.models.make_q_actor)"
+            "reading 'observation' or 'pixels' (trl_cartpole.parts.models.make_q_actor)"
         )
     return first.module
 

@@ -3,7 +3,8 @@
 One call of :meth:`Learner.step` is the "update" part of one DQN iteration (Mnih et al. 2015,
 algorithm 1): ``count`` minibatches from the replay buffer, each one gradient step on the TD
 loss (``update``: loss, backward, clipping, optimizer, new network noise), then the new
-priorities |delta| for a prioritized buffer (Schaul et al. 2016) and one step of the target
+priorities for a prioritized buffer, written TorchRL's way (``update_tensordict_priority``:
+the loss's ``td_error``, Schaul et al. 2016) and one step of the target
 network's updater (``SoftUpdate`` or ``HardUpdate``).
 """
 
@@ -16,13 +17,12 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
+from torchrl.data import TensorDictReplayBuffer
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss
 from torchrl.objectives.utils import TargetNetUpdater
 
-from trl_cartpole.buffers import sample_minibatches
 from trl_cartpole.errors import TrainingFailed
-from trl_cartpole.losses import priority_from_loss
+from trl_cartpole.parts.replay import is_prioritized, sample_minibatches
 from trl_cartpole.progress import Progress
 
 __all__ = ["Learner", "UpdateReport"]
@@ -55,7 +55,7 @@ class Learner:
         self.buffer, self.loss, self.target_updater = buffer, loss, target_updater
         self.optimizer = optimizer  # (stepped inside ``update``; saved with the training state)
         self.update = update  # make_update(...): one gradient step, possibly torch.compile'd
-        self.prioritized = isinstance(buffer, TensorDictPrioritizedReplayBuffer)
+        self.prioritized = is_prioritized(buffer)
         self.last_report = UpdateReport(prioritized=self.prioritized)  # of the last step
 
     def step(self, count: int, progress: Progress) -> UpdateReport:
@@ -64,7 +64,7 @@ class Learner:
         for sample in sample_minibatches(self.buffer, count):  # sample: [batch_size]
             metrics = self.update(sample)
             if self.prioritized:
-                self.buffer.update_priority(sample["index"], priority_from_loss(self.loss, sample))
+                self.buffer.update_tensordict_priority(sample)  # the loss wrote "td_error"
             self.target_updater.step()
             progress.updates += 1
             loss = metrics["loss"].item()

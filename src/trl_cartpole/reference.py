@@ -82,7 +82,7 @@ def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
 
 def _resolved() -> dict[tuple[str, str], Any]:
     """Defaults that are None in a signature, as the factory resolves them."""
-    from trl_cartpole import losses
+    from trl_cartpole.parts import losses
 
     return {
         ("make_dqn_loss", "gamma"): f"{losses.DEFAULT_GAMMA} (the buffer's with `replay_buffer`)",

@@ -18,14 +18,14 @@ from typing import Any
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
-from trl_cartpole.buffers import annealed_beta, extend_with_batch
 from trl_cartpole.build import Components, build_components
-from trl_cartpole.collectors import lost_worker
 from trl_cartpole.config import Config, to_config
 from trl_cartpole.console import quiet_libraries
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.evaluation import Evaluation
-from trl_cartpole.models import expected_action_values, reset_network_noise
+from trl_cartpole.parts.collectors import lost_worker
+from trl_cartpole.parts.models import expected_action_values, reset_network_noise
+from trl_cartpole.parts.replay import annealed_beta, extend_with_batch
 from trl_cartpole.run_control import StopRequest
 from trl_cartpole.summary import finish, record_failure
 from trl_cartpole.validation import validate

@@ -32,7 +32,7 @@ __all__ = [
     "validate",
 ]
 
-# network.head and network.activation: the keys of trl_cartpole.models.HEADS and ACTIVATIONS
+# network.head and network.activation: the keys of trl_cartpole.parts.models.HEADS and ACTIVATIONS
 HEAD_NAMES = ("dueling", "plain")
 ACTIVATION_NAMES = ("elu", "gelu", "relu", "tanh")
 

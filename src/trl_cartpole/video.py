@@ -21,11 +21,11 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
-from trl_cartpole.compat import gym_env
 from trl_cartpole.console import quiet_libraries, shown_path
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.files import write_atomic
-from trl_cartpole.pixels import PIXELS_KEY
+from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.parts.pixels import PIXELS_KEY
 from trl_cartpole.policy_io import load_trained_policy
 
 __all__ = [

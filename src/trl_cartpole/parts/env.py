@@ -11,9 +11,7 @@ subclass, registered here as ``module.EnvClass``), or an id registered by a modu
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping, Sequence
-from functools import partial
 from typing import Any
 
 import gymnasium as gym
@@ -21,27 +19,21 @@ import torch
 from torchrl.envs import (
     DoubleToFloat,
     DTypeCastTransform,
-    EnvBase,
     GymWrapper,
     ObservationNorm,
     RewardSum,
-    SerialEnv,
     StepCounter,
     TransformedEnv,
 )
 
-from trl_cartpole.config import EnvConfig
 from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id, solve_threshold
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.pixels import pixel_transforms
 
 __all__ = [
     "GYM_WRAPPER_KEYWORDS",
+    "OBSERVATION_KEY",
     "check_env_fits",
-    "estimate_observation_norm",
     "make_env",
-    "make_env_from_config",
-    "make_pixel_env",
     "make_sync_vector_env",
     "resolve_env_id",
     "solve_threshold",
@@ -124,7 +116,7 @@ def make_env(
     The returned env writes ``("next", "step_count")`` and ``("next", "episode_reward")`` so the
     training loop reads episode lengths and returns off the collected batch. Gymnasium's
     TimeLimit sets ``truncated`` (not ``terminated``) at the step limit, so the TD target keeps
-    bootstrapping there. The Gymnasium env is ``trl_cartpole.compat.gym_env(env)``.
+    bootstrapping there. The Gymnasium env is ``trl_cartpole.parts.compat.gym_env(env)``.
 
     Example::
 
@@ -188,97 +180,3 @@ def make_env(
     if seed is not None:
         env.set_seed(seed)
     return env
-
-
-def make_env_from_config(
-    env_cfg: EnvConfig,
-    seed: int | None = None,
-    device: str | torch.device = "cpu",
-    num_envs: int | None = None,
-    observation_norm: Mapping[str, Sequence[float]] | None = None,
-    render_mode: str | None = None,
-) -> TransformedEnv:
-    """:func:`make_env` for the ``env`` section of a config (``num_envs`` overrides its own).
-
-    ``observation_norm`` must be given when ``env_cfg.normalize_observations`` is on: the
-    statistics belong to a run (:func:`estimate_observation_norm`, stored in its checkpoints).
-    """
-    if env_cfg.normalize_observations and observation_norm is None:
-        raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
-    if env_cfg.from_pixels:
-        if render_mode not in (None, "rgb_array"):
-            raise ConfigError(
-                f"render_mode={render_mode!r}: a policy from pixels plays on rendered frames "
-                "(rgb_array); write a file instead (output=x.gif)"
-            )
-        return make_pixel_env(env_cfg, seed, device, num_envs)
-    return make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports),
-        device,
-        seed=seed,
-        max_episode_steps=env_cfg.max_episode_steps,
-        num_envs=env_cfg.num_envs if num_envs is None else num_envs,
-        render_mode=render_mode,
-        observation_norm=observation_norm if env_cfg.normalize_observations else None,
-    )
-
-
-def make_pixel_env(
-    env_cfg: EnvConfig,
-    seed: int | None = None,
-    device: str | torch.device = "cpu",
-    num_envs: int | None = None,
-) -> EnvBase:
-    """The env of ``env_cfg`` seen through its rendered frames only (``trl_cartpole.pixels``).
-
-    One env is ``make_env(..., from_pixels=True, pixels_only=True)`` plus the pixel transforms:
-    its only observation is ``"pixels"`` ``[frames, h, w]`` uint8. Gymnasium renders one env
-    at a time, so ``num_envs > 1`` is TorchRL's ``SerialEnv`` of such envs, seeded ``seed``,
-    ``seed + 1``, ... (batch ``[num_envs]``).
-    """
-    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
-    count = env_cfg.num_envs if num_envs is None else num_envs
-    build = partial(_one_pixel_env, env_cfg, device)
-    env = build() if count == 1 else SerialEnv(count, build, device=device)
-    if seed is not None:
-        env.set_seed(seed)
-    return env
-
-
-def _one_pixel_env(env_cfg: EnvConfig, device: str | torch.device) -> TransformedEnv:
-    env = make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports),
-        device,
-        max_episode_steps=env_cfg.max_episode_steps,
-        from_pixels=True,
-        pixels_only=True,
-    )
-    for transform in pixel_transforms(
-        env_cfg.pixels_crop, env_cfg.pixels_pool, env_cfg.pixels_frames
-    ):
-        env = env.append_transform(transform)
-    return env
-
-
-def estimate_observation_norm(env_cfg: EnvConfig, seed: int) -> dict[str, list[float]]:
-    """Mean and std per observation feature over ``env_cfg.normalization_frames`` random frames.
-
-    TorchRL's ``ObservationNorm.init_stats`` plays uniform random actions in one env; the torch
-    RNG is forked, so estimating does not shift the run's random numbers. The scale is floored
-    at ``MIN_OBSERVATION_SCALE``. Returns ``{"loc": [...], "scale": [...]}`` (JSON-ready).
-    """
-    env = make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports),
-        seed=seed,
-        max_episode_steps=env_cfg.max_episode_steps,
-    )
-    norm = ObservationNorm(in_keys=[OBSERVATION_KEY], standard_normal=True)
-    env.append_transform(norm)
-    with torch.random.fork_rng():
-        torch.manual_seed(seed)
-        norm.init_stats(num_iter=env_cfg.normalization_frames, reduce_dim=0, cat_dim=0)
-    env.close()
-    return {
-        "loc": norm.loc.tolist(),  # [obs_dim]
-        "scale": norm.scale.clamp_min(MIN_OBSERVATION_SCALE).tolist(),  # [obs_dim]
-    }

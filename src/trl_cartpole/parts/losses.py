@@ -26,26 +26,25 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
-from trl_cartpole.buffers import DEFAULT_GAMMA, N_STEP_GAMMA_KEY, n_step_gamma
-from trl_cartpole.config import LossConfig
+from trl_cartpole.parts.replay import DEFAULT_GAMMA, N_STEP_GAMMA_KEY, n_step_gamma
 
 __all__ = [
     "FusedSoftUpdate",
     "check_discounts",
     "make_dqn_loss",
     "make_target_updater",
-    "priority_from_loss",
 ]
 
-# The default config's loss section: one set of defaults (tests/test_defaults.py).
-DEFAULT_LOSS_FUNCTION = LossConfig.loss_function
-DEFAULT_TAU = LossConfig.tau
-DEFAULT_HARD_UPDATE_INTERVAL = LossConfig.hard_update_interval
+# This project's defaults, the default config's loss section (tests/test_defaults.py holds
+# them together).
+DEFAULT_LOSS_FUNCTION = "smooth_l1"
+DEFAULT_TAU = 0.02
+DEFAULT_HARD_UPDATE_INTERVAL = 50
 
 
 def make_dqn_loss(
     value_network: QValueActor | DistributionalQValueActor,
-    *,
+    *args: Any,
     gamma: float | None = None,
     loss_function: str | None = None,
     delay_value: bool = True,
@@ -55,8 +54,9 @@ def make_dqn_loss(
 ) -> DQNLoss | DistributionalDQNLoss:
     """Return TorchRL's ``DQNLoss`` (or ``DistributionalDQNLoss``) for ``value_network``.
 
-    The arguments are ``DQNLoss``'s, with its meanings; ``loss_kwargs`` go to its constructor
-    (``action_space``, ``priority_key``, ``reduction``, ...). Defaults, ours beside TorchRL's:
+    The arguments are ``DQNLoss``'s, with its meanings, keywords after ``value_network`` as
+    in ``DQNLoss``; ``loss_kwargs`` go to its constructor (``action_space``, ``reduction``,
+    ...). Defaults, ours beside TorchRL's:
 
     - ``gamma``: the replay buffer's n-step discount when ``replay_buffer`` is given, else the
       default config's ``loss.gamma`` (0.995); TorchRL's value estimator defaults to 0.99. It
@@ -66,7 +66,7 @@ def make_dqn_loss(
     - ``delay_value``: ``True`` (a target network), as TorchRL.
     - ``double_dqn``: ``False``, as TorchRL.
 
-    One discount: an n-step buffer (:func:`~trl_cartpole.buffers.make_replay_buffer`) sums
+    One discount: an n-step buffer (:func:`~trl_cartpole.parts.replay.make_replay_buffer`) sums
     rewards with its own gamma, and the loss bootstraps with gamma ** k, so the two must agree.
     Pass ``replay_buffer`` and the loss takes the buffer's gamma (a different ``gamma`` raises
     ``ValueError`` naming both); without it, the loss checks the first n-step batch it sees
@@ -91,6 +91,11 @@ def make_dqn_loss(
         >>> type(loss).__name__, loss.double_dqn
         ('DQNLoss', True)
     """
+    if args:
+        raise TypeError(
+            "make_dqn_loss() takes value_network, then keywords (as DQNLoss): "
+            f"make_dqn_loss(value_network, gamma={args[0]!r})"
+        )
     buffer_gamma = None if replay_buffer is None else n_step_gamma(replay_buffer)
     if gamma is None:
         gamma = DEFAULT_GAMMA if buffer_gamma is None else buffer_gamma
@@ -152,19 +157,6 @@ def _check_first_batch_discount(loss: nn.Module, gamma: float) -> None:
     handle = loss.register_forward_pre_hook(check)
 
 
-def priority_from_loss(
-    loss: DQNLoss | DistributionalDQNLoss, batch: TensorDictBase
-) -> torch.Tensor:
-    """The new replay priority ``[B]`` of each transition of a batch the loss has just seen.
-
-    ``DQNLoss`` writes the squared TD error to ``"td_error"``; the priority is |delta|
-    (Schaul et al. 2016). ``DistributionalDQNLoss`` writes the per-sample cross-entropy, the
-    priority Rainbow uses (Hessel et al. 2018).
-    """
-    written = batch.get(loss.tensor_keys.priority).reshape(-1)  # [B]
-    return written if isinstance(loss, DistributionalDQNLoss) else written.sqrt()
-
-
 class FusedSoftUpdate(SoftUpdate):
     """TorchRL's ``SoftUpdate``, theta' <- theta' + tau (theta - theta'), in one fused call.
 
@@ -185,7 +177,7 @@ class FusedSoftUpdate(SoftUpdate):
 
 def make_target_updater(
     loss_module: DQNLoss | DistributionalDQNLoss,
-    *,
+    *args: Any,
     eps: float | None = None,
     tau: float | None = None,
     value_network_update_interval: int | None = None,
@@ -205,8 +197,10 @@ def make_target_updater(
     - ``hard_update_interval``: this project's alias (the config's ``loss.hard_update_interval``)
       for a copy on every ``hard_update_interval``-th step (3: steps 3, 6, 9), i.e.
       ``value_network_update_interval = hard_update_interval - 1``.
-    - ``kind`` (``"soft"`` or ``"hard"``): pick the updater with the default config's
-      setting for the rest (``tau=0.02``; a copy every 50 updates).
+    - ``kind`` (``"soft"`` or ``"hard"``; this project's, also taken as the second positional
+      argument, its earlier form ``make_target_updater(loss, "soft", tau=0.01)``): pick the
+      updater with the default config's setting for the rest (``tau=0.02``; a copy every 50
+      updates).
 
     With none of them: the default config's, a ``HardUpdate`` copying every 50 updates
     (``value_network_update_interval=49``). TorchRL has no default updater; its ``SoftUpdate``
@@ -223,6 +217,14 @@ def make_target_updater(
         >>> make_target_updater(loss, value_network_update_interval=3).value_network_update_interval
         3
     """
+    if args:
+        if len(args) > 1 or args[0] not in ("soft", "hard") or kind is not None:
+            raise TypeError(
+                "make_target_updater() takes loss_module, then keywords (as SoftUpdate and "
+                "HardUpdate): tau= or eps= (soft), value_network_update_interval= (hard), or "
+                "kind='soft' / 'hard'"
+            )
+        kind = args[0]
     soft = eps is not None or tau is not None
     hard = value_network_update_interval is not None or hard_update_interval is not None
     if kind not in (None, "soft", "hard"):

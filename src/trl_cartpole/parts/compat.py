@@ -40,7 +40,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torchrl.collectors import BaseCollector
 from torchrl.data import ReplayBuffer
-from torchrl.envs import EnvBase
+from torchrl.envs import Compose, EnvBase, MultiStepTransform
 from torchrl.envs.transforms import VecGymEnvTransform
 
 __all__ = [
@@ -108,20 +108,29 @@ def set_autoreset_state(env: EnvBase, memo: Any) -> bool:
 
 
 def replay_transform(buffer: ReplayBuffer) -> Any | None:
-    """The buffer's transform (a ``Compose``), or None when it has none."""
+    """The buffer's transform (a ``Compose``, or the one transform given), or None."""
     transform = buffer._transform
-    return transform if transform is not None and len(transform) else None
+    if transform is None:
+        return None
+    parts = list(transform) if isinstance(transform, Compose) else [transform]
+    return parts or None
+
+
+def _multi_step(buffer: ReplayBuffer) -> MultiStepTransform | None:
+    transform = replay_transform(buffer)
+    steps = [t for t in transform or [] if isinstance(t, MultiStepTransform)]
+    return steps[0] if steps else None
 
 
 def n_step_window(buffer: ReplayBuffer) -> TensorDictBase | None:
     """The steps an n-step buffer's ``MultiStepTransform`` holds back (None: nothing held)."""
-    transform = replay_transform(buffer)
-    return None if transform is None else getattr(transform[0], "_buffer", None)
+    transform = _multi_step(buffer)
+    return None if transform is None else transform._buffer
 
 
 def set_n_step_window(buffer: ReplayBuffer, window: TensorDict) -> None:
     """Give the buffer's ``MultiStepTransform`` the held-back steps ``window``."""
-    replay_transform(buffer)[0]._buffer = window
+    _multi_step(buffer)._buffer = window
 
 
 # --- collectors ------------------------------------------------------------------------------
@@ -227,7 +236,11 @@ class TensorMinSegmentTree(_TensorSegmentTree):
 def install_segment_trees_if_missing() -> bool:
     """Give TorchRL's ``PrioritizedSampler`` the trees above if its C++ ones did not load.
 
-    Returns whether the stand-ins were installed (False when the extension works).
+    Called once, by ``import trl_cartpole.parts`` (which every factory's import runs): where
+    TorchRL's extension loaded it changes nothing; where it did not, TorchRL's module names
+    ``SumSegmentTreeFp32``, ``MinSegmentTreeFp32`` (and ``Fp64``), ``None`` there, become these
+    stand-ins, so every ``PrioritizedSampler`` of the process works, a user's own included,
+    whichever factory ran first. Returns whether the stand-ins were installed.
     """
     from torchrl.data.replay_buffers.samplers import prioritized
 

@@ -5,15 +5,18 @@
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import torch
 from torchrl.data import TensorSpec
 from torchrl.modules import EGreedyModule
 
-from trl_cartpole.aliases import resolve_alias
+from trl_cartpole.parts.aliases import resolve_alias
 
-__all__ = ["ExponentialEGreedyModule", "make_exploration"]
+__all__ = ["SCHEDULES", "ExponentialEGreedyModule", "make_exploration"]
+
+SCHEDULES = ("linear", "exponential", "none")
 
 
 class ExponentialEGreedyModule(EGreedyModule):
@@ -82,6 +85,19 @@ def make_exploration(
     spec = resolve_alias("spec", spec, "action_spec", action_spec)
     if spec is None:
         raise TypeError("make_exploration() needs spec (the env's action_spec)")
+    for name, value in (
+        ("eps_init", eps_init),
+        ("eps_end", eps_end),
+        ("annealing_num_steps", annealing_num_steps),
+    ):
+        if isinstance(value, str) or not isinstance(value, numbers.Real):
+            hint = f"schedule={value!r}" if value in SCHEDULES else f"{name}=<a number>"
+            raise TypeError(
+                f"make_exploration(): {name}={value!r} is not a number (the arguments after "
+                f"spec are EGreedyModule's eps_init, eps_end, annealing_num_steps); write {hint}"
+            )
+    if schedule not in SCHEDULES:
+        raise ValueError(f"schedule={schedule!r}: choose one of {list(SCHEDULES)}")
     if schedule == "none":
         return None
     if device is not None:
@@ -99,4 +115,4 @@ def make_exploration(
             device=device,
             **egreedy_kwargs,
         )
-    raise ValueError(f"exploration.schedule={schedule!r}; choose 'exponential', 'linear' or 'none'")
+    raise ValueError(f"schedule={schedule!r}: choose one of {list(SCHEDULES)}")

@@ -13,7 +13,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
-from trl_cartpole.models import reset_network_noise
+from trl_cartpole.parts.models import reset_network_noise
 
 __all__ = ["make_optimizer", "make_update"]
 

@@ -22,24 +22,18 @@ import os
 import secrets
 import socket
 import sys
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from typing import Any
 
-import numpy as np
-import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
 
-from trl_cartpole.compat import close_weight_sync_schemes
-from trl_cartpole.config import Config, EnvConfig
-from trl_cartpole.envs import make_env_from_config
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.compat import close_weight_sync_schemes
 
 __all__ = [
     "BACKENDS",
-    "WorkerEnvFactory",
     "check_ray_address",
     "check_ray_resources",
     "default_ray_init_config",
@@ -51,57 +45,11 @@ __all__ = [
     "ray_placement",
     "shutdown_collector",
     "whole_batches",
-    "worker_env_constructors",
 ]
 
 BACKENDS = ("local", "ray")
 # Each Ray collector actor reserves this much of a node (TorchRL's default reserves 2 GiB).
 RAY_ACTOR_OPTIONS = {"num_cpus": 1, "memory": 512 * 1024**2}
-
-
-@dataclass(frozen=True)
-class WorkerEnvFactory:
-    """Builds one worker's envs and seeds that worker's torch RNG (its epsilon-greedy draws).
-
-    A fresh worker process (spawned, or a Ray actor) otherwise starts from a random torch seed,
-    so its exploration could not be repeated. The training process itself keeps its RNG:
-    TorchRL builds the first worker's envs there once to read their specs.
-    """
-
-    env_cfg: EnvConfig
-    env_seed: int  # the worker's envs are seeded env_seed, env_seed + 1, ...
-    rng_seed: int
-    device: str
-    observation_norm: Mapping[str, Sequence[float]] | None
-    parent_pid: int
-
-    def __call__(self) -> EnvBase:
-        if os.getpid() != self.parent_pid:  # in the worker
-            torch.manual_seed(self.rng_seed)
-        return make_env_from_config(
-            self.env_cfg, self.env_seed, self.device, observation_norm=self.observation_norm
-        )
-
-
-def worker_env_constructors(cfg: Config, observation_norm=None) -> list[WorkerEnvFactory]:
-    """One picklable env constructor per collector worker.
-
-    Worker ``i`` seeds its ``env.num_envs`` envs from ``seed + i * env.num_envs`` (no two envs
-    of a run share a seed) and its torch RNG from child ``i`` of ``SeedSequence(seed)``.
-    """
-    workers = cfg.collector.workers
-    rng_seeds = np.random.SeedSequence(cfg.seed).spawn(workers)
-    return [
-        WorkerEnvFactory(
-            cfg.env,
-            cfg.seed + worker * cfg.env.num_envs,
-            int(rng_seeds[worker].generate_state(1)[0]),
-            cfg.device,
-            observation_norm,
-            os.getpid(),
-        )
-        for worker in range(workers)
-    ]
 
 
 def is_distributed(workers: int, backend: str) -> bool:
@@ -157,7 +105,7 @@ def whole_batches(frames: int, frames_per_batch: int) -> int:
 
 
 def make_collector(
-    create_env_fn: EnvBase | Sequence[Callable[[], EnvBase]],
+    create_env_fn: EnvBase | Callable[[], EnvBase] | Sequence[Callable[[], EnvBase]],
     policy: TensorDictModuleBase,
     frames_per_batch: int = 32,
     total_frames: int = 50_000,
@@ -173,8 +121,9 @@ def make_collector(
 ) -> BaseCollector:
     """Return a collector yielding batches of ``frames_per_batch`` transitions.
 
-    ``create_env_fn`` is the env itself (one local worker: collection in this process) or one
-    env constructor per worker (picklable, each seeding its own envs). The first
+    ``create_env_fn`` is what TorchRL's ``Collector`` takes: the env itself or a callable
+    that builds it (one local worker: collection in this process), or a list of env
+    constructors, one per worker (picklable, each seeding its own envs). The first
     ``init_random_frames`` frames come from the env's uniform random policy. The policy runs
     under ``ExplorationType.RANDOM``, so epsilon-greedy is active. A batch is ``[T]`` or
     ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single envs) for a
@@ -200,7 +149,7 @@ def make_collector(
         >>> collector.shutdown()
     """
     if backend not in BACKENDS:
-        raise ConfigError(f"collector.backend={backend!r} is not one of {list(BACKENDS)}")
+        raise ConfigError(f"backend={backend!r}: choose one of {list(BACKENDS)}")
     common = {
         "frames_per_batch": frames_per_batch,
         "total_frames": whole_batches(total_frames, frames_per_batch),
@@ -210,10 +159,20 @@ def make_collector(
         "auto_register_policy_transforms": False,
         **collector_kwargs,
     }
-    if isinstance(create_env_fn, EnvBase):
+    if isinstance(create_env_fn, EnvBase) or (callable(create_env_fn) and backend == "local"):
         if backend != "local":
-            raise ValueError("a Ray collector needs env constructors, not a built env")
+            raise ValueError(
+                "backend='ray': each Ray actor builds its own env, so pass env constructors "
+                "(callables), not a built env"
+            )
         return Collector(create_env_fn, policy, **common)
+    if callable(create_env_fn):  # one Ray actor
+        create_env_fn = [create_env_fn]
+    if not isinstance(create_env_fn, Sequence) or not all(map(callable, create_env_fn)):
+        raise TypeError(
+            "create_env_fn: pass an env, a callable that builds one, or a list of such "
+            f"callables (one per worker), not {type(create_env_fn).__name__}"
+        )
     create_env_fn = list(create_env_fn)
     if backend == "local":
         return Collector(

@@ -1,0 +1,517 @@
+"""Q-network factories: an MLP torso and a head inside a TorchRL Q-value actor.
+
+``HEADS`` maps a config name (``network.head``) to a function building the output layers on
+top of the torso. Two switches apply to every head:
+
+- ``noisy``: every linear layer is TorchRL's ``NoisyLinear`` (Fortunato et al. 2018), whose
+  factorised Gaussian noise is on under ``ExplorationType.RANDOM`` and off otherwise;
+- ``atoms``: the network outputs logits over a fixed support of returns, ``[*B, atoms,
+  num_actions]``, for a ``DistributionalQValueActor`` (C51, Bellemare et al. 2017); without it,
+  action values ``[*B, num_actions]`` for a ``QValueActor``.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Sequence
+from functools import partial
+from typing import Any
+
+import torch
+from torch import nn
+from torchrl.data import Categorical, Composite, OneHot, TensorSpec
+from torchrl.modules import (
+    MLP,
+    ConvNet,
+    DistributionalQValueActor,
+    NoisyLinear,
+    QValueActor,
+    reset_noise,
+)
+
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.aliases import resolve_alias
+from trl_cartpole.parts.compat import use_first_greedy_action
+from trl_cartpole.parts.pixels import ScaleImage
+
+__all__ = [
+    "ACTIVATIONS",
+    "HEADS",
+    "DuelingHead",
+    "check_head",
+    "expected_action_values",
+    "make_cnn_features",
+    "make_q_actor",
+    "make_q_network",
+    "reset_network_noise",
+]
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    "relu": nn.ReLU,
+    "tanh": nn.Tanh,
+    "elu": nn.ELU,
+    "gelu": nn.GELU,
+}
+
+
+class DuelingHead(nn.Module):
+    """Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a') (Wang et al. 2016, eq. 9).
+
+    ``value`` maps features ``[*B, H]`` to ``[*B, atoms]`` and ``advantage`` to
+    ``[*B, atoms * num_actions]``; with ``atoms=1`` the output is squeezed to
+    ``[*B, num_actions]``, otherwise it is ``[*B, atoms, num_actions]`` logits, the
+    distributional dueling form of Rainbow (Hessel et al. 2018, eq. 5, before the softmax).
+    """
+
+    def __init__(self, value: nn.Module, advantage: nn.Module, num_actions: int, atoms: int):
+        super().__init__()
+        self.value = value
+        self.advantage = advantage
+        self.num_actions = num_actions
+        self.atoms = atoms
+
+    def streams(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return V ``[*B, atoms, 1]`` and the centred advantage ``[*B, atoms, num_actions]``."""
+        value = self.value(features).unsqueeze(-1)  # [*B, atoms, 1]
+        advantage = self.advantage(features).unflatten(-1, (self.atoms, self.num_actions))
+        return value, advantage - advantage.mean(-1, keepdim=True)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        value, centred_advantage = self.streams(features)
+        q = value + centred_advantage  # [*B, atoms, num_actions]
+        return q.squeeze(-2) if self.atoms == 1 else q
+
+
+def _plain_head(
+    in_features: int, num_actions: int, atoms: int, linear: Callable[..., nn.Module]
+) -> nn.Module:
+    """One linear layer: Q(s, .) (or the atoms' logits) straight from the features."""
+    out = linear(in_features, atoms * num_actions)
+    return out if atoms == 1 else nn.Sequential(out, nn.Unflatten(-1, (atoms, num_actions)))
+
+
+def _dueling_head(
+    in_features: int, num_actions: int, atoms: int, linear: Callable[..., nn.Module]
+) -> nn.Module:
+    """Value and advantage streams of one linear layer each (see :class:`DuelingHead`)."""
+    return DuelingHead(
+        value=linear(in_features, atoms),
+        advantage=linear(in_features, atoms * num_actions),
+        num_actions=num_actions,
+        atoms=atoms,
+    )
+
+
+HEADS: dict[str, Callable[..., nn.Module]] = {"plain": _plain_head, "dueling": _dueling_head}
+
+
+def check_head(head: str) -> None:
+    """Raise ``ValueError`` naming the choices unless ``head`` is a key of ``HEADS``."""
+    if head not in HEADS:
+        raise ValueError(f"head={head!r} is not a head here; choose one of {sorted(HEADS)}")
+
+
+def make_q_network(
+    obs_dim: int,
+    num_actions: int,
+    num_cells: Sequence[int] | int | None = (128, 128),
+    activation_class: type[nn.Module] = nn.ReLU,
+    head: str = "plain",
+    noisy: bool = False,
+    noisy_std: float = 0.5,
+    atoms: int | None = None,
+    *,
+    hidden_sizes: Sequence[int] | None = None,
+    **mlp_kwargs: Any,
+) -> nn.Module:
+    """Return ``[*B, obs_dim] -> [*B, num_actions]`` (or ``[*B, atoms, num_actions]`` logits).
+
+    The torso is TorchRL's ``MLP`` over the widths ``num_cells`` (an activation after every
+    hidden layer; an int with ``depth=`` in ``mlp_kwargs`` is ``depth`` layers of that width, as
+    ``MLP`` reads it); ``mlp_kwargs`` go to ``MLP`` (``norm_class``, ``dropout``...). The head
+    from ``HEADS`` maps its last hidden layer to the output. ``hidden_sizes`` is an alias of
+    ``num_cells``.
+    """
+    check_head(head)
+    fixed = sorted(set(mlp_kwargs) & _MLP_SET_HERE)
+    if fixed:
+        raise TypeError(
+            f"{', '.join(fixed)}: set from the specs and the head here (layer_class by noisy=), "
+            "not passed to MLP"
+        )
+    widths = _widths(num_cells if hidden_sizes is None else hidden_sizes, mlp_kwargs)
+    if noisy:  # every linear layer, the head's included
+        layer_kwargs = {"std_init": noisy_std, **(mlp_kwargs.pop("layer_kwargs", None) or {})}
+        mlp_kwargs["layer_kwargs"] = layer_kwargs
+    layer_class = NoisyLinear if noisy else nn.Linear
+    if head == "plain":  # TorchRL's own layout: one MLP, the head its last linear layer
+        return _with_earlier_layout_readable(
+            MLP(
+                in_features=obs_dim,
+                out_features=num_actions if atoms is None else (atoms, num_actions),
+                num_cells=widths,
+                activation_class=activation_class,
+                layer_class=layer_class,
+                **mlp_kwargs,
+            )
+        )
+    if widths:
+        torso = MLP(
+            in_features=obs_dim,
+            out_features=widths[-1],
+            num_cells=widths[:-1],
+            activation_class=activation_class,
+            activate_last_layer=True,
+            layer_class=layer_class,
+            **mlp_kwargs,
+        )
+    else:  # num_cells=[]: the head reads the input itself
+        torso = nn.Identity()
+    linear = partial(layer_class, **mlp_kwargs.get("layer_kwargs") or {})
+    width = widths[-1] if widths else obs_dim
+    return nn.Sequential(torso, HEADS[head](width, num_actions, atoms or 1, linear))
+
+
+def _with_earlier_layout_readable(mlp: MLP) -> MLP:
+    """Let ``mlp`` load a plain network saved in this project's earlier layout.
+
+    Policies saved before the plain network became one ``MLP`` (TorchRL's layout, keys
+    ``0.weight``, ``2.weight``...) hold ``Sequential(torso MLP, head)``: keys ``0.{j}.*`` for
+    the torso's layer ``j`` and ``1.*`` (``1.0.*`` for C51) for the head. A load-time hook
+    renames them, so a policy trained earlier still evaluates.
+    """
+    last_linear = max(
+        i for i, layer in enumerate(mlp) if isinstance(layer, (nn.Linear, NoisyLinear))
+    )
+
+    def rename(state_dict: dict[str, Any], prefix: str, *_: Any) -> None:
+        if not any(key.startswith(f"{prefix}0.0.") for key in state_dict):
+            return  # TorchRL's layout already
+        for key in [key for key in state_dict if key.startswith(prefix)]:
+            rest = key[len(prefix) :]
+            layer, _, name = rest.partition(".")
+            if layer == "0":  # the torso: 0.{j}.name -> {j}.name
+                new = name
+            else:  # the head: 1.name, or 1.0.name for C51's Sequential(linear, Unflatten)
+                new = f"{last_linear}.{name[2:] if name.startswith('0.') else name}"
+            state_dict[prefix + new] = state_dict.pop(key)
+
+    mlp._register_load_state_dict_pre_hook(rename)
+    return mlp
+
+
+def make_cnn_features(
+    image_shape: Sequence[int],
+    channels: Sequence[int] = (16, 32, 32),
+    kernel_sizes: Sequence[int] = (5, 5, 5),
+    strides: Sequence[int] = (2, 2, 2),
+    activation_class: type[nn.Module] = nn.ReLU,
+) -> tuple[nn.Module, int]:
+    """``[*B, C, H, W]`` uint8 pixels -> ``[*B, F]`` features, and ``F``.
+
+    The pixels are scaled to [0, 1] (:class:`~trl_cartpole.parts.pixels.ScaleImage`), then go
+    through TorchRL's ``ConvNet`` (a convolution and ``activation_class`` per entry of ``channels``,
+    flattened at the end). The defaults are the three 5x5, stride-2 convolutions of 16, 32 and
+    32 channels of the PyTorch DQN tutorial's first, pixel version (without its batch norm).
+    """
+    conv = ConvNet(
+        in_features=image_shape[0],
+        num_cells=list(channels),
+        kernel_sizes=list(kernel_sizes),
+        strides=list(strides),
+        activation_class=activation_class,
+    )
+    features = nn.Sequential(ScaleImage(), conv)
+    with torch.device("meta"):  # the flattened size, found on shapes only
+        width = conv(torch.zeros(1, *image_shape)).shape[-1]
+    return features, width
+
+
+def _widths(num_cells: Sequence[int] | int | None, mlp_kwargs: dict[str, Any]) -> list[int]:
+    """The hidden layers' widths, read as TorchRL's ``MLP`` reads ``num_cells`` and ``depth``.
+
+    A list is the widths (``[]``: no hidden layer, the head reads the input); an int needs
+    ``depth`` (``depth`` layers of that width; ``MLP`` raises without it); None is ``depth``
+    layers of 32, or none.
+    """
+    depth = mlp_kwargs.pop("depth", None)
+    if num_cells is None:
+        return [32] * (depth or 0)
+    if isinstance(num_cells, int):
+        if depth is None:
+            raise ValueError(
+                f"num_cells={num_cells} is one width: give depth= too (as TorchRL's MLP "
+                f"requires), or the widths as a list, e.g. num_cells=[{num_cells}, {num_cells}]"
+            )
+        return [num_cells] * depth
+    if depth is not None and depth != len(num_cells):
+        raise ValueError(f"depth={depth} but num_cells has {len(num_cells)} widths")
+    return list(num_cells)
+
+
+# The keywords of TorchRL's MLP that make_q_actor hands to the torso (the rest go to the actor),
+# and those the factory sets itself: the input and output sizes, the layer type, the last
+# activation (the head follows the torso).
+_MLP_KEYWORDS = frozenset(inspect.signature(MLP.__init__).parameters) - {"self"}
+_MLP_SET_HERE = frozenset({"in_features", "out_features", "layer_class", "activate_last_layer"})
+
+
+def make_q_actor(
+    observation_spec: TensorSpec | nn.Module | None = None,
+    spec: TensorSpec | None = None,
+    *,
+    module: nn.Module | None = None,
+    num_cells: Sequence[int] | int | None = (128, 128),
+    activation_class: type[nn.Module] = nn.ReLU,
+    head: str = "plain",
+    device: str | torch.device | None = None,
+    noisy: bool = False,
+    noisy_std: float = 0.5,
+    support: torch.Tensor | None = None,
+    in_keys: Sequence[str] = ("observation",),
+    torso: str | nn.Module = "mlp",
+    cnn_kwargs: dict[str, Any] | None = None,
+    action_spec: TensorSpec | None = None,
+    hidden_sizes: Sequence[int] | None = None,
+    activation: str | None = None,
+    **kwargs: Any,
+) -> QValueActor | DistributionalQValueActor:
+    """Return TorchRL's ``QValueActor`` reading ``in_keys`` and writing the greedy ``"action"``.
+
+    ``spec`` is the env's action spec (one discrete action: ``OneHot`` or ``Categorical``, or a
+    ``Composite`` holding it under ``"action"``, as ``QValueActor`` takes it), the actor's
+    ``spec``. The Q-network is built from ``observation_spec``, the env's full observation
+    spec (a ``Composite`` holding the entry ``in_keys`` names), unless ``module`` is given.
+
+    The arguments are TorchRL's where a TorchRL class has them:
+
+    - ``module`` (``QValueActor``'s): your whole Q-network, ``[*B, obs] -> [*B, num_actions]``
+      (``[*B, atoms, num_actions]`` with ``support``); nothing is built, as
+      ``QValueActor(module, spec=...)``. An ``nn.Module`` passed first takes this place too.
+    - ``num_cells`` and ``activation_class`` are ``MLP``'s and read as ``MLP`` reads them: a
+      list of hidden widths (``[]``: no hidden layer), an int with ``depth=``. Any other
+      keyword of ``MLP`` (``depth``, ``norm_class``, ``dropout``, ``activation_kwargs``...)
+      goes to it, and any other keyword to the actor (``action_space``,
+      ``action_value_key``, ``safe``...).
+
+    The plain head gives TorchRL's layout exactly: ``QValueActor(MLP(in_features,
+    num_actions, num_cells=num_cells, activation_class=...))``, so its ``state_dict`` loads
+    into an actor built with TorchRL alone. Defaults, ours (the default config's ``network``)
+    beside TorchRL's: ``num_cells`` (128, 128) (``MLP``: None, a single linear layer),
+    ``activation_class`` ``nn.ReLU`` (``MLP``: ``nn.Tanh``), ``in_keys`` ``["observation"]``
+    (as ``QValueActor``), ``device`` the spec's.
+
+    This project's own switches: ``head`` (``"plain"`` or ``"dueling"``: :class:`DuelingHead`,
+    a module of this project; TorchRL 0.14 has dueling networks only for images), ``noisy``
+    and ``noisy_std`` (every linear layer TorchRL's ``NoisyLinear``), ``support`` (a
+    ``DistributionalQValueActor`` over these atoms, C51), and ``torso``: ``"mlp"`` (the
+    observation goes straight to the MLP), ``"cnn"`` (a ``[C, H, W]`` uint8 image through
+    :func:`make_cnn_features`, ``cnn_kwargs`` its ``channels``, ``kernel_sizes``,
+    ``strides``), or your own ``nn.Module`` mapping the observation to features ``[*B, F]``
+    (``F`` is found by running it once on the spec's zero), under the MLP and the head.
+    ``action_spec``, ``hidden_sizes`` and ``activation`` (a name: relu, tanh, elu, gelu) are
+    this project's earlier names, kept as aliases.
+
+    Without ``support`` it is a ``QValueActor`` writing ``action_value`` ``[*B, num_actions]``
+    and ``chosen_action_value`` ``[*B, 1]``; with a ``support`` ``[atoms]`` of returns it is a
+    ``DistributionalQValueActor`` writing log-probabilities ``action_value``
+    ``[*B, atoms, num_actions]`` and acting greedily on their expectation.
+
+    Example::
+
+        >>> from trl_cartpole import make_env, make_q_actor
+        >>> env = make_env("CartPole-v1")
+        >>> actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[64, 64],
+        ...                      head="dueling")
+        >>> actor(env.reset())["action_value"].shape
+        torch.Size([2])
+    """
+    if isinstance(observation_spec, nn.Module):  # QValueActor's first argument is the module
+        module = resolve_alias("module", module, "a module passed first", observation_spec)
+        observation_spec = None
+    spec = resolve_alias("spec", spec, "action_spec", action_spec)
+    if spec is None:
+        raise TypeError("make_q_actor() needs spec= (the env's action_spec)")
+    check_head(head)
+    if activation is not None:
+        if activation not in ACTIVATIONS:
+            raise ValueError(
+                f"activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)} "
+                "or pass activation_class="
+            )
+        activation_class = ACTIVATIONS[activation]
+    mlp_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in _MLP_KEYWORDS}
+    if module is None:
+        module = _build_q_network(
+            observation_spec,
+            _action_count(spec),
+            in_keys,
+            torso,
+            cnn_kwargs,
+            num_cells if hidden_sizes is None else hidden_sizes,
+            activation_class,
+            head,
+            noisy,
+            noisy_std,
+            None if support is None else support.numel(),
+            mlp_kwargs,
+        )
+    else:
+        _refuse_network_arguments_with_module(
+            mlp_kwargs, hidden_sizes, head, noisy, torso, cnn_kwargs, activation
+        )
+    if device is not None:
+        module, spec = module.to(device), spec.to(device)
+    in_keys = list(in_keys)
+    if support is None:
+        return QValueActor(module, in_keys=in_keys, spec=spec, **kwargs)
+    support = support if device is None else support.to(device)
+    actor = DistributionalQValueActor(module, support=support, in_keys=in_keys, spec=spec, **kwargs)
+    return use_first_greedy_action(actor)
+
+
+def _build_q_network(
+    observation_spec: TensorSpec | None,
+    num_actions: int,
+    in_keys: Sequence[str],
+    torso: str | nn.Module,
+    cnn_kwargs: dict[str, Any] | None,
+    num_cells: Sequence[int] | int | None,
+    activation_class: type[nn.Module],
+    head: str,
+    noisy: bool,
+    noisy_std: float,
+    atoms: int | None,
+    mlp_kwargs: dict[str, Any],
+) -> nn.Module:
+    """The torso (none, the CNN, or the caller's module), then the MLP and the head."""
+    if observation_spec is None:
+        raise TypeError(
+            "make_q_actor() needs observation_spec (the env's, to size the network) or "
+            "module= (your own Q-network)"
+        )
+    features = None
+    if isinstance(torso, nn.Module):
+        features, obs_dim = torso, _output_width(torso, observation_spec, in_keys)
+    elif torso == "cnn":
+        features, obs_dim = make_cnn_features(
+            _image_shape(observation_spec, in_keys),
+            activation_class=activation_class,
+            **(cnn_kwargs or {}),
+        )
+    elif torso == "mlp":
+        obs_dim = _input_size(observation_spec, in_keys)
+    else:
+        raise ValueError(f"torso={torso!r}: choose 'mlp', 'cnn' or an nn.Module of your own")
+    network = make_q_network(
+        obs_dim,
+        num_actions,
+        num_cells,
+        activation_class,
+        head,
+        noisy,
+        noisy_std,
+        atoms,
+        **mlp_kwargs,
+    )
+    return network if features is None else nn.Sequential(features, network)
+
+
+def _refuse_network_arguments_with_module(
+    mlp_kwargs: dict[str, Any], hidden_sizes: Any, head: str, noisy: bool, torso: Any, *rest: Any
+) -> None:
+    """``module=`` is the whole Q-network: arguments that would build one are refused."""
+    given = sorted(mlp_kwargs) + [
+        name
+        for name, value, default in (
+            ("hidden_sizes", hidden_sizes, None),
+            ("head", head, "plain"),
+            ("noisy", noisy, False),
+            ("torso", torso, "mlp"),
+            ("cnn_kwargs", rest[0], None),
+            ("activation", rest[1], None),
+        )
+        if value != default
+    ]
+    if given:
+        raise TypeError(
+            f"module= is your whole Q-network, so {', '.join(given)} would build nothing; to "
+            "put this factory's MLP and head over your own layers, pass them as torso="
+        )
+
+
+def _output_width(torso: nn.Module, observation_spec: TensorSpec, in_keys: Sequence[str]) -> int:
+    """The feature width ``F`` of ``torso`` on one observation of ``observation_spec``."""
+    key = _input_key(observation_spec, in_keys)
+    with torch.no_grad():
+        features = torso(observation_spec[key].zero())  # [*spec, F]
+    return features.shape[-1]
+
+
+def _input_key(observation_spec: TensorSpec, in_keys: Sequence[str]) -> str:
+    """The one entry of ``observation_spec`` the network reads (``in_keys``)."""
+    if len(in_keys) != 1:
+        raise ConfigError(f"in_keys={list(in_keys)}: the Q-network reads one observation entry")
+    key = in_keys[0]
+    keys = (
+        list(observation_spec.keys(True, True)) if isinstance(observation_spec, Composite) else []
+    )
+    if key not in keys:
+        raise ConfigError(
+            f"observation_spec has no entry {key!r} (it has {keys}); pass the env's "
+            "observation_spec (a Composite) and the key of its observation as in_keys"
+        )
+    return key
+
+
+def _input_size(observation_spec: TensorSpec, in_keys: Sequence[str]) -> int:
+    """The width of the one vector observation ``in_keys`` names in ``observation_spec``."""
+    key = _input_key(observation_spec, in_keys)
+    shape = tuple(observation_spec[key].shape)
+    if not shape:
+        raise ConfigError(f"observation entry {key!r} is a scalar; the Q-network needs a vector")
+    return shape[-1]
+
+
+def _image_shape(observation_spec: TensorSpec, in_keys: Sequence[str]) -> tuple[int, int, int]:
+    """The ``[C, H, W]`` shape of the one image entry ``in_keys`` names."""
+    key = in_keys[0] if len(in_keys) == 1 else None
+    keys = (
+        list(observation_spec.keys(True, True)) if isinstance(observation_spec, Composite) else []
+    )
+    if key not in keys or len(observation_spec[key].shape) < 3:
+        raise ConfigError(
+            f"torso='cnn' reads one [C, H, W] image entry; in_keys={list(in_keys)} and the "
+            f"observation spec has {keys} (an env with from_pixels=True has 'pixels')"
+        )
+    return tuple(observation_spec[key].shape[-3:])  # a batched env's spec leads with [E]
+
+
+def _action_count(action_spec: TensorSpec) -> int:
+    """The number of discrete actions of ``action_spec`` (``OneHot`` or ``Categorical``, or a
+    ``Composite`` holding one under ``"action"``)."""
+    if isinstance(action_spec, Composite) and "action" in action_spec.keys():  # noqa: SIM118
+        action_spec = action_spec["action"]
+    if not isinstance(action_spec, (OneHot, Categorical)):
+        raise ConfigError(
+            f"spec is {type(action_spec).__name__}; a Q-value actor needs one discrete "
+            "action (TorchRL OneHot or Categorical, a Gymnasium Discrete space)"
+        )
+    return action_spec.space.n
+
+
+def expected_action_values(actor: nn.Module, action_value: torch.Tensor) -> torch.Tensor:
+    """Q-values ``[*B, num_actions]`` from an actor's ``action_value`` output.
+
+    For a ``DistributionalQValueActor`` that is sum_i z_i p_i(s, a) over its support; for a
+    ``QValueActor`` the output already is Q.
+    """
+    if isinstance(actor, DistributionalQValueActor):
+        support = actor.support  # [atoms]
+        return (action_value.exp() * support.unsqueeze(-1)).sum(-2)
+    return action_value
+
+
+def reset_network_noise(module: nn.Module) -> None:
+    """Resample the noise of every ``NoisyLinear`` in ``module`` (a no-op without any)."""
+    module.apply(reset_noise)

@@ -1,0 +1,307 @@
+"""Replay buffer factory: uniform or prioritized sampling, optionally over n-step transitions.
+
+- Uniform: ``TensorDictReplayBuffer`` over a ``LazyTensorStorage`` with a ``RandomSampler``.
+- Prioritized (Schaul et al. 2016, proportional variant): ``TensorDictPrioritizedReplayBuffer``
+  samples i with P(i) = p_i / sum_k p_k, p_i = (|delta_i| + eps) ** alpha, and writes the
+  importance weights w_i = (N P(i)) ** -beta / max_k w_k to ``"priority_weight"``, which
+  ``DQNLoss`` and ``DistributionalDQNLoss`` apply. New transitions get the largest priority seen.
+- n-step (Sutton 1988; Hessel et al. 2018): TorchRL's ``MultiStepTransform`` (through
+  :class:`NStepTransform`) turns each stored transition into (s_t, a_t, R_t^(n), s_{t+k}),
+  R_t^(n) = sum_{j<k} gamma^j r_{t+j}, k = min(n, steps to the episode's end);
+  ``steps_to_next_obs`` = k makes the TD target bootstrap with gamma ** k.
+  ``("next", "terminated")`` is taken from step t+k-1, so a window that ends in a termination
+  does not bootstrap and one that ends in a truncation does.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import (
+    LazyTensorStorage,
+    ReplayBuffer,
+    TensorDictPrioritizedReplayBuffer,
+    TensorDictReplayBuffer,
+)
+from torchrl.data.replay_buffers import PrioritizedSampler, RandomSampler, Sampler, Storage
+from torchrl.envs import Compose, MultiStepTransform, Transform
+
+from trl_cartpole.parts.compat import replay_transform
+
+__all__ = [
+    "DEFAULT_GAMMA",
+    "N_STEP_GAMMA_KEY",
+    "NStepTransform",
+    "annealed_beta",
+    "extend_with_batch",
+    "is_prioritized",
+    "make_replay_buffer",
+    "n_step_gamma",
+    "sample_minibatches",
+]
+
+
+# This project's discount (the default config's loss.gamma; tests/test_defaults.py): the
+# default of an n-step buffer and of the loss, so the two agree when neither is given.
+DEFAULT_GAMMA = 0.995
+# The prioritized sampler's defaults here (TorchRL's PrioritizedSampler requires alpha and
+# beta and defaults eps to 1e-8): the default config's buffer section.
+DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_PRIORITY_EPS = 0.6, 0.4, 1e-6
+# Each sample of an n-step buffer carries its discount under this key ([*B, 1], added when
+# sampling, not stored), so a loss built apart from the buffer can check that it agrees.
+N_STEP_GAMMA_KEY = "n_step_gamma"
+# The entries of a step that are not its state: a step's ("next", key) equals the following
+# step's key for every other entry both hold, unless the episode ended between them.
+_NOT_STATE = {"reward", "done", "terminated", "truncated", "episode_reward"}
+
+
+class NStepTransform(MultiStepTransform):
+    """``MultiStepTransform`` whose output fits both DQN losses, on trajectories it checks.
+
+    ``("next", "terminated")`` follows the window's last step (it is left out of the done
+    keys the transform keeps at step t), and ``steps_to_next_obs`` is shaped ``[*B, 1]`` like
+    the reward, so ``DistributionalDQNLoss`` broadcasts gamma ** k over the atoms (TorchRL
+    writes it ``[*B]``; ``DQNLoss`` reshapes it either way). A sampled batch is marked with the
+    discount (``N_STEP_GAMMA_KEY``), which :func:`~trl_cartpole.parts.losses.make_dqn_loss`
+    checks.
+
+    A window must not cross from one env's steps into another's. ``MultiStepTransform`` reads
+    the last dimension as time, so each ``extend`` is checked first: along it, every step's
+    state (each entry held both at the root and under ``"next"``) must be the previous step's
+    ``"next"`` one unless the previous step ended its episode; otherwise ``extend`` raises a
+    one-line ``ValueError`` and nothing is stored.
+    """
+
+    def __init__(self, n_steps: int, gamma: float) -> None:
+        super().__init__(n_steps, gamma, done_keys=["done", "truncated"])
+
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase | None:
+        check_time_order(self._buffer, tensordict)
+        out = super()._inv_call(tensordict)
+        if out is not None:
+            steps = out.get("steps_to_next_obs")  # [*B]
+            out.set("steps_to_next_obs", steps.reshape(out["next", "reward"].shape))
+            out = out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
+        return out
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Mark a sampled batch ``[*B]`` with this transform's discount ``[*B, 1]``."""
+        gamma = torch.full((*tensordict.batch_size, 1), float(self.gamma), dtype=torch.float64)
+        tensordict.set(N_STEP_GAMMA_KEY, gamma.to(tensordict.device or "cpu"))
+        return tensordict
+
+
+def check_time_order(held: TensorDictBase | None, data: TensorDictBase) -> None:
+    """Raise ``ValueError`` unless ``data`` ``[*B, T]`` continues each trajectory in time.
+
+    ``held`` is what the n-step transform kept of the previous ``extend`` (``[*B, n]``), which
+    ``data``'s first steps must continue. A batch of several envs or workers flattened to
+    ``[T]`` (``batch.reshape(-1)``) fails here: its steps jump from one env to the next.
+    """
+    if not data.batch_dims:
+        raise ValueError("an n-step buffer extends with a batch [T] or [envs, T] in time order")
+    joined = data if held is None else torch.cat([held, data], -1)  # [*B, T]
+    if joined.shape[-1] < 2 or "next" not in joined.keys():  # noqa: SIM118 (a tensordict)
+        return
+    following, before = joined[..., 1:], joined["next"][..., :-1]  # [*B, T - 1]
+    keys = [
+        key
+        for key in before.keys(True, True)
+        if key not in _NOT_STATE and key in following.keys(True, True)
+    ]
+    ended = before["done"].reshape(*before.batch_size, -1).any(-1)  # [*B, T - 1]
+    for key in keys:
+        now, then = following[key], before[key]
+        same = now == then
+        if now.is_floating_point():
+            same = same | (now.isnan() & then.isnan())
+        broken = ~(same.reshape(*before.batch_size, -1).all(-1) | ended)  # [*B, T - 1]
+        if broken.any():
+            where = broken.nonzero()[0].tolist()
+            step = where[-1] + 1 - (0 if held is None else held.shape[-1])
+            env = f" of env {where[:-1]}" if len(where) > 1 else ""
+            raise ValueError(
+                f"n-step replay: step {step}{env} of the batch does not follow the step before "
+                f"it ({key!r} is not that step's ('next', {key!r}) and no episode ended between "
+                "them); extend with each env's steps in time order, [T] or [envs, T] as the "
+                "collector yields them, not a batch flattened from several envs"
+            )
+
+
+def n_step_transform(buffer: ReplayBuffer) -> MultiStepTransform | None:
+    """The ``MultiStepTransform`` of ``buffer`` (None for a one-step buffer)."""
+    transform = replay_transform(buffer)
+    if transform is None:
+        return None
+    steps = [t for t in transform if isinstance(t, MultiStepTransform)]
+    return steps[0] if steps else None
+
+
+def n_step_gamma(buffer: ReplayBuffer) -> float | None:
+    """The discount of ``buffer``'s n-step transform (None for a one-step buffer)."""
+    transform = n_step_transform(buffer)
+    return None if transform is None else float(transform.gamma)
+
+
+def is_prioritized(buffer: ReplayBuffer) -> bool:
+    """Whether ``buffer`` samples with TorchRL's ``PrioritizedSampler`` (or a subclass)."""
+    return isinstance(buffer.sampler, PrioritizedSampler)
+
+
+def _refuse_positional(args: tuple[Any, ...]) -> None:
+    if args:
+        earlier = ", ".join(
+            f"{name}={value!r}"
+            for name, value in zip(("max_size", "batch_size"), args, strict=False)
+        )
+        raise TypeError(
+            f"make_replay_buffer() takes keyword arguments only, as TorchRL's buffers do: "
+            f"make_replay_buffer({earlier})"
+        )
+
+
+def make_replay_buffer(
+    *args: Any,
+    storage: Storage | None = None,
+    sampler: Sampler | None = None,
+    batch_size: int | None = 512,
+    transform: Transform | None = None,
+    max_size: int = 50_000,
+    device: str | torch.device = "cpu",
+    prioritized: bool = False,
+    alpha: float | None = None,
+    beta: float | None = None,
+    eps: float | None = None,
+    n_steps: int = 1,
+    gamma: float | None = None,
+    **buffer_kwargs: Any,
+) -> TensorDictReplayBuffer:
+    """Return TorchRL's ``TensorDictReplayBuffer`` (``TensorDictPrioritizedReplayBuffer``).
+
+    Keyword arguments only, as TorchRL's buffers. The arguments are TorchRL's, with their
+    meanings and behaviour: a buffer built from TorchRL's arguments alone stores the one-step
+    transitions it is given. ``buffer_kwargs`` go to the buffer's constructor (``prefetch``,
+    ``pin_memory``, ``priority_key``, ...). Defaults, ours beside TorchRL's:
+
+    - ``storage``: ``LazyTensorStorage(max_size, device=device)`` (TorchRL: ``ListStorage``);
+      it allocates on the first ``extend`` from the batch's layout, so it serves any env.
+      ``max_size`` (50 000) and ``device`` ("cpu") are ``LazyTensorStorage``'s.
+    - ``sampler``: ``RandomSampler()``, uniform with replacement, as TorchRL. Your own
+      sampler (a ``PrioritizedSampler`` included) is used as given.
+    - ``prioritized=True``: ``TensorDictPrioritizedReplayBuffer`` (Schaul et al. 2016,
+      proportional), TorchRL's ``PrioritizedSampler`` with ``alpha``, ``beta`` and ``eps``
+      (ours 0.6, 0.4, 1e-6; TorchRL requires alpha and beta and defaults eps to 1e-8). It
+      brings its own sampler, so ``sampler`` is refused with it, and ``alpha``, ``beta`` and
+      ``eps`` are refused without it, as TorchRL's plain buffer refuses them.
+    - ``batch_size``: 512 (TorchRL: None, given at ``sample``).
+    - ``transform``: yours, as given (TorchRL: none).
+    - ``n_steps`` (this project's; default 1: one-step transitions, as TorchRL): with
+      ``n_steps > 1`` the buffer's transform is ``Compose(NStepTransform(n_steps, gamma),
+      transform)``, TorchRL's ``MultiStepTransform`` storing R_t^(n) = sum_{j<k} gamma^j
+      r_{t+j} (Sutton 1988) with ``gamma`` (ours 0.995, the loss's default too), your
+      ``transform`` seeing each extended batch before it. ``gamma`` without ``n_steps > 1``
+      is refused.
+
+    Priorities, TorchRL's way: after ``loss(sample)``, ``buffer.update_tensordict_priority(
+    sample)`` stores ``(td_error + eps) ** alpha`` for each sampled index. ``DQNLoss`` writes
+    ``td_error`` = delta ** 2 (``DistributionalDQNLoss`` the cross-entropy), so alpha acts on
+    delta ** 2: Schaul et al.'s exponent on |delta| is ``2 * alpha``. The training pipeline
+    writes its priorities this way too (its ``buffer.alpha`` is Schaul's, halved for
+    ``DQNLoss``).
+
+    With ``n_steps > 1`` give the loss the same discount:
+    ``make_dqn_loss(actor, replay_buffer=buffer)``. Each ``extend`` then stores the
+    transitions whose n-step window is complete; the last ``n_steps`` frames wait for the next
+    ``extend``. Extend with ``[T]`` or ``[envs, T]`` in time order: a batch whose steps do not
+    follow one another (several envs flattened to ``[T]``) is refused with a ``ValueError``.
+
+    Example::
+
+        >>> from trl_cartpole import make_replay_buffer
+        >>> buffer = make_replay_buffer(max_size=10_000, batch_size=64)
+        >>> type(buffer).__name__, buffer.batch_size
+        ('TensorDictReplayBuffer', 64)
+    """
+    _refuse_positional(args)
+    if n_steps < 1:
+        raise ValueError(f"n_steps={n_steps} must be >= 1 (1: one-step transitions)")
+    if gamma is not None and n_steps == 1:
+        raise ValueError(
+            f"gamma={gamma} discounts n-step returns, and n_steps=1 stores one-step "
+            "transitions; pass n_steps > 1 with it, or give gamma to the loss alone"
+        )
+    storage = LazyTensorStorage(max_size, device=device) if storage is None else storage
+    n_step = (
+        NStepTransform(n_steps, DEFAULT_GAMMA if gamma is None else gamma) if n_steps > 1 else None
+    )
+    transforms = [t for t in (n_step, transform) if t is not None]
+    combined = Compose(*transforms) if n_step is not None else transform
+    sampler_arguments = {"alpha": alpha, "beta": beta, "eps": eps}
+    if prioritized:
+        if sampler is not None:
+            raise ValueError(
+                "prioritized=True brings its own PrioritizedSampler; pass sampler= or "
+                "prioritized=True, not both"
+            )
+        return TensorDictPrioritizedReplayBuffer(
+            alpha=DEFAULT_ALPHA if alpha is None else alpha,
+            beta=DEFAULT_BETA if beta is None else beta,
+            eps=DEFAULT_PRIORITY_EPS if eps is None else eps,
+            storage=storage,
+            batch_size=batch_size,
+            transform=combined,
+            **buffer_kwargs,
+        )
+    given = [name for name, value in sampler_arguments.items() if value is not None]
+    if given:
+        raise ValueError(
+            f"{', '.join(given)}: the prioritized sampler's; pass prioritized=True with them, "
+            "or your own sampler=PrioritizedSampler(...)"
+        )
+    return TensorDictReplayBuffer(
+        storage=storage,
+        sampler=RandomSampler() if sampler is None else sampler,
+        batch_size=batch_size,
+        transform=combined,
+        **buffer_kwargs,
+    )
+
+
+def annealed_beta(beta_start: float, frames: int, anneal_frames: int) -> float:
+    """The importance-sampling exponent: linear from ``beta_start`` to 1 at ``anneal_frames``.
+
+    Schaul et al. (2016, section 3.4) anneal beta to 1 by the end of learning, when unbiased
+    updates matter most.
+    """
+    return beta_start + (1.0 - beta_start) * min(1.0, frames / anneal_frames)
+
+
+def extend_with_batch(buffer: TensorDictReplayBuffer, batch: TensorDictBase) -> None:
+    """Store a collected batch, ``[T]`` (one env) or ``[N, T]`` (a vector env of N envs).
+
+    An n-step buffer's transform needs each env's steps in time order, so it gets the batch
+    as collected and flattens its windows itself; any other buffer gets ``[N * T]``.
+    """
+    buffer.extend(batch if n_step_transform(buffer) is not None else batch.reshape(-1))
+
+
+def sample_minibatches(buffer: TensorDictReplayBuffer, count: int) -> Iterator[TensorDictBase]:
+    """Yield ``count`` minibatches ``[batch_size]`` for the updates after one collected batch.
+
+    A uniform buffer (sampling with replacement) draws all ``count * batch_size`` indices in
+    one call and splits them: the same distribution as ``count`` calls, for the overhead of one
+    (about 0.3 ms saved per extra update, docs/performance.md). A prioritized buffer samples
+    one minibatch at a time, since each update rewrites the priorities the next draw uses.
+    """
+    if count == 1 or is_prioritized(buffer):
+        for _ in range(count):
+            yield buffer.sample()
+        return
+    with warnings.catch_warnings():  # TorchRL warns that the call's batch size prevails
+        warnings.simplefilter("ignore", UserWarning)
+        drawn = buffer.sample(buffer.batch_size * count)  # [count * batch_size]
+    yield from drawn.split(buffer.batch_size)
