@@ -30,7 +30,6 @@ from itertools import chain, pairwise
 import torch
 
 from benchmarks.harness import CONFIG_DIR, VARIANT_PRESETS
-from trl_cartpole.parts.replay import extend_with_batch, sample_minibatches
 from trl_cartpole.build import (
     build_actor,
     build_env,
@@ -41,8 +40,8 @@ from trl_cartpole.build import (
 )
 from trl_cartpole.cli import compose_config
 from trl_cartpole.config import to_config
-from trl_cartpole.parts.losses import priority_from_loss
 from trl_cartpole.parts.optim import make_optimizer
+from trl_cartpole.parts.replay import extend_with_batch, sample_minibatches
 from trl_cartpole.validation import validate
 
 SEEDS, OUT = [0], "runs/update_cost"
@@ -138,8 +137,7 @@ def time_learner(
             learner.target_updater.step()
             updated = time.perf_counter()
             if learner.prioritized:
-                priority = priority_from_loss(learner.loss, sample)
-                learner.buffer.update_priority(sample["index"], priority)
+                learner.buffer.update_tensordict_priority(sample)  # as Learner.step
             done = time.perf_counter()
             sample_s += sampled - start
             update_s += updated - sampled

@@ -10,10 +10,11 @@ from torchrl.data import OneHot
 from torchrl.modules import DistributionalQValueActor
 from torchrl.objectives import DistributionalDQNLoss
 
-from trl_cartpole.config import NetworkConfig
+from trl_cartpole.build import build_actor
+from trl_cartpole.config import Config, NetworkConfig
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.losses import make_dqn_loss
-from trl_cartpole.parts.models import expected_action_values, make_q_actor_for_env
+from trl_cartpole.parts.models import expected_action_values
 
 SUPPORT = torch.tensor([0.0, 1.0, 2.0])  # z, delta_z = 1
 P_S = torch.tensor([[0.25, 1 / 3], [0.25, 1 / 3], [0.5, 1 / 3]])  # p(s, .): [atoms, actions]
@@ -67,7 +68,7 @@ def test_distributions_sum_to_one_and_the_greedy_action_maximises_their_mean():
     env = make_env("CartPole-v1", seed=0)
     network = NetworkConfig(distributional=True, atoms=11, v_min=0.0, v_max=10.0, head="dueling")
     torch.manual_seed(0)
-    actor = make_q_actor_for_env(env, network)
+    actor = build_actor(Config(network=network), env)
     td = actor(env.reset().expand(7).clone())  # 7 copies of the first state
     log_p = td["action_value"]  # [7, atoms, actions]
     assert log_p.shape == (7, 11, 2)

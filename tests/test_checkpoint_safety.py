@@ -20,8 +20,8 @@ import pytest
 import torch
 from torchrl.checkpoint import Checkpoint
 
-from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.env_state import env_snapshot, restore_env_snapshot
+from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.pickle_scan import executable_opcode
 

@@ -14,10 +14,10 @@ from torchrl.collectors import Collector
 from torchrl.modules import DistributionalQValueActor
 
 from trl_cartpole.parts import compat
-from trl_cartpole.parts.replay import extend_with_batch, make_replay_buffer
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.models import make_q_actor
+from trl_cartpole.parts.replay import extend_with_batch, make_replay_buffer
 
 
 def test_carrier_of_is_the_next_step_of_the_in_process_collector():
@@ -53,15 +53,16 @@ def test_autoreset_state_of_a_vector_env_reads_and_writes():
 
 
 def _steps(envs: int, steps: int) -> TensorDict:
-    """``[envs, steps]`` transitions with no episode end."""
+    """``[envs, steps]`` transitions with no episode end, each env's steps one trajectory."""
     shape = (envs, steps)
     flag = torch.zeros(*shape, 1, dtype=torch.bool)
+    states = torch.randn(envs, steps + 1, 4)  # s_0 ... s_T of each env
     return TensorDict(
         {
-            "observation": torch.randn(*shape, 4),
+            "observation": states[:, :-1],
             "action": torch.zeros(*shape, 2, dtype=torch.long),
             "next": {
-                "observation": torch.randn(*shape, 4),
+                "observation": states[:, 1:],
                 "reward": torch.ones(*shape, 1),
                 "done": flag,
                 "terminated": flag.clone(),
@@ -83,6 +84,7 @@ def test_n_step_window_is_what_the_multistep_transform_holds_back():
     held = window.clone()
     compat.set_n_step_window(buffer, held)
     assert compat.n_step_window(buffer) is held
+    assert compat.held_steps(compat.replay_transform(buffer)[0]) is held
 
 
 def test_weight_sync_schemes_attribute_exists_and_closing_them_is_safe():

@@ -1,8 +1,10 @@
-"""One set of defaults: every factory called with its defaults builds what the default config does.
+"""One set of defaults: a factory's defaults are the default config's, except where TorchRL's
+behaviour comes first (named here).
 
 The config's schema (``trl_cartpole.config``) holds the defaults of ``python scripts/train.py``;
 each factory's keyword defaults must equal the schema field it is built from (the mapping below
-is the one ``trl_cartpole.build`` uses), so reusing a factory on its own gives the same agent.
+is the one ``trl_cartpole.build`` uses). The one difference: ``make_replay_buffer`` stores
+one-step transitions unless ``n_steps`` is given (TorchRL's behaviour), the config 3-step ones.
 """
 
 from __future__ import annotations
@@ -13,15 +15,15 @@ import pytest
 import torch
 from torchrl.objectives import HardUpdate
 
-from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.build import build_actor, build_env, build_exploration, build_replay_buffer
-from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.config import Config
+from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
+from trl_cartpole.parts.replay import make_replay_buffer
 
 # factory -> {argument: config field}
 FACTORY_FIELDS = {
@@ -42,11 +44,6 @@ FACTORY_FIELDS = {
         "max_size": "buffer.size",
         "batch_size": "buffer.batch_size",
         "prioritized": "buffer.prioritized",
-        "alpha": "buffer.alpha",
-        "beta": "buffer.beta",
-        "eps": "buffer.priority_eps",
-        "n_steps": "buffer.n_steps",
-        "gamma": "loss.gamma",
     },
     make_dqn_loss: {"delay_value": None},  # the target network (TorchRL's default too)
     make_optimizer: {
@@ -119,8 +116,28 @@ def test_default_factories_build_the_default_configs_actor_exploration_and_buffe
         default.eps_end,
         default.annealing_num_steps,
     )
-    configured, default = build_replay_buffer(cfg), make_replay_buffer()
+    assert make_replay_buffer()._transform is None or not len(make_replay_buffer()._transform)
+    configured = build_replay_buffer(cfg)
+    default = make_replay_buffer(n_steps=cfg.buffer.n_steps)  # 1 unless asked (TorchRL's)
     assert type(configured) is type(default)
     assert configured._storage.max_size == default._storage.max_size == cfg.buffer.size
     assert configured.batch_size == default.batch_size == cfg.buffer.batch_size
     assert len(configured._transform) == len(default._transform) == 1  # the 3-step transform
+
+
+def test_the_replay_buffers_resolved_defaults_are_the_configs():
+    """alpha, beta, eps and gamma are None in the signature (refused where they do not apply)
+    and resolve to the config's: alpha as TorchRL's exponent on DQNLoss's td_error = delta ** 2,
+    half the config's exponent on |delta|."""
+    from trl_cartpole.build import torchrl_priority_exponent
+    from trl_cartpole.parts import replay
+
+    cfg = Config()
+    assert cfg.loss.gamma == replay.DEFAULT_GAMMA
+    assert cfg.buffer.beta == replay.DEFAULT_BETA
+    assert cfg.buffer.priority_eps == replay.DEFAULT_PRIORITY_EPS
+    assert torchrl_priority_exponent(cfg.buffer.alpha, False) == replay.DEFAULT_ALPHA
+    prioritized = make_replay_buffer(prioritized=True)
+    assert prioritized.sampler.alpha == pytest.approx(
+        build_replay_buffer(Config(buffer=type(cfg.buffer)(prioritized=True))).sampler.alpha
+    )

@@ -13,19 +13,15 @@ import numpy as np
 import pytest
 import torch
 
+from trl_cartpole.build import build_actor
 from trl_cartpole.checkpoint import read_observation_norm
-from trl_cartpole.config import EnvConfig, NetworkConfig, to_config
-from trl_cartpole.parts.env import (
-    MIN_OBSERVATION_SCALE,
-    estimate_observation_norm,
-    make_env,
-    make_env_from_config,
-    resolve_env_id,
-    solve_threshold,
-)
+from trl_cartpole.config import EnvConfig, to_config
+from trl_cartpole.configured_envs import estimate_observation_norm, make_env_from_config
+from trl_cartpole.env_ids import resolve_env_id, solve_threshold
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.evaluation import evaluate
-from trl_cartpole.parts.models import make_q_actor, make_q_actor_for_env
+from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, make_env
+from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.training import train
 
@@ -102,7 +98,7 @@ def test_custom_env_class_trains_from_the_command_line(tmp_path, examples_on_pat
     # An untrained network does not walk the corridor: the 1.0 was learned.
     env = make_env("corridor:Corridor", seed=1, num_envs=10)
     torch.manual_seed(0)
-    assert evaluate(make_q_actor_for_env(env, NetworkConfig()), env, 200).mean < 1.0
+    assert evaluate(build_actor(to_config({}), env), env, 200).mean < 1.0
 
 
 def test_ids_registered_by_an_import_named_in_config(tmp_path, monkeypatch, fresh_registry):

@@ -13,11 +13,11 @@ from tensordict import TensorDict
 from torchrl.envs import ExplorationType, set_exploration_type
 
 from tests.conftest import CONFIG_DIR, SMOKE_OVERRIDES, run_script_in_process
+from trl_cartpole.build import build_actor
 from trl_cartpole.checkpoint import read_observation_norm
 from trl_cartpole.cli import compose_config
 from trl_cartpole.commands import export as export_command
-from trl_cartpole.config import NetworkConfig
-from trl_cartpole.parts.env import make_env
+from trl_cartpole.config import Config, NetworkConfig
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.export import (
     export_onnx,
@@ -25,7 +25,8 @@ from trl_cartpole.export import (
     greedy_q_network,
     greedy_q_network_of,
 )
-from trl_cartpole.parts.models import expected_action_values, make_q_actor_for_env
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.policy_io import evaluate_checkpoint, load_trained_policy
 
 ort = pytest.importorskip("onnxruntime")
@@ -149,7 +150,7 @@ def test_noisy_distributional_network_exports_its_mean_expected_values(tmp_path)
         head="dueling", hidden_sizes=[16, 16], noisy=True, distributional=True, atoms=11
     )
     torch.manual_seed(0)
-    actor = make_q_actor_for_env(env, network)
+    actor = build_actor(Config(network=network), env)
     module = greedy_q_network_of(actor, env)
     raw = torch.randn(32, 4, generator=torch.Generator().manual_seed(1))  # [32, 4]
     normalised = (raw - torch.tensor(norm["loc"])) / torch.tensor(norm["scale"])

@@ -14,13 +14,12 @@ from torchrl.envs import RewardSum, StepCounter, TransformedEnv
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
-from trl_cartpole.parts.replay import make_replay_buffer, sample_minibatches
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env, solve_threshold
-from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.exploration import ExponentialEGreedyModule, make_exploration
 from trl_cartpole.parts.losses import FusedSoftUpdate, make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import make_q_actor
+from trl_cartpole.parts.replay import make_replay_buffer, sample_minibatches
 
 
 @pytest.fixture(scope="module")
@@ -73,8 +72,8 @@ def test_q_actor_shapes_and_hidden_sizes(env):
     assert torch.equal(td["action"], expected)
 
 
-def test_unknown_head_lists_known_names(env):
-    with pytest.raises(ConfigError, match=r"choose one of \['dueling', 'plain'\]"):
+def test_unknown_head_lists_known_names_in_python_words(env):
+    with pytest.raises(ValueError, match=r"^head='nope' .* choose one of \['dueling', 'plain'\]"):
         make_q_actor(env.observation_spec, env.action_spec, head="nope")
 
 

@@ -42,12 +42,12 @@ def _comparable(summary: dict) -> dict:
 
 
 def _weights(checkpoint: Path) -> dict[str, torch.Tensor]:
+    from trl_cartpole.build import build_actor
     from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
     from trl_cartpole.parts.env import make_env
-    from trl_cartpole.parts.models import make_q_actor_for_env
 
     cfg = read_checkpoint_config(checkpoint)
-    actor = make_q_actor_for_env(make_env(cfg.env.id), cfg.network)
+    actor = build_actor(cfg, make_env(cfg.env.id), "cpu")
     load_policy(checkpoint, actor)
     return actor.state_dict()
 

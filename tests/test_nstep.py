@@ -8,8 +8,8 @@ from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.parts.losses import make_dqn_loss
+from trl_cartpole.parts.replay import make_replay_buffer
 
 GAMMA, N = 0.5, 3
 
@@ -17,7 +17,8 @@ GAMMA, N = 0.5, 3
 def _trajectory() -> TensorDict:
     """9 steps: an episode terminated at step 2, one truncated at step 4, one still running.
 
-    Observation s_t = t, next observation t + 0.5, reward r_t = t + 1, action 0.
+    Observation s_t = t, reward r_t = t + 1, action 0; the next observation is the next
+    step's, t + 1, except where an episode ends: there the last state is t + 0.5.
     """
     steps = 9
     obs = torch.arange(steps, dtype=torch.float32).unsqueeze(-1)  # [9, 1]
@@ -30,7 +31,7 @@ def _trajectory() -> TensorDict:
             "observation": obs,
             "action": nn.functional.one_hot(torch.zeros(steps, dtype=torch.long), 2),
             "next": {
-                "observation": obs + 0.5,
+                "observation": torch.where(terminated | truncated, obs + 0.5, obs + 1.0),
                 "reward": obs + 1.0,
                 "done": terminated | truncated,
                 "terminated": terminated,
@@ -45,11 +46,11 @@ def _trajectory() -> TensorDict:
 #   t=0: 1 + .5*2 + .25*3 = 2.75, k=3, s'=2.5, terminated (the window ends at the termination)
 #   t=1: 2 + .5*3 = 3.5, k=2;  t=2: 3, k=1           (both end at the termination too)
 #   t=3: 4 + .5*5 = 6.5, k=2, s'=4.5, NOT terminated (the truncation keeps the bootstrap)
-#   t=4: 5, k=1, s'=4.5;  t=5: 6 + .5*7 + .25*8 = 11.5, k=3, s'=7.5
+#   t=4: 5, k=1, s'=4.5;  t=5: 6 + .5*7 + .25*8 = 11.5, k=3, s'=8 (s_8)
 # t = 6, 7, 8 wait for later frames: their windows are not complete yet.
 RETURNS = [2.75, 3.5, 3.0, 6.5, 5.0, 11.5]
 STEPS = [3, 2, 1, 2, 1, 3]
-NEXT_OBS = [2.5, 2.5, 2.5, 4.5, 4.5, 7.5]
+NEXT_OBS = [2.5, 2.5, 2.5, 4.5, 4.5, 8.0]
 TERMINATED = [True, True, True, False, False, False]
 
 

@@ -10,10 +10,9 @@ from tensordict import TensorDict
 
 from tests.conftest import run_script_in_process
 from trl_cartpole import build
-from trl_cartpole.build import build_env, run_memory_need
+from trl_cartpole.build import build_actor, build_env, run_memory_need
 from trl_cartpole.config import to_config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.models import make_q_actor_for_env
 from trl_cartpole.parts.pixels import CropFrame, PoolImage
 from trl_cartpole.policy_io import evaluate_checkpoint
 from trl_cartpole.validation import validate
@@ -54,7 +53,7 @@ def test_the_preset_shows_the_network_pixels_only(compose):
     assert "observation" not in spec.keys()  # noqa: SIM118 (a spec): the state is not there
     pixels = spec["pixels"]
     assert pixels.dtype == torch.uint8 and tuple(pixels.shape) == (2, 2, 20, 60)  # [E, 2, h, w]
-    actor = make_q_actor_for_env(env, cfg.network)
+    actor = build_actor(cfg, env)
     assert actor.in_keys == ["pixels"]
     frames = env.reset()
     assert frames["pixels"].float().std() > 0  # a rendered scene, not a blank
@@ -73,7 +72,7 @@ def test_the_cnn_torso_composes_with_every_head_and_variant(compose, algo):
     cfg = validate(to_config(compose(f"algo={algo}", "env=cartpole_pixels", "env.num_envs=2")))
     assert cfg.network.torso == "cnn"
     env = build_env(cfg, seed=0)
-    actor = make_q_actor_for_env(env, cfg.network)
+    actor = build_actor(cfg, env)
     values = actor(env.reset())["action_value"]
     assert values.shape == ((2, cfg.network.atoms, 2) if cfg.network.distributional else (2, 2))
     env.close()

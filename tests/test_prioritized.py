@@ -10,9 +10,9 @@ from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.parts.replay import annealed_beta, make_replay_buffer
-from trl_cartpole.parts.losses import make_dqn_loss, priority_from_loss
+from trl_cartpole.parts.losses import make_dqn_loss
 from trl_cartpole.parts.optim import make_update
+from trl_cartpole.parts.replay import annealed_beta, make_replay_buffer
 
 ALPHA, BETA, EPS, GAMMA = 0.5, 0.4, 1e-6, 0.5
 W = torch.tensor([[1.0, -1.0], [0.5, 2.0]])  # Q(s) = W s: [*B, 2] -> [*B, 2]
@@ -71,15 +71,17 @@ def _setup():
     return loss, buffer, update
 
 
-def test_priorities_after_an_update_are_abs_td_error_plus_eps_to_the_alpha():
-    loss, buffer, update = _setup()
+def test_priorities_written_torchrls_way_are_squared_td_error_plus_eps_to_the_alpha():
+    """TorchRL's rule, which the pipeline's Learner follows: DQNLoss writes td_error = delta ** 2
+    and update_tensordict_priority stores (td_error + eps) ** alpha."""
+    _, buffer, update = _setup()
     delta = _td_errors_by_hand(_transitions())  # [6]
     sample = buffer.sample()  # [4]
     update(sample)
-    buffer.update_priority(sample["index"], priority_from_loss(loss, sample))  # as train() does
+    buffer.update_tensordict_priority(sample)  # as Learner.step does
     index = sample["index"]
     stored = buffer.sampler._sum_tree[index]  # the sampler's p_i ** alpha
-    expected = (delta[index].abs() + EPS) ** ALPHA
+    expected = (delta[index] ** 2 + EPS) ** ALPHA
     assert torch.allclose(torch.as_tensor(stored, dtype=torch.float32), expected, rtol=1e-5)
 
 
@@ -88,12 +90,12 @@ def test_loss_is_the_importance_weighted_mean_of_squared_td_errors():
     delta = _td_errors_by_hand(_transitions())
     everything = buffer[:]  # give all six transitions their priority once
     loss(everything)
-    buffer.update_priority(everything["index"], priority_from_loss(loss, everything))
+    buffer.update_tensordict_priority(everything)
 
     _seed(3)
     sample = buffer.sample()  # [4]
     index, weights = sample["index"], sample["priority_weight"]  # [4], [4]
-    priorities = (delta.abs() + EPS) ** ALPHA  # [6]
+    priorities = (delta**2 + EPS) ** ALPHA  # [6]
     # TorchRL's weights: (N P(i)) ** -beta / max_k (N P(k)) ** -beta = (p_i / min_k p_k) ** -beta
     assert torch.allclose(weights, (priorities[index] / priorities.min()) ** -BETA, rtol=1e-5)
     assert not torch.allclose(weights, weights[0].expand(4))  # non-uniform, so the test can bite
@@ -109,13 +111,25 @@ def test_higher_priority_transitions_are_sampled_more_often():
     loss, buffer, _ = _setup()
     everything = buffer[:]
     loss(everything)
-    buffer.update_priority(everything["index"], priority_from_loss(loss, everything))
+    buffer.update_tensordict_priority(everything)
     _seed(0)
     counts = torch.bincount(buffer.sample(6000)["index"], minlength=6).float()  # [6]
-    priorities = (_td_errors_by_hand(_transitions()).abs() + EPS) ** ALPHA
+    priorities = (_td_errors_by_hand(_transitions()) ** 2 + EPS) ** ALPHA
     assert torch.allclose(counts / 6000, priorities / priorities.sum(), atol=0.02)
 
 
 @pytest.mark.parametrize(("frames", "expected"), [(0, 0.4), (500, 0.7), (1000, 1.0), (5000, 1.0)])
 def test_beta_is_annealed_linearly_to_one(frames, expected):
     assert annealed_beta(0.4, frames, anneal_frames=1000) == pytest.approx(expected)
+
+
+def test_the_configs_alpha_is_schauls_exponent_on_the_absolute_td_error():
+    """buffer.alpha=0.6 (Schaul et al.'s, on |delta|) builds TorchRL's alpha=0.3 on delta ** 2
+    for DQNLoss; C51's cross-entropy priority keeps it."""
+    from trl_cartpole.build import build_replay_buffer
+    from trl_cartpole.config import to_config
+
+    cfg = to_config({"buffer": {"prioritized": True, "alpha": 0.6}})
+    assert build_replay_buffer(cfg).sampler.alpha == pytest.approx(0.3)
+    cfg.network.distributional = True
+    assert build_replay_buffer(cfg).sampler.alpha == pytest.approx(0.6)

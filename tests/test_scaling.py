@@ -18,19 +18,18 @@ from tensordict.nn import TensorDictSequential
 
 import trl_cartpole
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
+from trl_cartpole.build import build_actor
 from trl_cartpole.checkpoint import resume_config
+from trl_cartpole.config import to_config
+from trl_cartpole.configured_envs import make_env_from_config, worker_env_constructors
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.collectors import (
     default_ray_init_config,
     make_collector,
     needs_weight_sync,
     shutdown_collector,
-    worker_env_constructors,
 )
-from trl_cartpole.config import to_config
-from trl_cartpole.parts.env import make_env_from_config
-from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.exploration import make_exploration
-from trl_cartpole.parts.models import make_q_actor_for_env
 from trl_cartpole.sweeps import expand_grid
 from trl_cartpole.training import train
 from trl_cartpole.validation import validate
@@ -84,7 +83,7 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
     """Parameters and buffers (epsilon) reach the workers with each update_policy_weights_()."""
     cfg = to_config(compose("env.num_envs=4", "collector.workers=2", "buffer.n_steps=1"))
     env = make_env_from_config(cfg.env, 0)
-    actor = make_q_actor_for_env(env, cfg.network, "cpu")
+    actor = build_actor(cfg, env)
     exploration = make_exploration(env.action_spec, 1.0, 1.0, 1000, device="cpu")  # eps 1
     policy = TensorDictSequential(actor, exploration)
     collector = make_collector(worker_env_constructors(cfg), policy, 32, 32 * 40, 0, sync=sync)
@@ -430,14 +429,14 @@ _SHIPPED_PACKAGE = """
 import json, sys
 from pathlib import Path
 import ray, trl_cartpole
-from trl_cartpole.parts.collectors import make_collector, worker_env_constructors
+from trl_cartpole.build import build_actor
+from trl_cartpole.configured_envs import make_env_from_config, worker_env_constructors
+from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.config import Config
-from trl_cartpole.parts.models import make_q_actor_for_env
-from trl_cartpole.parts.env import make_env_from_config
 
 cfg = Config()
 cfg.env.num_envs, cfg.collector.workers = 2, 2
-actor = make_q_actor_for_env(make_env_from_config(cfg.env, seed=0), cfg.network)
+actor = build_actor(cfg, make_env_from_config(cfg.env, seed=0))
 collector = make_collector(
     worker_env_constructors(cfg), actor, frames_per_batch=8, total_frames=16,
     init_random_frames=0, backend="ray", ray_address=sys.argv[1],
@@ -642,7 +641,9 @@ def test_a_killed_ray_actor_stops_the_run_with_a_checkpoint_that_resumes(tmp_pat
 
 _START_LOCAL_RAY = """
 import sys, ray
-from trl_cartpole.parts.collectors import guard_local_ray_with_a_token_of_its_own, default_ray_init_config
+from trl_cartpole.parts.collectors import (
+    default_ray_init_config, guard_local_ray_with_a_token_of_its_own,
+)
 guard_local_ray_with_a_token_of_its_own()
 ray.init(**default_ray_init_config(None, 1))
 print(ray.get_runtime_context().gcs_address, flush=True)

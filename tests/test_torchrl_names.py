@@ -171,7 +171,7 @@ def test_loss_takes_the_n_step_buffers_discount_and_refuses_another(env):
 
 def test_a_loss_built_apart_refuses_its_first_batch_from_a_buffer_of_another_discount(env):
     actor = make_q_actor(env.observation_spec, env.action_spec)
-    buffer = make_replay_buffer(batch_size=8)  # the default: 3-step returns, gamma 0.995
+    buffer = make_replay_buffer(batch_size=8, n_steps=3)  # 3-step returns, gamma 0.995
     batch = _n_step_batch(env, buffer)
     with pytest.raises(ValueError, match=r"gamma=0\.99 differs .* n-step gamma=0\.995"):
         make_dqn_loss(actor, gamma=0.99)(batch)

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import torch
 
-from trl_cartpole.parts.env import make_sync_vector_env, solve_threshold
 from trl_cartpole.evaluation import EvalResult, Evaluator, play_greedy_episodes
 from trl_cartpole.files import write_json_atomic
+from trl_cartpole.parts.env import make_sync_vector_env, solve_threshold
 from trl_cartpole.progress import Progress
 from trl_cartpole.summary import run_summary
 

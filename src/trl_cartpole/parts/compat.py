@@ -50,6 +50,7 @@ __all__ = [
     "carrier_of",
     "close_weight_sync_schemes",
     "gym_env",
+    "held_steps",
     "install_segment_trees_if_missing",
     "n_step_window",
     "replay_transform",
@@ -120,6 +121,11 @@ def _multi_step(buffer: ReplayBuffer) -> MultiStepTransform | None:
     transform = replay_transform(buffer)
     steps = [t for t in transform or [] if isinstance(t, MultiStepTransform)]
     return steps[0] if steps else None
+
+
+def held_steps(transform: MultiStepTransform) -> TensorDictBase | None:
+    """The last steps ``transform`` holds back from its previous ``extend`` (None: none yet)."""
+    return transform._buffer
 
 
 def n_step_window(buffer: ReplayBuffer) -> TensorDictBase | None:

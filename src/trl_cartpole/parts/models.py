@@ -183,21 +183,27 @@ def _with_earlier_layout_readable(mlp: MLP) -> MLP:
     last_linear = max(
         i for i, layer in enumerate(mlp) if isinstance(layer, (nn.Linear, NoisyLinear))
     )
+    mlp._register_load_state_dict_pre_hook(_EarlierLayoutKeys(last_linear))
+    return mlp
 
-    def rename(state_dict: dict[str, Any], prefix: str, *_: Any) -> None:
+
+class _EarlierLayoutKeys:
+    """The load-time renaming of :func:`_with_earlier_layout_readable` (picklable, so worker
+    processes receive the actor)."""
+
+    def __init__(self, last_linear: int) -> None:
+        self.last_linear = last_linear
+
+    def __call__(self, state_dict: dict[str, Any], prefix: str, *_: Any) -> None:
         if not any(key.startswith(f"{prefix}0.0.") for key in state_dict):
             return  # TorchRL's layout already
         for key in [key for key in state_dict if key.startswith(prefix)]:
-            rest = key[len(prefix) :]
-            layer, _, name = rest.partition(".")
+            layer, _, name = key[len(prefix) :].partition(".")
             if layer == "0":  # the torso: 0.{j}.name -> {j}.name
                 new = name
             else:  # the head: 1.name, or 1.0.name for C51's Sequential(linear, Unflatten)
-                new = f"{last_linear}.{name[2:] if name.startswith('0.') else name}"
+                new = f"{self.last_linear}.{name[2:] if name.startswith('0.') else name}"
             state_dict[prefix + new] = state_dict.pop(key)
-
-    mlp._register_load_state_dict_pre_hook(rename)
-    return mlp
 
 
 def make_cnn_features(

@@ -30,7 +30,7 @@ from torchrl.data import (
 from torchrl.data.replay_buffers import PrioritizedSampler, RandomSampler, Sampler, Storage
 from torchrl.envs import Compose, MultiStepTransform, Transform
 
-from trl_cartpole.parts.compat import replay_transform
+from trl_cartpole.parts.compat import held_steps, replay_transform
 
 __all__ = [
     "DEFAULT_GAMMA",
@@ -49,8 +49,10 @@ __all__ = [
 # default of an n-step buffer and of the loss, so the two agree when neither is given.
 DEFAULT_GAMMA = 0.995
 # The prioritized sampler's defaults here (TorchRL's PrioritizedSampler requires alpha and
-# beta and defaults eps to 1e-8): the default config's buffer section.
-DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_PRIORITY_EPS = 0.6, 0.4, 1e-6
+# beta and defaults eps to 1e-8): the default config's buffer section. alpha is TorchRL's,
+# the exponent of the loss's td_error; DQNLoss writes delta ** 2, so 0.3 is Schaul et al.'s
+# 0.6 on |delta| (the config's buffer.alpha).
+DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_PRIORITY_EPS = 0.3, 0.4, 1e-6
 # Each sample of an n-step buffer carries its discount under this key ([*B, 1], added when
 # sampling, not stored), so a loss built apart from the buffer can check that it agrees.
 N_STEP_GAMMA_KEY = "n_step_gamma"
@@ -80,7 +82,7 @@ class NStepTransform(MultiStepTransform):
         super().__init__(n_steps, gamma, done_keys=["done", "truncated"])
 
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase | None:
-        check_time_order(self._buffer, tensordict)
+        check_time_order(held_steps(self), tensordict)
         out = super()._inv_call(tensordict)
         if out is not None:
             steps = out.get("steps_to_next_obs")  # [*B]
@@ -194,7 +196,7 @@ def make_replay_buffer(
       sampler (a ``PrioritizedSampler`` included) is used as given.
     - ``prioritized=True``: ``TensorDictPrioritizedReplayBuffer`` (Schaul et al. 2016,
       proportional), TorchRL's ``PrioritizedSampler`` with ``alpha``, ``beta`` and ``eps``
-      (ours 0.6, 0.4, 1e-6; TorchRL requires alpha and beta and defaults eps to 1e-8). It
+      (ours 0.3, 0.4, 1e-6; TorchRL requires alpha and beta and defaults eps to 1e-8). It
       brings its own sampler, so ``sampler`` is refused with it, and ``alpha``, ``beta`` and
       ``eps`` are refused without it, as TorchRL's plain buffer refuses them.
     - ``batch_size``: 512 (TorchRL: None, given at ``sample``).
