@@ -14,7 +14,9 @@ wrote, never from a hand copy:
 - ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
   ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
 - ``pixel-seeds`` (docs/environments.md): ``env=cartpole_pixels`` seed by seed, from
-  ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``).
+  ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
+- ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
+  and the class it returns, from the signatures (``trl_cartpole.reference``).
 
 ``tests/test_docs_in_sync.py`` runs the check, so CI fails when a doc drifts from its source.
 """
@@ -196,6 +198,13 @@ def train_listing() -> str:
     return _fenced(inspect.getsource(train), "python")
 
 
+def factory_defaults() -> str:
+    """Each factory's defaults beside TorchRL's, and what it returns, read off the signatures."""
+    from trl_cartpole.reference import defaults_table
+
+    return defaults_table()
+
+
 BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "readme-ending": ("README.md", readme_ending),
     "readme-next-steps": ("README.md", readme_next_steps),
@@ -204,6 +213,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
     "pixel-seeds": ("docs/environments.md", pixel_seeds),
+    "factory-defaults": ("docs/reference/factories.md", factory_defaults),
 }
 
 

@@ -64,3 +64,25 @@ def test_dueling_double_acrobot_example_runs_its_own_loop():
     assert torch.isfinite(torch.tensor(out["losses"])).all()
     assert _target_moved(loss, out["initial_target"])
     assert -500.0 <= out["greedy_return"] <= 0.0
+
+
+def test_the_factories_drop_into_torchrls_dqn_trainer():
+    out = _main("dqn_trainer.py")(["--frames", "1600"])
+    trainer, loss = out["trainer"], out["loss"]
+    assert isinstance(loss, DQNLoss) and trainer.loss_module is loss
+    assert trainer.collected_frames == 1600
+    assert out["exploration"].eps.item() < 1.0  # the trainer stepped epsilon
+    assert 1.0 <= out["greedy_return"] <= 500.0
+
+
+def test_your_own_network_trains_under_the_factories_parts():
+    out = _main("own_network.py")(["--frames", "1600"])
+    actor, torso = out["actor"], out["torso"]
+    assert isinstance(actor, QValueActor)
+    assert any(module is torso for module in actor.modules())  # the user's module, as given
+    assert any(isinstance(m, DuelingHead) for m in actor.modules())
+    assert any(isinstance(m, torch.nn.LayerNorm) for m in actor.modules())
+    # 50 batches of 32 frames, 2 updates each once 1 000 transitions are stored
+    assert 0 < len(out["losses"]) < 2 * 50
+    assert torch.isfinite(torch.tensor(out["losses"])).all()
+    assert 1.0 <= out["greedy_return"] <= 500.0

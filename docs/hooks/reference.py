@@ -1,19 +1,8 @@
-"""MkDocs hook: the factories' defaults table, rendered from the code at build time."""
+"""MkDocs hook: Sphinx roles and "Example::" in the docstrings, read as plain Markdown."""
 
 from __future__ import annotations
 
 import re
-
-MARKER = "<!-- factory-defaults -->"
-
-
-def on_page_markdown(markdown: str, **_: object) -> str:
-    if MARKER not in markdown:
-        return markdown
-    from trl_cartpole.reference import defaults_table
-
-    return markdown.replace(MARKER, defaults_table())
-
 
 # The docstrings are written for Python's help() and Sphinx-style readers: a role such as
 # :func:`~pkg.mod.name` and the "Example::" that opens a code block read as plain Markdown here.

@@ -1,8 +1,9 @@
 """The factories' defaults beside TorchRL's, read off the code for the API reference.
 
-``docs/reference/factories.md`` shows :func:`defaults_table`, which the documentation build
-(``docs/hooks/reference.py``) renders from the signatures of each factory and of the TorchRL
-class it builds, so the table cannot drift from the code. A default that is ``None`` in a
+``docs/reference/factories.md`` holds :func:`defaults_table`, written into the file by
+``python -m benchmarks docs`` from the signatures of each factory and of the TorchRL class it
+builds (``tests/test_docs_in_sync.py`` fails when it drifts), so it reads on the repository
+page and on the site alike. A default that is ``None`` in a
 factory's signature because it depends on another argument is shown as it resolves.
 """
 
@@ -30,50 +31,70 @@ def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
     """factory: (what it returns, the TorchRL classes its arguments go to, arguments shown)."""
     import torch
     from torchrl.collectors import Collector
-    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+    from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplayBuffer
     from torchrl.envs import EnvBase, GymEnv, GymWrapper, MultiStepTransform
     from torchrl.modules import MLP, EGreedyModule, QValueActor
     from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
     return {
         "make_env": (
-            "`TransformedEnv(GymWrapper)`",
+            "TorchRL's `TransformedEnv(GymWrapper)`",
             [GymEnv, GymWrapper, EnvBase],
             ["env_name", "device"],
         ),
         "make_q_actor": (
-            "`QValueActor` (`DistributionalQValueActor` with `support`)",
+            "TorchRL's `QValueActor` (`DistributionalQValueActor` with `support`) over TorchRL's"
+            " `MLP`; `head='dueling'` puts this project's `DuelingHead` module in it",
             [MLP, QValueActor],
-            ["num_cells", "activation_class", "in_keys", "device"],
+            ["module", "num_cells", "activation_class", "head", "in_keys", "device"],
         ),
         "make_exploration": (
-            "`EGreedyModule`",
+            "TorchRL's `EGreedyModule`; `schedule='exponential'`: `ExponentialEGreedyModule`,"
+            " this project's subclass",
             [EGreedyModule],
-            ["eps_init", "eps_end", "annealing_num_steps", "device"],
+            ["eps_init", "eps_end", "annealing_num_steps", "schedule", "device"],
         ),
         "make_replay_buffer": (
-            "`TensorDictReplayBuffer` (`TensorDictPrioritizedReplayBuffer`)",
-            [TensorDictReplayBuffer, LazyTensorStorage, MultiStepTransform],
-            ["storage", "sampler", "batch_size", "transform", "max_size", "n_steps", "gamma"],
+            "TorchRL's `TensorDictReplayBuffer` (`TensorDictPrioritizedReplayBuffer` with"
+            " `prioritized`); `n_steps > 1` adds `NStepTransform`, this project's"
+            " `MultiStepTransform` subclass",
+            [TensorDictReplayBuffer, LazyTensorStorage, PrioritizedSampler, MultiStepTransform],
+            [
+                "storage",
+                "sampler",
+                "batch_size",
+                "transform",
+                "max_size",
+                "prioritized",
+                "alpha",
+                "beta",
+                "eps",
+                "n_steps",
+                "gamma",
+            ],
         ),
         "make_dqn_loss": (
-            "`DQNLoss` (`DistributionalDQNLoss` for C51)",
+            "TorchRL's `DQNLoss` (`DistributionalDQNLoss` for C51)",
             [DQNLoss],
             ["gamma", "loss_function", "delay_value", "double_dqn"],
         ),
         "make_target_updater": (
-            "`SoftUpdate` or `HardUpdate`",
+            "TorchRL's `HardUpdate`, or `FusedSoftUpdate`, this project's `SoftUpdate` subclass",
             [SoftUpdate, HardUpdate],
             ["eps", "tau", "value_network_update_interval"],
         ),
         "make_optimizer": (
-            "`torch.optim.AdamW`",
+            "PyTorch's `torch.optim.AdamW`",
             [torch.optim.AdamW],
             ["lr", "amsgrad", "weight_decay"],
         ),
-        "make_update": ("a function `update(batch) -> TensorDict(loss, grad_norm)`", [], []),
+        "make_update": (
+            "this project's function `update(batch) -> TensorDict(loss, grad_norm)`",
+            [],
+            [],
+        ),
         "make_collector": (
-            "`torchrl.collectors.Collector`",
+            "TorchRL's `Collector`",
             [Collector],
             ["frames_per_batch", "total_frames", "init_random_frames", "device"],
         ),
@@ -82,7 +103,7 @@ def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
 
 def _resolved() -> dict[tuple[str, str], Any]:
     """Defaults that are None in a signature, as the factory resolves them."""
-    from trl_cartpole.parts import losses
+    from trl_cartpole.parts import losses, replay
 
     return {
         ("make_dqn_loss", "gamma"): f"{losses.DEFAULT_GAMMA} (the buffer's with `replay_buffer`)",
@@ -95,7 +116,12 @@ def _resolved() -> dict[tuple[str, str], Any]:
         ("make_target_updater", "tau"): f"{losses.DEFAULT_TAU} with `kind='soft'`",
         ("make_replay_buffer", "storage"): "`LazyTensorStorage(max_size)`",
         ("make_replay_buffer", "sampler"): "`RandomSampler()`",
-        ("make_replay_buffer", "transform"): "the n-step transform when `n_steps > 1`",
+        ("make_replay_buffer", "transform"): "none (yours, after `NStepTransform` with `n_steps > 1`)",
+        ("make_replay_buffer", "alpha"): f"{replay.DEFAULT_ALPHA} with `prioritized` (refused without)",
+        ("make_replay_buffer", "beta"): f"{replay.DEFAULT_BETA} with `prioritized` (refused without)",
+        ("make_replay_buffer", "eps"): f"{replay.DEFAULT_PRIORITY_EPS} with `prioritized` (refused without)",
+        ("make_replay_buffer", "gamma"): f"{replay.DEFAULT_GAMMA} with `n_steps > 1` (refused without)",
+        ("make_q_actor", "module"): "None: built from `observation_spec`",
         ("make_q_actor", "device"): "the spec's",
         ("make_exploration", "device"): "the spec's",
     }
@@ -110,7 +136,11 @@ _TORCHRL_NOTES = {
     ("TensorDictReplayBuffer", "sampler"): "`RandomSampler()`",
     ("TensorDictReplayBuffer", "batch_size"): "None (given to `sample`)",
     ("TensorDictReplayBuffer", "transform"): "none",
-    ("MLP", "num_cells"): "32 per layer",
+    ("MLP", "num_cells"): "None (a single linear layer; 32 per layer with `depth`)",
+    ("QValueActor", "module"): "required",
+    ("PrioritizedSampler", "eps"): "1e-8",
+    ("MultiStepTransform", "n_steps"): "required (no n-step without it)",
+    ("MultiStepTransform", "gamma"): "required",
 }
 
 
