@@ -316,3 +316,12 @@ def test_a_subclass_the_factories_return_is_accepted_where_its_base_is(env):
     assert all(torch.allclose(b + 0.1, a, atol=1e-6) for a, b in zip(after, before, strict=True))
     optimizer = make_optimizer(actor.parameters())
     assert optimizer.defaults["fused"] is True
+
+
+def test_a_factory_called_from_python_answers_in_its_arguments_names():
+    with pytest.raises(ValueError, match=r"^env_name='CartPoel-v1' is not a registered"):
+        make_env("CartPoel-v1")
+    with pytest.raises(ValueError, match=r"^schedule='exp': choose one of"):
+        make_exploration(OneHot(2), schedule="exp")
+    with pytest.raises(ValueError, match=r"^torso='resnet': choose 'mlp', 'cnn' or an nn.Module"):
+        make_q_actor(Composite(observation=OneHot(4)), OneHot(2), torso="resnet")

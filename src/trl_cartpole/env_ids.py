@@ -33,24 +33,30 @@ def _import_module(name: str, field: str) -> Any:
         ) from None
 
 
-def resolve_env_id(env_id: str, imports: Sequence[str] = ()) -> str:
+def resolve_env_id(
+    env_id: str,
+    imports: Sequence[str] = (),
+    field: str = "env.id",
+    imports_field: str = "env.imports",
+) -> str:
     """Import ``imports``, register a ``module:EnvClass`` entry point; return the registered id.
 
-    Raises :class:`ConfigError` (one line) for a module that cannot be imported, an attribute
-    that is not a ``gymnasium.Env`` subclass, or an id Gymnasium does not know.
+    Raises :class:`ConfigError` (one line, naming ``field``: the config's key, or a factory's
+    argument) for a module that cannot be imported, an attribute that is not a
+    ``gymnasium.Env`` subclass, or an id Gymnasium does not know.
     """
     for module_name in imports:
-        _import_module(module_name, "env.imports")
+        _import_module(module_name, imports_field)
     if ":" in env_id:
         module_name, name = env_id.split(":", 1)
-        module = _import_module(module_name, f"env.id={env_id!r}")
+        module = _import_module(module_name, f"{field}={env_id!r}")
         if name in gym.registry:  # registered by the import (Gymnasium's module:Id)
             env_id = name
         else:  # an env class, registered under its qualified name so two modules' classes differ
             target = getattr(module, name, None)
             if not (isinstance(target, type) and issubclass(target, gym.Env)):
                 raise ConfigError(
-                    f"env.id={env_id!r}: module {module_name!r} neither registers {name!r} nor "
+                    f"{field}={env_id!r}: module {module_name!r} neither registers {name!r} nor "
                     "defines a gymnasium.Env subclass of that name"
                 )
             qualified = f"{module_name}.{name}"
@@ -61,9 +67,13 @@ def resolve_env_id(env_id: str, imports: Sequence[str] = ()) -> str:
         gym.spec(env_id)
     except gym.error.Error as error:
         raise ConfigError(
-            f"env.id={env_id!r} is not a registered Gymnasium env ({error}); check the spelling "
-            "and version suffix (e.g. CartPole-v1), or name the module that registers it in "
-            "env.imports"
+            f"{field}={env_id!r} is not a registered Gymnasium env ({error}); check the spelling "
+            "and version suffix (e.g. CartPole-v1), or "
+            + (
+                f"name the module that registers it in {imports_field}"
+                if imports_field
+                else "import the module that registers it first (or write 'module:Id')"
+            )
         ) from None
     return env_id
 

@@ -116,11 +116,26 @@ def _resolved() -> dict[tuple[str, str], Any]:
         ("make_target_updater", "tau"): f"{losses.DEFAULT_TAU} with `kind='soft'`",
         ("make_replay_buffer", "storage"): "`LazyTensorStorage(max_size)`",
         ("make_replay_buffer", "sampler"): "`RandomSampler()`",
-        ("make_replay_buffer", "transform"): "none (yours, after `NStepTransform` with `n_steps > 1`)",
-        ("make_replay_buffer", "alpha"): f"{replay.DEFAULT_ALPHA} with `prioritized` (refused without)",
-        ("make_replay_buffer", "beta"): f"{replay.DEFAULT_BETA} with `prioritized` (refused without)",
-        ("make_replay_buffer", "eps"): f"{replay.DEFAULT_PRIORITY_EPS} with `prioritized` (refused without)",
-        ("make_replay_buffer", "gamma"): f"{replay.DEFAULT_GAMMA} with `n_steps > 1` (refused without)",
+        (
+            "make_replay_buffer",
+            "transform",
+        ): "none (yours, after `NStepTransform` with `n_steps > 1`)",
+        (
+            "make_replay_buffer",
+            "alpha",
+        ): f"{replay.DEFAULT_ALPHA} with `prioritized` (refused without)",
+        (
+            "make_replay_buffer",
+            "beta",
+        ): f"{replay.DEFAULT_BETA} with `prioritized` (refused without)",
+        (
+            "make_replay_buffer",
+            "eps",
+        ): f"{replay.DEFAULT_PRIORITY_EPS} with `prioritized` (refused without)",
+        (
+            "make_replay_buffer",
+            "gamma",
+        ): f"{replay.DEFAULT_GAMMA} with `n_steps > 1` (refused without)",
         ("make_q_actor", "module"): "None: built from `observation_spec`",
         ("make_q_actor", "device"): "the spec's",
         ("make_exploration", "device"): "the spec's",

@@ -125,7 +125,8 @@ def make_env(
         >>> env.rollout(3)["next", "step_count"].squeeze(-1).tolist()
         [1, 2, 3]
     """
-    env_id = resolve_env_id(env_name)
+    # ids the config has resolved pass unchanged; a Python caller's error names env_name
+    env_id = resolve_env_id(env_name, field="env_name", imports_field=None)
     wrapper_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in GYM_WRAPPER_KEYWORDS}
     make_kwargs: dict[str, Any] = dict(kwargs)
     if max_episode_steps is not None:
