@@ -23,7 +23,7 @@ from benchmarks.harness import (
     provenance_line,
     run_presets,
 )
-from trl_cartpole.plotting import plot_seed_groups
+from trl_cartpole.report.plotting import plot_seed_groups
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/ablations"
 BEGIN, END = "<!-- ablation:begin -->", "<!-- ablation:end -->"

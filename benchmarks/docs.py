@@ -16,7 +16,7 @@ wrote, never from a hand copy:
 - ``pixel-seeds`` (docs/environments.md): ``env=cartpole_pixels`` seed by seed, from
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
 - ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
-  and the class it returns, from the signatures (``trl_cartpole.reference``).
+  and the class it returns, from the signatures (``benchmarks/reference.py``).
 
 ``tests/test_docs_in_sync.py`` runs the check, so CI fails when a doc drifts from its source.
 """
@@ -77,8 +77,8 @@ def _duration(seconds: float) -> str:
 
 def config_fields() -> str:
     """Every leaf field of the schema: key, type, default and meaning (what ``--help`` shows)."""
-    from trl_cartpole.cli_help import field_help
-    from trl_cartpole.config import Config
+    from trl_cartpole.config.help import field_help
+    from trl_cartpole.config.schema import Config
 
     rows = ["| field | type | default | meaning |", "| --- | --- | --- | --- |"]
     for key, kind, default, meaning in field_help(Config):
@@ -192,15 +192,15 @@ def pixel_seeds() -> str:
 
 
 def train_listing() -> str:
-    """``train()`` as ``src/trl_cartpole/training.py`` has it."""
-    from trl_cartpole.training import train
+    """``train()`` as ``src/trl_cartpole/run/training.py`` has it."""
+    from trl_cartpole.run.training import train
 
     return _fenced(inspect.getsource(train), "python")
 
 
 def factory_defaults() -> str:
     """Each factory's defaults beside TorchRL's, and what it returns, read off the signatures."""
-    from trl_cartpole.reference import defaults_table
+    from benchmarks.reference import defaults_table
 
     return defaults_table()
 

@@ -9,7 +9,7 @@ process (``--jobs`` at a time), into ``OUT/<preset>/dqn-seed<seed>``; a finished
 run again. A target is checked on the best policy's final greedy return over
 ``eval.final_episodes`` (100) episodes: every seed must reach it (and LunarLander's median over
 seeds its own). The table gives the interquartile mean with its 95 % stratified bootstrap
-interval (``trl_cartpole.interval_estimates``), the median and the worst seed, and the
+interval (``trl_cartpole.report.interval_estimates``), the median and the worst seed, and the
 training seconds until the first periodic evaluation at or above the target (its 20 or 50
 episodes, a first sign; the target itself is the final 100). Prints it,
 writes it to ``OUT/results.md`` and draws ``OUT/<preset>.png`` (eval return against frames
@@ -26,8 +26,8 @@ import sys
 from pathlib import Path
 
 from benchmarks.harness import ENV_MEDIAN_TARGETS, ENV_TARGETS, provenance, run_presets
-from trl_cartpole.interval_estimates import interval_estimate
-from trl_cartpole.plotting import plot_comparison
+from trl_cartpole.report.interval_estimates import interval_estimate
+from trl_cartpole.report.plotting import plot_comparison
 
 SEEDS, OUT = [0, 1, 2], "runs/envs"
 

@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from trl_cartpole.comparison import (
+from trl_cartpole.tools.comparison import (
     expand_sweep_dirs,
     group_runs,
     load_runs,

@@ -22,7 +22,7 @@ from pathlib import Path
 import yaml
 
 from benchmarks.harness import run_training
-from trl_cartpole.files import tree_bytes
+from trl_cartpole.store.files import tree_bytes
 
 SEEDS, OUT = [100], "runs/memory"
 MIB = 2**20

@@ -4,7 +4,7 @@
 
 Trains ``--algo`` with the overrides once per seed (``scripts/train.py`` in its own process;
 finished runs are reused) and prints a markdown table from the summaries' ``phase_seconds``
-(``trl_cartpole.progress.Progress.phase``): per phase, the median seconds over seeds and its
+(``trl_cartpole.run.progress.Progress.phase``): per phase, the median seconds over seeds and its
 share of the median training seconds; then the training seconds no phase timed and the seconds
 outside training (evaluation, checkpoints, start-up: ``wall_seconds - train_seconds``).
 """

@@ -40,7 +40,7 @@ from benchmarks.harness import (
     seconds_per_frame,
     speed_ratios,
 )
-from trl_cartpole.comparison import iqm_to_solve
+from trl_cartpole.tools.comparison import iqm_to_solve
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/benchmark"
 

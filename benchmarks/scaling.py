@@ -35,16 +35,16 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase, ParallelEnv
 
 from benchmarks.harness import CONFIG_DIR, markdown_table, run_presets
-from trl_cartpole.build import build_actor, build_env, build_exploration
-from trl_cartpole.cli import compose_config
-from trl_cartpole.config import Config, to_config
-from trl_cartpole.configured_envs import worker_env_constructors
+from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.parts.collectors import (
     is_distributed,
     make_collector,
     needs_weight_sync,
     shutdown_collector,
 )
+from trl_cartpole.run.build import build_actor, build_env, build_exploration
+from trl_cartpole.run.envs import worker_env_constructors
 
 SEEDS, OUT = [0, 1, 2], "runs/scaling"
 WARMUP_BATCHES = 5  # batches left out of the timing: worker start-up, first allocations

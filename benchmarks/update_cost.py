@@ -3,7 +3,7 @@
     python -m benchmarks update-cost [--algos dqn rainbow ...] [--updates 300] [--seeds 0]
         [key=value ...]
 
-Builds each preset's env, Q-actor, replay buffer and learner with ``trl_cartpole.build``, as
+Builds each preset's env, Q-actor, replay buffer and learner with ``trl_cartpole.run.build``, as
 training does (its optimizer, sampling, thread count and ``compile`` flag), fills the buffer
 with 3 000 random frames, warms up for 20 updates or more, then times ``--updates`` updates
 in batches of ``collector.updates_per_batch`` (one ``Learner.step``, phase by phase) and
@@ -30,7 +30,12 @@ from itertools import chain, pairwise
 import torch
 
 from benchmarks.harness import CONFIG_DIR, VARIANT_PRESETS
-from trl_cartpole.build import (
+from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.schema import to_config
+from trl_cartpole.config.validation import validate
+from trl_cartpole.parts.optim import make_optimizer
+from trl_cartpole.parts.replay import extend_with_batch, sample_minibatches
+from trl_cartpole.run.build import (
     build_actor,
     build_env,
     build_learner,
@@ -38,11 +43,6 @@ from trl_cartpole.build import (
     seed_everything,
     transition_keys,
 )
-from trl_cartpole.cli import compose_config
-from trl_cartpole.config import to_config
-from trl_cartpole.parts.optim import make_optimizer
-from trl_cartpole.parts.replay import extend_with_batch, sample_minibatches
-from trl_cartpole.validation import validate
 
 SEEDS, OUT = [0], "runs/update_cost"
 RANDOM_FRAMES, WARMUP_UPDATES = 3000, 20

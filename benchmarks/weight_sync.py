@@ -17,15 +17,15 @@ import copy
 import torch
 from tensordict.nn import TensorDictSequential
 
-from trl_cartpole.build import build_actor, build_env, build_exploration
-from trl_cartpole.cli import compose_config
-from trl_cartpole.config import to_config
-from trl_cartpole.configured_envs import worker_env_constructors
+from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.schema import to_config
 from trl_cartpole.parts.collectors import (
     make_collector,
     needs_weight_sync,
     shutdown_collector,
 )
+from trl_cartpole.run.build import build_actor, build_env, build_exploration
+from trl_cartpole.run.envs import worker_env_constructors
 
 
 def _source(batch, actors: list) -> str:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from trl_cartpole.cli import compose_config
+from trl_cartpole.cli.main import compose_config
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG_DIR = ROOT / "configs"
@@ -77,7 +77,7 @@ def python() -> str:
 @pytest.fixture(scope="session")
 def smoke_checkpoint(tmp_path_factory) -> Path:
     """The best-policy checkpoint of a 300-frame default run (trained once per session)."""
-    from trl_cartpole.training import train
+    from trl_cartpole.run.training import train
 
     run_dir = tmp_path_factory.mktemp("smoke-checkpoint")
     train(
@@ -96,8 +96,8 @@ def run_script_in_process(name: str, *args: str) -> subprocess.CompletedProcess:
     import contextlib
     import io
 
-    from trl_cartpole.cli import run_script as run_script_entry
-    from trl_cartpole.console import set_scripts_dir
+    from trl_cartpole.cli.main import run_script as run_script_entry
+    from trl_cartpole.report.console import set_scripts_dir
 
     stdout, stderr = io.StringIO(), io.StringIO()
     saved_cwd = Path.cwd()

@@ -18,7 +18,7 @@ from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
 from benchmarks.profile import phase_table
 from benchmarks.run import iqm_ratio_lines, ratio_lines
 from benchmarks.wall import wall_table
-from trl_cartpole.plotting import hold_last, plot_seed_groups
+from trl_cartpole.report.plotting import hold_last, plot_seed_groups
 
 from .conftest import ROOT, SCRIPTS
 
@@ -241,7 +241,7 @@ def test_update_cost_prints_a_row_per_preset(python, tmp_path):
 def _fake_run(root, name, seed, lr, frames_to_solve):
     from omegaconf import OmegaConf
 
-    from trl_cartpole.config import Config
+    from trl_cartpole.config.schema import Config
 
     run_dir = root / name
     run_dir.mkdir()

@@ -20,10 +20,10 @@ import pytest
 import torch
 from torchrl.checkpoint import Checkpoint
 
-from trl_cartpole.env_state import env_snapshot, restore_env_snapshot
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import make_env
-from trl_cartpole.pickle_scan import executable_opcode
+from trl_cartpole.store.env_state import env_snapshot, restore_env_snapshot
+from trl_cartpole.store.pickle_scan import executable_opcode
 
 from .conftest import ROOT, run_script, run_script_in_process
 
@@ -147,8 +147,8 @@ def _archive_with_payload(path: Path, payload: bytes) -> None:
 
 
 def test_a_zip_archive_or_a_symbolic_link_in_a_checkpoint_is_refused_unrun(planted, tmp_path):
-    from trl_cartpole.checkpoint import load_policy
     from trl_cartpole.errors import ConfigError
+    from trl_cartpole.store.checkpoint import load_policy
 
     run_dir, marker = planted
     best = run_dir / "checkpoints" / "best"
@@ -175,7 +175,7 @@ def test_unpickling_during_a_load_is_refused_whatever_path_led_there(tmp_path):
     from tensordict import NonTensorData, TensorDict, load
 
     from trl_cartpole.errors import ConfigError
-    from trl_cartpole.pickle_scan import no_unpickling
+    from trl_cartpole.store.pickle_scan import no_unpickling
 
     marker = tmp_path / "payload-ran"
     TensorDict({"note": NonTensorData(b"harmless")}, batch_size=[]).memmap(

@@ -18,13 +18,13 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from tests.conftest import ROOT, SCRIPTS, SMOKE_OVERRIDES, run_script
-from trl_cartpole.build import prepare_run_dir
-from trl_cartpole.cli import compose_run_config
-from trl_cartpole.cli_help import field_help
-from trl_cartpole.config import Config
-from trl_cartpole.console import DYNAMO_PROFILER_LOGGER, ending, quiet_libraries, verdict
-from trl_cartpole.history import History
-from trl_cartpole.progress_bar import BAR_FORMAT
+from trl_cartpole.cli.main import compose_run_config
+from trl_cartpole.config.help import field_help
+from trl_cartpole.config.schema import Config
+from trl_cartpole.report.console import DYNAMO_PROFILER_LOGGER, ending, quiet_libraries, verdict
+from trl_cartpole.report.progress_bar import BAR_FORMAT
+from trl_cartpole.run.build import prepare_run_dir
+from trl_cartpole.run.history import History
 
 SCRIPT_NAMES = sorted(path.name for path in SCRIPTS.glob("*.py"))
 
@@ -54,7 +54,7 @@ def test_train_help_lists_presets_and_every_field_with_a_meaning():
     rows = field_help(Config)
     assert len(rows) > 60
     for key, _, default, meaning in rows:
-        assert meaning, f"{key} has no comment in trl_cartpole/config.py"
+        assert meaning, f"{key} has no comment in trl_cartpole/config/schema.py"
         assert f"  {key}={default} " in proc.stdout
     assert "  loss.gamma=0.995 (float)" in proc.stdout
     assert "  network.hidden_sizes=[128,128] (list[int])" in proc.stdout
@@ -253,7 +253,7 @@ def test_a_compiled_updates_habitual_notes_are_kept_off_the_console(caplog):
 )
 def test_a_typo_is_refused_before_torch_is_imported(argv, tmp_path):
     code = (
-        "import sys\nfrom trl_cartpole.cli import main\n"
+        "import sys\nfrom trl_cartpole.cli.main import main\n"
         f"code = main({argv!r})\n"
         "print('torch imported' if 'torch' in sys.modules else 'no torch', code)"
     )
@@ -266,7 +266,7 @@ def test_a_typo_is_refused_before_torch_is_imported(argv, tmp_path):
 
 def test_an_error_whose_causes_loop_is_still_one_line():
     """A cause chain that loops (found by tests/test_fuzz.py: the line never came)."""
-    from trl_cartpole.cli import _one_line
+    from trl_cartpole.cli.main import _one_line
 
     first, second = ValueError("first"), KeyError("second")
     first.__cause__, second.__cause__ = second, first

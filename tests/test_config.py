@@ -8,9 +8,9 @@ import pytest
 from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
-from trl_cartpole.config import Config, to_config
+from trl_cartpole.config.schema import Config, to_config
+from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.validation import validate
 
 from .conftest import SCRIPTS
 

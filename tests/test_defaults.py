@@ -1,10 +1,11 @@
 """One set of defaults: a factory's defaults are the default config's, except where TorchRL's
 behaviour comes first (named here).
 
-The config's schema (``trl_cartpole.config``) holds the defaults of ``python scripts/train.py``;
-each factory's keyword defaults must equal the schema field it is built from (the mapping below
-is the one ``trl_cartpole.build`` uses). The one difference: ``make_replay_buffer`` stores
-one-step transitions unless ``n_steps`` is given (TorchRL's behaviour), the config 3-step ones.
+The config's schema (``trl_cartpole.config.schema``) holds the defaults of
+``python scripts/train.py``; each factory's keyword defaults must equal the schema field it is
+built from (the mapping below is the one ``trl_cartpole.run.build`` uses). The one difference:
+``make_replay_buffer`` stores one-step transitions unless ``n_steps`` is given (TorchRL's
+behaviour), the config 3-step ones.
 """
 
 from __future__ import annotations
@@ -15,8 +16,7 @@ import pytest
 import torch
 from torchrl.objectives import HardUpdate
 
-from trl_cartpole.build import build_actor, build_env, build_exploration, build_replay_buffer
-from trl_cartpole.config import Config
+from trl_cartpole.config.schema import Config
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
@@ -24,6 +24,7 @@ from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
 from trl_cartpole.parts.replay import make_replay_buffer
+from trl_cartpole.run.build import build_actor, build_env, build_exploration, build_replay_buffer
 
 # factory -> {argument: config field}
 FACTORY_FIELDS = {
@@ -129,8 +130,8 @@ def test_the_replay_buffers_resolved_defaults_are_the_configs():
     """alpha, beta, eps and gamma are None in the signature (refused where they do not apply)
     and resolve to the config's: alpha as TorchRL's exponent on DQNLoss's td_error = delta ** 2,
     half the config's exponent on |delta|."""
-    from trl_cartpole.build import torchrl_priority_exponent
     from trl_cartpole.parts import replay
+    from trl_cartpole.run.build import torchrl_priority_exponent
 
     cfg = Config()
     assert cfg.loss.gamma == replay.DEFAULT_GAMMA

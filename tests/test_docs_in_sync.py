@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
-
-import pytest
 
 from benchmarks import docs
 
@@ -19,31 +16,22 @@ def test_every_generated_block_matches_its_source():
 
 def test_the_architecture_table_names_every_module_of_the_package_and_no_other():
     package = ROOT / "src" / "trl_cartpole"
-    modules = {  # the package's own modules, and those of its parts/ (named in its row)
-        path.name
+    modules = {  # folder/module.py (or module.py at the top), the subcommands as one folder
+        path.relative_to(package).as_posix()
         for path in package.rglob("*.py")
-        if path.parent in (package, package / "parts")
-        and path.name not in ("__init__.py", "__main__.py")
+        if path.name not in ("__init__.py", "__main__.py") and "commands" not in path.parts
     }
     table = (ROOT / "docs" / "architecture.md").read_text().split("## What each module owns")[1]
-    named = set(re.findall(r"`(\w+\.py)`", table.split("\n\n", 2)[1]))
+    named = set(re.findall(r"`((?:\w+/)?\w+\.py)`", table.split("\n\n", 2)[1]))
     assert modules - named == set(), "modules missing from docs/architecture.md"
     assert named - modules == set(), "docs/architecture.md names modules that do not exist"
 
 
-def test_the_readme_states_the_size_of_the_default_tier(request):
-    """The README's count of default-tier tests is the count pytest selects."""
-    readme = (ROOT / "README.md").read_text()
-    stated = int(re.search(r"the default tier of (\d+) tests", readme)[1])
-    config = request.config
-    whole_tier = (
-        config.getoption("markexpr") == "not slow"
-        and not config.getoption("keyword")
-        and [Path(arg).resolve() for arg in config.args] == [ROOT / "tests"]
-    )
-    if not whole_tier:
-        pytest.skip("counts the default tier only when the whole tier runs")
-    assert stated == len(request.session.items)
+def test_the_architecture_page_gives_every_folder_of_the_package_its_concern():
+    package = ROOT / "src" / "trl_cartpole"
+    folders = {p.name for p in package.iterdir() if (p / "__init__.py").is_file()}
+    table = (ROOT / "docs" / "architecture.md").read_text().split("## The folders")[1]
+    assert folders == set(re.findall(r"^\| `(\w+)/` \|", table, re.MULTILINE))
 
 
 # A command line in a doc: optional interpreter, then scripts/NAME.py or trl-cartpole NAME.
@@ -51,11 +39,11 @@ COMMAND = re.compile(
     r"^(?:\S*python\S*\s+)?(?:\S*scripts/(?P<script>\w+)\.py|trl-cartpole\s+(?P<sub>\w+))(?P<rest>.*)$"
 )
 SCHEMAS = {
-    "evaluate": ("trl_cartpole.commands.evaluate", "EvaluateArgs"),
-    "render": ("trl_cartpole.commands.render", "RenderArgs"),
-    "export": ("trl_cartpole.commands.export", "ExportArgs"),
-    "tune": ("trl_cartpole.commands.tune", "TuneArgs"),
-    "plot": ("trl_cartpole.commands.plot", "PlotArgs"),
+    "evaluate": ("trl_cartpole.cli.commands.evaluate", "EvaluateArgs"),
+    "render": ("trl_cartpole.cli.commands.render", "RenderArgs"),
+    "export": ("trl_cartpole.cli.commands.export", "ExportArgs"),
+    "tune": ("trl_cartpole.cli.commands.tune", "TuneArgs"),
+    "plot": ("trl_cartpole.cli.commands.plot", "PlotArgs"),
 }
 
 
@@ -84,9 +72,9 @@ def test_every_documented_command_line_is_one_the_code_accepts():
 
     from omegaconf import OmegaConf
 
-    from trl_cartpole.cli import compose_config
-    from trl_cartpole.config import to_config
-    from trl_cartpole.validation import validate
+    from trl_cartpole.cli.main import compose_config
+    from trl_cartpole.config.schema import to_config
+    from trl_cartpole.config.validation import validate
 
     commands = _documented_commands()
     assert len(commands) > 30  # the README and the guides are full of them

@@ -13,17 +13,17 @@ import numpy as np
 import pytest
 import torch
 
-from trl_cartpole.build import build_actor
-from trl_cartpole.checkpoint import read_observation_norm
-from trl_cartpole.config import EnvConfig, to_config
-from trl_cartpole.configured_envs import estimate_observation_norm, make_env_from_config
+from trl_cartpole.config.schema import EnvConfig, to_config
 from trl_cartpole.env_ids import resolve_env_id, solve_threshold
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.evaluation import evaluate
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, make_env
 from trl_cartpole.parts.models import make_q_actor
-from trl_cartpole.policy_io import evaluate_checkpoint
-from trl_cartpole.training import train
+from trl_cartpole.policy.load import evaluate_checkpoint
+from trl_cartpole.run.build import build_actor
+from trl_cartpole.run.envs import estimate_observation_norm, make_env_from_config
+from trl_cartpole.run.evaluation import evaluate
+from trl_cartpole.run.training import train
+from trl_cartpole.store.checkpoint import read_observation_norm
 
 from .conftest import ROOT, SMOKE_OVERRIDES, run_script
 

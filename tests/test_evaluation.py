@@ -9,15 +9,15 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import OneHot
 
-from trl_cartpole.evaluation import (
+from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.models import make_q_actor
+from trl_cartpole.run.evaluation import (
     EpsilonGreedy,
     evaluate,
     evaluate_on_vector_env,
     evaluate_with_rollout,
 )
-from trl_cartpole.parts.compat import gym_env
-from trl_cartpole.parts.env import make_env
-from trl_cartpole.parts.models import make_q_actor
 
 from .conftest import run_script_in_process
 

@@ -13,21 +13,21 @@ from tensordict import TensorDict
 from torchrl.envs import ExplorationType, set_exploration_type
 
 from tests.conftest import CONFIG_DIR, SMOKE_OVERRIDES, run_script_in_process
-from trl_cartpole.build import build_actor
-from trl_cartpole.checkpoint import read_observation_norm
-from trl_cartpole.cli import compose_config
-from trl_cartpole.commands import export as export_command
-from trl_cartpole.config import Config, NetworkConfig
+from trl_cartpole.cli.commands import export as export_command
+from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.schema import Config, NetworkConfig
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.export import (
+from trl_cartpole.parts.env import make_env
+from trl_cartpole.parts.models import expected_action_values
+from trl_cartpole.policy.export import (
     export_onnx,
     export_program,
     greedy_q_network,
     greedy_q_network_of,
 )
-from trl_cartpole.parts.env import make_env
-from trl_cartpole.parts.models import expected_action_values
-from trl_cartpole.policy_io import evaluate_checkpoint, load_trained_policy
+from trl_cartpole.policy.load import evaluate_checkpoint, load_trained_policy
+from trl_cartpole.run.build import build_actor
+from trl_cartpole.store.checkpoint import read_observation_norm
 
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnxscript")
@@ -86,7 +86,7 @@ def _onnx_values(path, observations: np.ndarray) -> torch.Tensor:
 @pytest.fixture(scope="module")
 def normalized_run(tmp_path_factory):
     """A 300-frame run with ``env.normalize_observations=true`` (its run directory)."""
-    from trl_cartpole.training import train
+    from trl_cartpole.run.training import train
 
     run_dir = tmp_path_factory.mktemp("normalized-run")
     overrides = ["env.normalize_observations=true", "env.normalization_frames=300"]

@@ -18,9 +18,9 @@ import pytest
 import torch
 from torchrl.checkpoint import Checkpoint, CheckpointRotation
 
-from trl_cartpole.checkpoint import find_resume_checkpoint, resume_config
 from trl_cartpole.errors import ConfigError, TrainingFailed
-from trl_cartpole.training import train
+from trl_cartpole.run.training import train
+from trl_cartpole.store.checkpoint import find_resume_checkpoint, resume_config
 
 from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script, run_script_in_process
 
@@ -42,9 +42,9 @@ def _comparable(summary: dict) -> dict:
 
 
 def _weights(checkpoint: Path) -> dict[str, torch.Tensor]:
-    from trl_cartpole.build import build_actor
-    from trl_cartpole.checkpoint import load_policy, read_checkpoint_config
     from trl_cartpole.parts.env import make_env
+    from trl_cartpole.run.build import build_actor
+    from trl_cartpole.store.checkpoint import load_policy, read_checkpoint_config
 
     cfg = read_checkpoint_config(checkpoint)
     actor = build_actor(cfg, make_env(cfg.env.id), "cpu")
@@ -95,8 +95,8 @@ def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
     # evaluation env's comes from the manifest alone.)
     from torchrl.envs import ObservationNorm
 
-    from trl_cartpole.build import build_components
-    from trl_cartpole.checkpoint import _write_integrity
+    from trl_cartpole.run.build import build_components
+    from trl_cartpole.store.checkpoint import _write_integrity
 
     overrides = ["env.normalize_observations=true", "env.normalization_frames=300"]
     train(compose(*RESUMABLE, *overrides, f"run_dir={tmp_path}"))
@@ -315,7 +315,7 @@ def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_pat
 def test_non_finite_loss_stops_with_the_update_named_and_keeps_the_last_good_checkpoint(
     compose, tmp_path
 ):
-    from trl_cartpole.build import build_components
+    from trl_cartpole.run.build import build_components
 
     def build_a_learner_that_fails_at_update_37(cfg, resume=None):
         components = build_components(cfg, resume)
@@ -347,7 +347,7 @@ def test_non_finite_loss_stops_with_the_update_named_and_keeps_the_last_good_che
 
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory) -> Path:
-    from trl_cartpole.cli import compose_config
+    from trl_cartpole.cli.main import compose_config
 
     from .conftest import CONFIG_DIR
 
@@ -502,9 +502,9 @@ def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluat
 
 
 def test_a_policy_checkpoint_loaded_into_another_network_shape_is_refused(finished_run):
-    from trl_cartpole.checkpoint import load_policy
     from trl_cartpole.parts.env import make_env
     from trl_cartpole.parts.models import make_q_actor
+    from trl_cartpole.store.checkpoint import load_policy
 
     env = make_env("CartPole-v1")
     other = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[64])
@@ -513,7 +513,7 @@ def test_a_policy_checkpoint_loaded_into_another_network_shape_is_refused(finish
 
 
 def test_a_write_that_fails_halfway_leaves_the_previous_file(tmp_path):
-    from trl_cartpole.files import write_atomic, write_json_atomic
+    from trl_cartpole.store.files import write_atomic, write_json_atomic
 
     target = write_json_atomic(tmp_path / "summary.json", {"frames": 1})
 
@@ -555,9 +555,9 @@ def _leftover_stages(run_dir: Path) -> list[Path]:
 def test_a_full_disk_stops_the_run_and_keeps_the_previous_checkpoint(monkeypatch, tmp_path, how):
     import errno
 
-    import trl_cartpole.checkpoint as checkpoint_module
-    from trl_cartpole.checkpoint import find_complete_checkpoints
-    from trl_cartpole.files import free_bytes
+    import trl_cartpole.run.checkpointer as checkpoint_module
+    from trl_cartpole.store.checkpoint import find_complete_checkpoints
+    from trl_cartpole.store.files import free_bytes
 
     run_dir = tmp_path / "run"
 
@@ -596,7 +596,7 @@ def test_a_full_disk_stops_the_run_and_keeps_the_previous_checkpoint(monkeypatch
 
 
 def test_the_first_checkpoint_not_fitting_says_there_is_nothing_to_resume(monkeypatch, tmp_path):
-    import trl_cartpole.checkpoint as checkpoint_module
+    import trl_cartpole.run.checkpointer as checkpoint_module
 
     monkeypatch.setattr(checkpoint_module, "free_bytes", lambda path: 0)
     run_dir = tmp_path / "run"
@@ -710,7 +710,7 @@ def test_plot_refuses_a_damaged_run_in_one_line(tmp_path, finished_run, how, mes
 def test_plot_reads_no_metrics_csv_and_a_resume_drops_its_damaged_rows(
     tmp_path, finished_run, capsys
 ):
-    from trl_cartpole.loggers import truncate_csv_metrics
+    from trl_cartpole.report.loggers import truncate_csv_metrics
 
     run_dir = tmp_path / "run"
     shutil.copytree(finished_run, run_dir)
@@ -725,7 +725,7 @@ def test_plot_reads_no_metrics_csv_and_a_resume_drops_its_damaged_rows(
 
 
 def test_evaluate_refuses_a_checkpoint_of_another_env_in_one_line(tmp_path, finished_run):
-    from trl_cartpole.checkpoint import _write_integrity
+    from trl_cartpole.store.checkpoint import _write_integrity
 
     # the manifest says Acrobot (6 observations, 3 actions), the weights are CartPole's, and the
     # integrity record is rewritten to match: the network built from the manifest does not fit

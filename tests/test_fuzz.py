@@ -17,11 +17,11 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
 from tests.conftest import SMOKE_OVERRIDES, run_script_in_process
-from trl_cartpole.cli import _one_line, compose_run_config
-from trl_cartpole.config import Config, flat_fields, to_config
+from trl_cartpole.cli.main import _one_line, compose_run_config
+from trl_cartpole.config.presets import PRESETS_DIR
+from trl_cartpole.config.schema import Config, flat_fields, to_config
+from trl_cartpole.config.validation import BOOLEAN_WORDS, validate
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.presets import PRESETS_DIR
-from trl_cartpole.validation import BOOLEAN_WORDS, validate
 
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402

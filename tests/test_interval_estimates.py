@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from trl_cartpole.interval_estimates import interval_estimate, iqm, performance_profile
+from trl_cartpole.report.interval_estimates import interval_estimate, iqm, performance_profile
 
 
 def test_the_interquartile_mean_cuts_a_quarter_at_each_end():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from trl_cartpole.training import train
+from trl_cartpole.run.training import train
 
 pytestmark = pytest.mark.slow  # trains until CartPole is solved
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import pytest
 from torchrl.checkpoint import Checkpoint
 
-from trl_cartpole.checkpoint import resume_config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.loggers import make_logger
-from trl_cartpole.plotting import LearningCurves, LiveDurationPlot, live_plot_target
-from trl_cartpole.training import train
+from trl_cartpole.report.loggers import make_logger
+from trl_cartpole.report.plotting import LearningCurves, LiveDurationPlot, live_plot_target
+from trl_cartpole.run.training import train
+from trl_cartpole.store.checkpoint import resume_config
 
 from .conftest import SMOKE_OVERRIDES
 
@@ -122,7 +122,7 @@ def test_a_resumed_run_rewinds_its_own_wandb_run_to_the_checkpoint(tmp_path, mon
     import sys
     import types
 
-    from trl_cartpole import loggers
+    from trl_cartpole.report import loggers
 
     created = []
     monkeypatch.setitem(sys.modules, "wandb", types.ModuleType("wandb"))

@@ -1,4 +1,4 @@
-"""What a run will hold in memory, known up front (trl_cartpole.memory_needs)."""
+"""What a run will hold in memory, known up front (trl_cartpole.run.memory_needs)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from trl_cartpole.build import build_env, run_memory_need
-from trl_cartpole.config import Config
+from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.memory_needs import MemoryNeed, available_memory_bytes, check_fits_in_memory
-from trl_cartpole.progress import resident_mb
+from trl_cartpole.run.build import build_env, run_memory_need
+from trl_cartpole.run.memory_needs import MemoryNeed, available_memory_bytes, check_fits_in_memory
+from trl_cartpole.run.progress import resident_mb
 
 
 def test_the_default_runs_need_is_counted_by_hand():

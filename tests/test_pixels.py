@@ -9,13 +9,13 @@ import torch
 from tensordict import TensorDict
 
 from tests.conftest import run_script_in_process
-from trl_cartpole import build
-from trl_cartpole.build import build_actor, build_env, run_memory_need
-from trl_cartpole.config import to_config
+from trl_cartpole.config.schema import to_config
+from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.pixels import CropFrame, PoolImage
-from trl_cartpole.policy_io import evaluate_checkpoint
-from trl_cartpole.validation import validate
+from trl_cartpole.policy.load import evaluate_checkpoint
+from trl_cartpole.run import build
+from trl_cartpole.run.build import build_actor, build_env, run_memory_need
 
 # A pixel run small enough for the default tier: 2 envs, 200 frames, evaluations of 2 episodes.
 TINY_PIXEL_RUN = [
@@ -121,8 +121,8 @@ def test_render_and_export_take_the_agents_frames(tmp_path):
     onnxruntime = pytest.importorskip("onnxruntime")
     from PIL import Image
 
-    from trl_cartpole.export import greedy_q_network
-    from trl_cartpole.policy_io import load_trained_policy
+    from trl_cartpole.policy.export import greedy_q_network
+    from trl_cartpole.policy.load import load_trained_policy
 
     run_dir = tmp_path / "run"
     proc = run_script_in_process("train.py", *TINY_PIXEL_RUN, f"run_dir={run_dir}")

@@ -24,7 +24,7 @@ from torchrl.envs import Transform
 from torchrl.modules import MLP, QValueActor
 from torchrl.objectives import SoftUpdate
 
-from trl_cartpole.learner import Learner
+from trl_cartpole.config.validation import ACTIVATION_NAMES, HEAD_NAMES
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
@@ -32,8 +32,8 @@ from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import ACTIVATIONS, HEADS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
 from trl_cartpole.parts.replay import make_replay_buffer
-from trl_cartpole.progress import Progress
-from trl_cartpole.validation import ACTIVATION_NAMES, HEAD_NAMES
+from trl_cartpole.run.learner import Learner
+from trl_cartpole.run.progress import Progress
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +133,11 @@ def test_the_head_and_activation_names_are_the_ones_the_config_accepts():
 
 @pytest.mark.parametrize(
     "first",
-    ["import trl_cartpole.parts", "from trl_cartpole import make_env", "import trl_cartpole.build"],
+    [
+        "import trl_cartpole.parts",
+        "from trl_cartpole import make_env",
+        "import trl_cartpole.run.build",
+    ],
 )
 def test_a_users_own_prioritized_sampler_works_in_a_fresh_process(first):
     """Whichever part of the package is imported first, TorchRL's own PrioritizedSampler works
@@ -255,7 +259,7 @@ def test_the_pipelines_learner_writes_the_priorities_torchrls_way():
 
 
 def test_a_trained_policy_loads_into_an_actor_built_with_torchrl_alone(smoke_checkpoint):
-    from trl_cartpole.checkpoint import read_checkpoint_config
+    from trl_cartpole.store.checkpoint import read_checkpoint_config
 
     cfg = read_checkpoint_config(smoke_checkpoint)
     plain = QValueActor(
@@ -271,7 +275,7 @@ def test_a_trained_policy_loads_into_an_actor_built_with_torchrl_alone(smoke_che
     before = [p.clone() for p in plain.parameters()]
     Checkpoint(policy=plain).load(smoke_checkpoint, components=["policy"])
     assert any(not torch.equal(a, b) for a, b in zip(before, plain.parameters(), strict=True))
-    from trl_cartpole.policy_io import load_trained_policy
+    from trl_cartpole.policy.load import load_trained_policy
 
     trained = load_trained_policy(smoke_checkpoint)
     observation = trained.env.reset()

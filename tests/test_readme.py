@@ -58,7 +58,7 @@ def test_user_facing_text_uses_no_word_a_user_cannot_know(path):
 
 def test_the_readmes_expected_ending_is_what_a_run_prints(monkeypatch):
     """The quick start's ending, rebuilt by ``console.ending`` from the figures it quotes."""
-    from trl_cartpole import console
+    from trl_cartpole.report import console
 
     quoted = re.search(r"```\n(CartPole-v1 \[dqn.*?)```", README, re.DOTALL)[1].splitlines()
     numbers = re.match(

@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.video import write_video
+from trl_cartpole.policy.video import write_video
 
 from .conftest import run_script
 

@@ -10,10 +10,14 @@ from tensordict import TensorDict
 from torchrl.data import LazyMemmapStorage
 
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script_in_process
-from trl_cartpole.build import REPLAY_FILES, build_replay_buffer
-from trl_cartpole.config import Config
+from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.memory_needs import MemoryNeed, check_buffer_fits_on_disk, check_fits_in_memory
+from trl_cartpole.run.build import REPLAY_FILES, build_replay_buffer
+from trl_cartpole.run.memory_needs import (
+    MemoryNeed,
+    check_buffer_fits_on_disk,
+    check_fits_in_memory,
+)
 
 RUN = [*SMOKE_OVERRIDES, "checkpoint.interval_frames=100", "seed=3"]
 

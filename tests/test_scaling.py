@@ -18,10 +18,8 @@ from tensordict.nn import TensorDictSequential
 
 import trl_cartpole
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script
-from trl_cartpole.build import build_actor
-from trl_cartpole.checkpoint import resume_config
-from trl_cartpole.config import to_config
-from trl_cartpole.configured_envs import make_env_from_config, worker_env_constructors
+from trl_cartpole.config.schema import to_config
+from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.collectors import (
     default_ray_init_config,
@@ -30,9 +28,11 @@ from trl_cartpole.parts.collectors import (
     shutdown_collector,
 )
 from trl_cartpole.parts.exploration import make_exploration
-from trl_cartpole.sweeps import expand_grid
-from trl_cartpole.training import train
-from trl_cartpole.validation import validate
+from trl_cartpole.run.build import build_actor
+from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors
+from trl_cartpole.run.training import train
+from trl_cartpole.store.checkpoint import resume_config
+from trl_cartpole.tools.sweeps import expand_grid
 
 # Two workers of 16 envs: the default's 32 envs, split.
 TWO_WORKERS = ["collector.workers=2", "env.num_envs=16"]
@@ -429,10 +429,10 @@ _SHIPPED_PACKAGE = """
 import json, sys
 from pathlib import Path
 import ray, trl_cartpole
-from trl_cartpole.build import build_actor
-from trl_cartpole.configured_envs import make_env_from_config, worker_env_constructors
+from trl_cartpole.run.build import build_actor
+from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors
 from trl_cartpole.parts.collectors import make_collector
-from trl_cartpole.config import Config
+from trl_cartpole.config.schema import Config
 
 cfg = Config()
 cfg.env.num_envs, cfg.collector.workers = 2, 2
@@ -626,7 +626,7 @@ def test_a_killed_ray_actor_stops_the_run_with_a_checkpoint_that_resumes(tmp_pat
     assert f"resume={run_dir}" in lines[0] and "Traceback" not in stderr
     from torchrl.checkpoint import Checkpoint
 
-    from trl_cartpole.checkpoint import find_resume_checkpoint
+    from trl_cartpole.store.checkpoint import find_resume_checkpoint
 
     frames = Checkpoint.manifest(find_resume_checkpoint(run_dir))["metadata"]["counters"]["frames"]
     assert frames > 0
@@ -725,6 +725,6 @@ def test_sigterm_to_a_run_on_ray_saves_a_checkpoint(tmp_path):
     assert proc.returncode == 143, stderr[-3000:]
     assert "stopped by SIGTERM" in stderr and f"resume={run_dir}" in stderr
     assert "SIGTERM received" not in stderr  # Ray's handler did not run
-    from trl_cartpole.checkpoint import find_resume_checkpoint
+    from trl_cartpole.store.checkpoint import find_resume_checkpoint
 
     assert find_resume_checkpoint(run_dir).is_dir()

@@ -8,10 +8,10 @@ import subprocess
 import pytest
 import torch
 
-from trl_cartpole.checkpoint import load_policy
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.models import make_q_actor
-from trl_cartpole.training import train
+from trl_cartpole.run.training import train
+from trl_cartpole.store.checkpoint import load_policy
 
 from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 

@@ -6,9 +6,9 @@ import shutil
 
 import pytest
 
-from trl_cartpole.cli import compose_config
+from trl_cartpole.cli.main import compose_config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.tuning import QUIET_RUN, curve_score, load_search_space, objective_overrides
+from trl_cartpole.tools.tuning import QUIET_RUN, curve_score, load_search_space, objective_overrides
 
 from .conftest import CONFIG_DIR, run_script, run_script_in_process
 
@@ -27,7 +27,7 @@ def test_the_score_is_the_mean_of_the_curve_held_at_its_last_value():
 def test_the_frames_objective_reports_its_lower_bound_and_holds_a_solve():
     from types import SimpleNamespace
 
-    from trl_cartpole.tuning import OBJECTIVES, _frames_score, _seed_reporter, frames_score
+    from trl_cartpole.tools.tuning import OBJECTIVES, _frames_score, _seed_reporter, frames_score
 
     assert OBJECTIVES == {"return": "maximize", "frames": "minimize"}
     assert frames_score(12288, 30000) == 12288.0 and frames_score(None, 30000) == 60000.0
@@ -57,7 +57,7 @@ def test_an_unknown_objective_or_a_study_of_the_other_direction_is_refused(tmp_p
     assert proc.returncode == 2 and proc.stderr.splitlines() == [
         "error: objective='wins'; choose return or frames"
     ]
-    from trl_cartpole.study import run_study
+    from trl_cartpole.tools.study import run_study
 
     storage = f"sqlite:///{tmp_path / 'study.db'}"
     optuna.create_study(study_name="s", storage=storage, direction="maximize")
@@ -90,8 +90,8 @@ def test_a_search_space_is_checked_and_lists_pass_as_written(tmp_path):
 
 @pytest.mark.slow  # an Optuna study of training runs
 def test_a_tiny_study_prunes_resumes_and_writes_a_preset_that_trains(tmp_path, monkeypatch):
-    from trl_cartpole.study import run_study
-    from trl_cartpole.training import train
+    from trl_cartpole.run.training import train
+    from trl_cartpole.tools.study import run_study
 
     monkeypatch.chdir(tmp_path)  # the study's directory: runs/tune/<study>
     configs = tmp_path / "configs"
@@ -171,9 +171,9 @@ def test_tune_answers_help_and_refuses_a_missing_space(tmp_path):
     "space", sorted((CONFIG_DIR / "tune").glob("*.yaml")), ids=lambda p: p.stem
 )
 def test_every_search_space_samples_a_valid_config_of_its_env_preset(space):
-    from trl_cartpole.config import to_config
-    from trl_cartpole.tuning import suggest
-    from trl_cartpole.validation import validate
+    from trl_cartpole.config.schema import to_config
+    from trl_cartpole.config.validation import validate
+    from trl_cartpole.tools.tuning import suggest
 
     trial = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0)).ask()
     params = suggest(trial, load_search_space(space))

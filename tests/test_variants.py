@@ -11,12 +11,12 @@ from torch import nn
 from torchrl.data import OneHot
 from torchrl.modules import QValueActor
 
-from trl_cartpole.config import flat_fields, to_config
+from trl_cartpole.config.schema import flat_fields, to_config
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.losses import make_dqn_loss
 from trl_cartpole.parts.models import make_q_actor, make_q_network
-from trl_cartpole.policy_io import evaluate_checkpoint
-from trl_cartpole.training import train
+from trl_cartpole.policy.load import evaluate_checkpoint
+from trl_cartpole.run.training import train
 
 from .conftest import SMOKE_OVERRIDES
 

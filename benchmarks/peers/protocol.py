@@ -17,11 +17,11 @@ from pathlib import Path
 
 import torch
 
-from trl_cartpole.evaluation import EvalResult, Evaluator, play_greedy_episodes
-from trl_cartpole.files import write_json_atomic
 from trl_cartpole.parts.env import make_sync_vector_env, solve_threshold
-from trl_cartpole.progress import Progress
-from trl_cartpole.summary import run_summary
+from trl_cartpole.run.evaluation import EvalResult, Evaluator, play_greedy_episodes
+from trl_cartpole.run.progress import Progress
+from trl_cartpole.run.summary import run_summary
+from trl_cartpole.store.files import write_json_atomic
 
 __all__ = ["GreedyEvaluation", "PeerRun", "parse_peer_args"]
 
@@ -34,7 +34,7 @@ QValues = Callable[[torch.Tensor], torch.Tensor]
 class GreedyEvaluation:
     """Greedy episodes on ``episodes`` envs stepped together; each env's first episode counts.
 
-    The run's own protocol (:func:`trl_cartpole.evaluation.play_greedy_episodes`) on a
+    The run's own protocol (:func:`trl_cartpole.run.evaluation.play_greedy_episodes`) on a
     Gymnasium ``SyncVectorEnv`` seeded ``seed`` at its first reset; later calls continue it.
     """
 
@@ -55,8 +55,8 @@ class GreedyEvaluation:
 class PeerRun:
     """Training clock, periodic greedy evaluation, solve point and ``summary.json`` of a peer.
 
-    The evaluation is the run's own :class:`~trl_cartpole.evaluation.Evaluator` and the
-    summary the run's own :func:`~trl_cartpole.summary.run_summary`: a peer's figures read
+    The evaluation is the run's own :class:`~trl_cartpole.run.evaluation.Evaluator` and the
+    summary the run's own :func:`~trl_cartpole.run.summary.run_summary`: a peer's figures read
     like a trl_cartpole run's. :meth:`watch` names the peer's Q-network once it is built.
     """
 

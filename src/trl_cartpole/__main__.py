@@ -1,5 +1,5 @@
 """``python -m trl_cartpole COMMAND [key=value ...]``: the ``trl-cartpole`` command."""
 
-from trl_cartpole.cli import console_main
+from trl_cartpole.cli.main import console_main
 
 console_main()

@@ -1,0 +1,202 @@
+"""The factories' defaults beside TorchRL's, read off the code for the API reference.
+
+``docs/reference/factories.md`` holds :func:`defaults_table`, written into the file by
+``python -m benchmarks docs`` from the signatures of each factory and of the TorchRL class it
+builds (``tests/test_docs_in_sync.py`` fails when it drifts), so it reads on the repository
+page and on the site alike; it lives outside the package, since only the docs need it. A
+default that is ``None`` in a factory's signature because it depends on another argument is
+shown as it resolves.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+__all__ = ["FACTORIES", "defaults_table"]
+
+FACTORIES = (
+    "make_env",
+    "make_q_actor",
+    "make_exploration",
+    "make_replay_buffer",
+    "make_dqn_loss",
+    "make_target_updater",
+    "make_optimizer",
+    "make_update",
+    "make_collector",
+)
+
+
+def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
+    """factory: (what it returns, the TorchRL classes its arguments go to, arguments shown)."""
+    import torch
+    from torchrl.collectors import Collector
+    from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplayBuffer
+    from torchrl.envs import EnvBase, GymEnv, GymWrapper, MultiStepTransform
+    from torchrl.modules import MLP, EGreedyModule, QValueActor
+    from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
+
+    return {
+        "make_env": (
+            "TorchRL's `TransformedEnv(GymWrapper)`",
+            [GymEnv, GymWrapper, EnvBase],
+            ["env_name", "device"],
+        ),
+        "make_q_actor": (
+            "TorchRL's `QValueActor` (`DistributionalQValueActor` with `support`) over TorchRL's"
+            " `MLP`; `head='dueling'` puts this project's `DuelingHead` module in it",
+            [MLP, QValueActor],
+            ["module", "num_cells", "activation_class", "head", "in_keys", "device"],
+        ),
+        "make_exploration": (
+            "TorchRL's `EGreedyModule`; `schedule='exponential'`: `ExponentialEGreedyModule`,"
+            " this project's subclass",
+            [EGreedyModule],
+            ["eps_init", "eps_end", "annealing_num_steps", "schedule", "device"],
+        ),
+        "make_replay_buffer": (
+            "TorchRL's `TensorDictReplayBuffer` (`TensorDictPrioritizedReplayBuffer` with"
+            " `prioritized`); `n_steps > 1` adds `NStepTransform`, this project's"
+            " `MultiStepTransform` subclass",
+            [TensorDictReplayBuffer, LazyTensorStorage, PrioritizedSampler, MultiStepTransform],
+            [
+                "storage",
+                "sampler",
+                "batch_size",
+                "transform",
+                "max_size",
+                "prioritized",
+                "alpha",
+                "beta",
+                "eps",
+                "n_steps",
+                "gamma",
+            ],
+        ),
+        "make_dqn_loss": (
+            "TorchRL's `DQNLoss` (`DistributionalDQNLoss` for C51)",
+            [DQNLoss],
+            ["gamma", "loss_function", "delay_value", "double_dqn"],
+        ),
+        "make_target_updater": (
+            "TorchRL's `HardUpdate`, or `FusedSoftUpdate`, this project's `SoftUpdate` subclass",
+            [SoftUpdate, HardUpdate],
+            ["eps", "tau", "value_network_update_interval"],
+        ),
+        "make_optimizer": (
+            "PyTorch's `torch.optim.AdamW`",
+            [torch.optim.AdamW],
+            ["lr", "amsgrad", "weight_decay"],
+        ),
+        "make_update": (
+            "this project's function `update(batch) -> TensorDict(loss, grad_norm)`",
+            [],
+            [],
+        ),
+        "make_collector": (
+            "TorchRL's `Collector`",
+            [Collector],
+            ["frames_per_batch", "total_frames", "init_random_frames", "device"],
+        ),
+    }
+
+
+def _resolved() -> dict[tuple[str, str], Any]:
+    """Defaults that are None in a signature, as the factory resolves them."""
+    from trl_cartpole.parts import losses, replay
+
+    return {
+        ("make_dqn_loss", "gamma"): f"{losses.DEFAULT_GAMMA} (the buffer's with `replay_buffer`)",
+        ("make_dqn_loss", "loss_function"): losses.DEFAULT_LOSS_FUNCTION,
+        ("make_dqn_loss", "double_dqn"): False,
+        ("make_target_updater", "value_network_update_interval"): (
+            f"{losses.DEFAULT_HARD_UPDATE_INTERVAL - 1} (a copy every "
+            f"{losses.DEFAULT_HARD_UPDATE_INTERVAL} updates) when neither eps nor tau is given"
+        ),
+        ("make_target_updater", "tau"): f"{losses.DEFAULT_TAU} with `kind='soft'`",
+        ("make_replay_buffer", "storage"): "`LazyTensorStorage(max_size)`",
+        ("make_replay_buffer", "sampler"): "`RandomSampler()`",
+        (
+            "make_replay_buffer",
+            "transform",
+        ): "none (yours, after `NStepTransform` with `n_steps > 1`)",
+        (
+            "make_replay_buffer",
+            "alpha",
+        ): f"{replay.DEFAULT_ALPHA} with `prioritized` (refused without)",
+        (
+            "make_replay_buffer",
+            "beta",
+        ): f"{replay.DEFAULT_BETA} with `prioritized` (refused without)",
+        (
+            "make_replay_buffer",
+            "eps",
+        ): f"{replay.DEFAULT_PRIORITY_EPS} with `prioritized` (refused without)",
+        (
+            "make_replay_buffer",
+            "gamma",
+        ): f"{replay.DEFAULT_GAMMA} with `n_steps > 1` (refused without)",
+        ("make_q_actor", "module"): "None: built from `observation_spec`",
+        ("make_q_actor", "device"): "the spec's",
+        ("make_exploration", "device"): "the spec's",
+    }
+
+
+# What a TorchRL signature does not say by itself.
+_TORCHRL_NOTES = {
+    ("DQNLoss", "gamma"): "0.99 (its value estimator's)",
+    ("SoftUpdate", "eps"): "required (eps or tau)",
+    ("SoftUpdate", "tau"): "required (eps or tau)",
+    ("TensorDictReplayBuffer", "storage"): "`ListStorage`",
+    ("TensorDictReplayBuffer", "sampler"): "`RandomSampler()`",
+    ("TensorDictReplayBuffer", "batch_size"): "None (given to `sample`)",
+    ("TensorDictReplayBuffer", "transform"): "none",
+    ("MLP", "num_cells"): "None (a single linear layer; 32 per layer with `depth`)",
+    ("QValueActor", "module"): "required",
+    ("PrioritizedSampler", "eps"): "1e-8",
+    ("MultiStepTransform", "n_steps"): "required (no n-step without it)",
+    ("MultiStepTransform", "gamma"): "required",
+}
+
+
+def _shown(value: Any) -> str:
+    if value is inspect.Parameter.empty:
+        return "required"
+    if isinstance(value, type):
+        return f"`{value.__module__.split('.')[0]}.{value.__qualname__}`".replace("`torch.", "`nn.")
+    if isinstance(value, str) and (" " in value or "`" in value):
+        return value  # prose: how the default resolves
+    return f"`{value}`" if isinstance(value, str) else f"`{value!r}`"
+
+
+def _torchrl_default(classes: list[Any], argument: str) -> str:
+    for cls in classes:
+        name = cls.__name__
+        if (name, argument) in _TORCHRL_NOTES:
+            return f"{_TORCHRL_NOTES[name, argument]} (`{name}`)"
+        parameters = inspect.signature(cls.__init__).parameters
+        if argument in parameters:
+            return f"{_shown(parameters[argument].default)} (`{name}`)"
+    return "none"
+
+
+def defaults_table() -> str:
+    """A markdown table: factory, what it returns, each argument's default, ours and TorchRL's."""
+    import trl_cartpole
+
+    resolved = _resolved()
+    rows = [
+        "| factory | returns | argument | ours | TorchRL's |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for factory, (returns, classes, arguments) in _builds().items():
+        parameters = inspect.signature(getattr(trl_cartpole, factory)).parameters
+        if not arguments:
+            rows.append(f"| `{factory}` | {returns} | | | |")
+        for index, argument in enumerate(arguments):
+            ours = resolved.get((factory, argument), parameters[argument].default)
+            first = f"`{factory}` | {returns}" if index == 0 else " | "
+            theirs = _torchrl_default(classes, argument)
+            rows.append(f"| {first} | `{argument}` | {_shown(ours)} | {theirs} |")
+    return "\n".join(rows)

@@ -1,0 +1,63 @@
+"""Evaluate a trained policy greedily over many episodes.
+
+usage: trl-cartpole evaluate checkpoint=RUN_DIR [episodes=100] [seed=N] [epsilon=0.05]
+
+RUN_DIR is the directory training printed (its best policy is evaluated) or one checkpoint
+in it (runs/.../checkpoints/last). Prints mean, std, min and max of the episode returns and
+writes them all as JSON beside the checkpoint (checkpoints/evaluation-best.json for best).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from trl_cartpole.config.help import parse_args
+from trl_cartpole.config.validation import check_envs_at_once, check_seed
+from trl_cartpole.errors import ConfigError
+
+
+@dataclass
+class EvaluateArgs:
+    checkpoint: str = "???"  # a run directory (its checkpoints/best) or a checkpoint directory
+    episodes: int = 100  # greedy episodes, stepped together
+    seed: int | None = None  # null: the seeds of the run's own final evaluation
+    output: str | None = None  # JSON file; null: evaluation-<checkpoint>.json beside it
+    epsilon: float = 0.0  # probability of a random action instead of the greedy one
+
+
+def main(argv: list[str]) -> None:
+    args = parse_args(EvaluateArgs, argv, __doc__)
+    # imported after the arguments are read, so that --help answers at once
+    from trl_cartpole.policy.load import evaluate_checkpoint, policy_checkpoint
+    from trl_cartpole.store.files import write_json_atomic
+
+    if args.episodes < 1:
+        raise ConfigError(f"episodes={args.episodes} must be >= 1")
+    check_envs_at_once("episodes", args.episodes)  # the episodes are stepped together
+    check_seed("seed", args.seed)
+    if not 0.0 <= args.epsilon <= 1.0:
+        raise ConfigError(f"epsilon={args.epsilon} must lie in [0, 1]")
+    checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
+    result, cfg = evaluate_checkpoint(checkpoint, args.episodes, args.seed, args.epsilon)
+    returns = result.returns
+    report = {
+        "checkpoint": str(checkpoint.resolve()),  # the one evaluated (runs/latest moves on)
+        "env_id": cfg["env"]["id"],
+        "episodes": len(returns),
+        "epsilon": args.epsilon,
+        "mean": result.mean,
+        "std": result.std,
+        "min": min(returns),
+        "max": max(returns),
+        "returns": returns,
+        "lengths": result.lengths,
+    }
+    output = Path(args.output or checkpoint.parent / f"evaluation-{checkpoint.name}.json")
+    write_json_atomic(output, report)
+    print(
+        f"{report['env_id']}: {'greedy' if not args.epsilon else f'epsilon={args.epsilon}'} "
+        f"return over {len(returns)} episodes: "
+        f"{report['mean']:.1f} +/- {report['std']:.1f} (min {report['min']:.0f}, "
+        f"max {report['max']:.0f}); written to {output}"
+    )

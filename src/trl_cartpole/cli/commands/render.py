@@ -1,0 +1,53 @@
+"""Watch a trained agent: greedy episodes as a GIF/MP4, or live in a window.
+
+usage: trl-cartpole render checkpoint=RUN_DIR [episodes=3] [output=agent.gif] [human=true]
+
+RUN_DIR is the directory training printed (its best policy plays) or one checkpoint in it.
+Every frame is captioned with the episode, step and return so far and written to ``output``
+(default: checkpoints/video.gif in the run). ``human=true`` opens Gymnasium's window instead.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from trl_cartpole.config.help import parse_args
+from trl_cartpole.config.validation import check_seed
+from trl_cartpole.errors import ConfigError
+
+
+@dataclass
+class RenderArgs:
+    checkpoint: str = "???"  # a run directory (its checkpoints/best) or a checkpoint directory
+    episodes: int = 3  # greedy episodes, one after the other
+    output: str | None = None  # .gif or .mp4 (mp4 needs the video extra); null: video.gif beside it
+    fps: int = 50  # frames per second of the file
+    scale: float = 0.5  # frame size relative to the env's render (0, 4]
+    seed: int | None = None  # null: the seeds of the run's own final evaluation
+    human: bool = False  # open Gymnasium's window instead of writing a file (needs a display)
+
+
+def main(argv: list[str]) -> None:
+    args = parse_args(RenderArgs, argv, __doc__)
+    # imported after the arguments are read, so that --help answers at once
+    from trl_cartpole.policy.load import load_trained_policy
+    from trl_cartpole.policy.video import record_agent
+
+    check_seed("seed", args.seed)
+
+    if not args.human:
+        print(
+            record_agent(
+                args.checkpoint, args.episodes, args.seed, args.output, args.fps, args.scale
+            )
+        )
+        return
+    if args.episodes < 1:
+        raise ConfigError("episodes must be >= 1")
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        raise ConfigError("human=true needs a display; write a file instead (output=x.gif)")
+    trained = load_trained_policy(args.checkpoint, seed=args.seed, render_mode="human")
+    for _ in range(args.episodes):
+        trained.env.rollout(trained.cfg.eval.max_steps, trained.actor)
+    trained.env.close()

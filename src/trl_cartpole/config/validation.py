@@ -1,0 +1,391 @@
+"""The rules a config must follow beyond its types: ranges, rules between fields, known names.
+
+:func:`validate` raises :class:`~trl_cartpole.errors.ConfigError` with one line naming the field
+and how to fix it, before anything is built or written.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import shutil
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from trl_cartpole.config.schema import Config, flat_fields
+from trl_cartpole.env_ids import resolve_env_id
+from trl_cartpole.errors import ConfigError
+
+__all__ = [
+    "ACTIVATION_NAMES",
+    "BOOLEAN_WORDS",
+    "HEAD_NAMES",
+    "MAX_ENVS_AT_ONCE",
+    "MAX_INTEGER",
+    "check_boolean_overrides",
+    "check_envs_at_once",
+    "check_integer_size",
+    "check_network_choices",
+    "check_seed",
+    "validate",
+]
+
+# network.head and network.activation: the keys of trl_cartpole.parts.models.HEADS and ACTIVATIONS
+HEAD_NAMES = ("dueling", "plain")
+ACTIVATION_NAMES = ("elu", "gelu", "relu", "tanh")
+
+_CHOICES = {
+    "exploration.schedule": ("exponential", "linear", "none"),
+    "loss.loss_function": ("smooth_l1", "l2"),
+    "loss.target_update": ("soft", "hard"),
+    "optim.grad_clip": ("value", "norm", "none"),
+    "logger.backend": ("csv", "tensorboard", "wandb", "none"),
+    "collector.backend": ("local", "ray"),
+    "buffer.storage": ("memory", "memmap"),
+    "network.torso": ("mlp", "cnn"),
+}
+
+
+# What a switch may be set to on the command line. OmegaConf would also take any integer (a
+# nonzero one as true): `checkpoint.save_best=512` was a run with the switch on.
+# The largest integer setting: torch and numpy take 64-bit integers, and seeds and frame counts
+# are added together (seed + 2 * eval.seed_offset + env index), so there is room for sums.
+MAX_INTEGER = 2**62
+# The most envs built at once in one vector env (env.num_envs per worker, one per evaluation
+# episode); far above any use here, and below the memory and time a bad value would take.
+MAX_ENVS_AT_ONCE = 4096
+BOOLEAN_WORDS = ("true", "false", "yes", "no", "on", "off", "1", "0")
+
+
+def check_boolean_overrides(overrides: Sequence[str]) -> None:
+    """Refuse ``switch=value`` for a boolean field of the schema unless ``value`` says yes or no."""
+    switches = {key for key, value in flat_fields(Config()).items() if isinstance(value, bool)}
+    for override in overrides:
+        key, _, value = override.lstrip("+").partition("=")
+        words = value.lower().split(",")  # a sweep's list: loss.double_dqn=true,false
+        if key in switches and not all(word.strip() in BOOLEAN_WORDS for word in words):
+            raise ConfigError(f"{key}={value} is not a switch value; use {key}=true or false")
+
+
+def _get(cfg: Config, dotted: str) -> Any:
+    value: Any = cfg
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def validate(cfg: Config) -> Config:
+    """Check ranges and cross-field rules; raise :class:`ConfigError` on the first failure.
+
+    Imports neither torch nor TorchRL for a CPU config (Gymnasium only, for the env id), so a
+    command line is checked in well under a second.
+    """
+    for key, value in flat_fields(cfg).items():  # NaN slips through every comparison below
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{key}={value} must be a finite number")
+        for number in value if isinstance(value, (list, tuple)) else [value]:
+            check_integer_size(key, number)
+    for key in ("env.num_envs", "eval.episodes", "eval.final_episodes"):
+        check_envs_at_once(key, _get(cfg, key))
+    for key, options in _CHOICES.items():
+        if _get(cfg, key) not in options:
+            raise ConfigError(
+                f"{key}={_get(cfg, key)!r} is not a known option; choose one of {list(options)}"
+            )
+    checks: list[tuple[bool, str]] = [
+        (0.0 < cfg.loss.gamma <= 1.0, f"loss.gamma={cfg.loss.gamma} must lie in (0, 1]"),
+        (0.0 < cfg.loss.tau <= 1.0, f"loss.tau={cfg.loss.tau} must lie in (0, 1]"),
+        (cfg.loss.hard_update_interval >= 1, "loss.hard_update_interval must be >= 1"),
+        (cfg.buffer.size >= 1, f"buffer.size={cfg.buffer.size} must be >= 1"),
+        (cfg.buffer.batch_size >= 1, f"buffer.batch_size={cfg.buffer.batch_size} must be >= 1"),
+        (
+            cfg.buffer.batch_size <= cfg.buffer.size,
+            f"buffer.batch_size={cfg.buffer.batch_size} is larger than buffer.size="
+            f"{cfg.buffer.size}; lower the batch size or grow the buffer",
+        ),
+        (
+            0.0 <= cfg.exploration.eps_end <= cfg.exploration.eps_start <= 1.0,
+            f"exploration needs 0 <= eps_end <= eps_start <= 1, got eps_start="
+            f"{cfg.exploration.eps_start}, eps_end={cfg.exploration.eps_end}",
+        ),
+        (cfg.exploration.decay_frames >= 1, "exploration.decay_frames must be >= 1"),
+        (cfg.optim.lr > 0, f"optim.lr={cfg.optim.lr} must be > 0"),
+        (cfg.optim.weight_decay >= 0, "optim.weight_decay must be >= 0"),
+        (cfg.optim.max_grad > 0, f"optim.max_grad={cfg.optim.max_grad} must be > 0"),
+        (
+            all(size >= 1 for size in cfg.network.hidden_sizes),
+            f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
+        ),
+        (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
+        (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
+        (
+            cfg.env.normalization_frames >= 1,
+            f"env.normalization_frames={cfg.env.normalization_frames} must be >= 1",
+        ),
+        (cfg.collector.workers >= 1, f"collector.workers={cfg.collector.workers} must be >= 1"),
+        (
+            cfg.collector.frames_per_batch % _envs_per_batch(cfg) == 0,
+            f"collector.frames_per_batch={cfg.collector.frames_per_batch} must be a multiple "
+            f"of {_envs_per_batch_text(cfg)} (each batch steps every env equally often)"
+            f"{_split_hint(cfg)}",
+        ),
+        (
+            cfg.collector.total_frames >= cfg.collector.frames_per_batch,
+            f"collector.total_frames={cfg.collector.total_frames} must be >= "
+            f"collector.frames_per_batch={cfg.collector.frames_per_batch}",
+        ),
+        (cfg.collector.init_random_frames >= 0, "collector.init_random_frames must be >= 0"),
+        (cfg.collector.updates_per_batch >= 0, "collector.updates_per_batch must be >= 0"),
+        (cfg.collector.learning_starts >= 0, "collector.learning_starts must be >= 0"),
+        (cfg.eval.interval_frames >= 1, "eval.interval_frames must be >= 1"),
+        (cfg.eval.episodes >= 1, "eval.episodes must be >= 1"),
+        (cfg.eval.final_episodes >= 1, "eval.final_episodes must be >= 1"),
+        (cfg.eval.max_steps >= 1, "eval.max_steps must be >= 1"),
+        (cfg.network.noisy_std > 0, f"network.noisy_std={cfg.network.noisy_std} must be > 0"),
+        (cfg.network.atoms >= 2, f"network.atoms={cfg.network.atoms} must be >= 2"),
+        (
+            cfg.network.v_min < cfg.network.v_max,
+            f"network.v_min={cfg.network.v_min} must be < network.v_max={cfg.network.v_max}",
+        ),
+        (cfg.buffer.alpha >= 0, f"buffer.alpha={cfg.buffer.alpha} must be >= 0"),
+        (0 <= cfg.buffer.beta <= 1, f"buffer.beta={cfg.buffer.beta} must lie in [0, 1]"),
+        (cfg.buffer.priority_eps > 0, "buffer.priority_eps must be > 0"),
+        (
+            cfg.buffer.beta_anneal_frames is None or cfg.buffer.beta_anneal_frames >= 1,
+            "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
+        ),
+        (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
+        (
+            cfg.env.max_episode_steps is None or cfg.env.max_episode_steps >= 1,
+            f"env.max_episode_steps={cfg.env.max_episode_steps} must be >= 1 (or null for the "
+            "env's registered limit)",
+        ),
+        (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
+        (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
+        (cfg.env.pixels_pool >= 1, f"env.pixels_pool={cfg.env.pixels_pool} must be >= 1"),
+        (cfg.env.pixels_frames >= 1, f"env.pixels_frames={cfg.env.pixels_frames} must be >= 1"),
+        (
+            len(cfg.env.pixels_crop) == 4,
+            f"env.pixels_crop={list(cfg.env.pixels_crop)} must be [top, bottom, left, right]",
+        ),
+        (
+            len(cfg.network.cnn_channels)
+            == len(cfg.network.cnn_kernels)
+            == len(cfg.network.cnn_strides)
+            >= 1,
+            "network.cnn_channels, cnn_kernels and cnn_strides need one entry per layer each",
+        ),
+        (
+            min([*cfg.network.cnn_channels, *cfg.network.cnn_kernels, *cfg.network.cnn_strides])
+            >= 1,
+            "network.cnn_channels, cnn_kernels and cnn_strides must all be >= 1",
+        ),
+        (
+            cfg.env.from_pixels == (cfg.network.torso == "cnn"),
+            f"env.from_pixels={cfg.env.from_pixels} with network.torso={cfg.network.torso}: "
+            "pixels need the cnn torso and the cnn torso needs pixels (env=cartpole_pixels sets "
+            "both)",
+        ),
+        (
+            not (cfg.env.from_pixels and cfg.env.normalize_observations),
+            "env.normalize_observations=true normalises a state vector; pixels have none",
+        ),
+        (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
+        (
+            cfg.num_threads <= (os.cpu_count() or 1),
+            f"num_threads={cfg.num_threads} is more than this machine's {os.cpu_count()} cores",
+        ),
+        (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
+        (  # found by tests/test_fuzz.py: a negative offset gave Gymnasium a negative seed
+            cfg.eval.seed_offset >= 0,
+            f"eval.seed_offset={cfg.eval.seed_offset} must be >= 0 (Gymnasium takes no "
+            "negative seed)",
+        ),
+        (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise ConfigError(message)
+    check_device(cfg.device)
+    if cfg.compile:
+        check_compiler(cfg.device)
+    _check_combination(cfg)
+    check_network_choices(cfg.network.head, cfg.network.activation)
+    resolve_env_id(cfg.env.id, cfg.env.imports)
+    return cfg
+
+
+def check_integer_size(key: str, value: Any) -> None:
+    """Refuse an integer setting beyond :data:`MAX_INTEGER` either way (a 64-bit overflow)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_INTEGER:
+        raise ConfigError(
+            f"{key}={value} is too large: integer settings stop at 2**62 = {MAX_INTEGER} "
+            "(torch and numpy count in 64-bit integers)"
+        )
+
+
+def check_seed(key: str, seed: int | None) -> None:
+    """Refuse a seed that Gymnasium and torch cannot take (None: the default seeds)."""
+    if seed is not None:
+        check_integer_size(key, seed)
+        if seed < 0:
+            raise ConfigError(f"{key}={seed} must be >= 0 (Gymnasium takes no negative seed)")
+
+
+def check_envs_at_once(key: str, value: int) -> None:
+    """Refuse more than :data:`MAX_ENVS_AT_ONCE` envs built together for ``key``."""
+    if value > MAX_ENVS_AT_ONCE:
+        raise ConfigError(
+            f"{key}={value} would build that many envs at once; at most {MAX_ENVS_AT_ONCE}"
+        )
+
+
+def check_network_choices(head: str, activation: str | None) -> None:
+    """Raise :class:`ConfigError` unless ``head`` and ``activation`` (if given) are known names."""
+    if head not in HEAD_NAMES:
+        raise ConfigError(
+            f"network.head={head!r} is not a known head; choose one of {sorted(HEAD_NAMES)}"
+        )
+    if activation is not None and activation not in ACTIVATION_NAMES:
+        raise ConfigError(
+            f"network.activation={activation!r} is unknown; choose one of "
+            f"{sorted(ACTIVATION_NAMES)}"
+        )
+
+
+def check_device(device: str) -> None:
+    """Raise a one-line :class:`ConfigError` unless ``device`` exists on this machine.
+
+    ``cpu`` is answered without importing torch (so a typo elsewhere is answered at once).
+    """
+    if device == "cpu":
+        return
+    import torch
+
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise ConfigError(f"device={device!r} is not a torch device; use cpu or cuda[:N]") from None
+    if parsed.type == "cuda":
+        if not torch.cuda.is_available():
+            build = "a CPU-only build" if torch.version.cuda is None else "no CUDA GPU visible"
+            raise ConfigError(
+                f"device={device!r} but this machine has no usable CUDA GPU (torch "
+                f"{torch.__version__}: {build}); use device=cpu"
+            )
+        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+            raise ConfigError(
+                f"device={device!r} but this machine has {torch.cuda.device_count()} CUDA "
+                f"GPU(s), numbered from 0"
+            )
+    elif parsed.type == "mps" and not torch.backends.mps.is_available():
+        raise ConfigError(f"device={device!r} but MPS is not available here; use device=cpu")
+    elif parsed.type not in ("cpu", "cuda", "mps"):
+        raise ConfigError(f"device={device!r} is not supported; use cpu or cuda[:N]")
+
+
+def check_compiler(device: str) -> None:
+    """``compile=true`` on the CPU needs the C++ compiler torch's Inductor calls (``$CXX``).
+
+    Without one, the first update would fail after the random frames were already collected.
+    """
+    if device.split(":", 1)[0] != "cpu":
+        return
+    compiler = os.environ.get("CXX", "clang++" if sys.platform == "darwin" else "g++")
+    if shutil.which(compiler) is None:
+        raise ConfigError(
+            f"compile=true needs a C++ compiler for torch.compile on the CPU, and {compiler!r} "
+            "(the CXX variable, or its default) is not found; install one or pass compile=false"
+        )
+
+
+def _envs_per_batch(cfg: Config) -> int:
+    """How many envs step in one collected batch: every worker's when they are synchronous."""
+    collector = cfg.collector  # (>= 1 each: the range checks run after this is computed)
+    return max(cfg.env.num_envs, 1) * (max(collector.workers, 1) if collector.sync else 1)
+
+
+def _envs_per_batch_text(cfg: Config) -> str:
+    if cfg.collector.sync and cfg.collector.workers > 1:
+        return f"env.num_envs * collector.workers = {_envs_per_batch(cfg)}"
+    return f"env.num_envs={cfg.env.num_envs}"
+
+
+def _split_hint(cfg: Config) -> str:
+    """Suggest spreading the envs over the workers when that makes the batch fit."""
+    workers, frames = cfg.collector.workers, cfg.collector.frames_per_batch
+    if cfg.collector.sync and workers > 1 and frames % workers == 0:
+        per_worker = frames // workers
+        return f"; e.g. env.num_envs={per_worker} ({per_worker} envs on each of {workers} workers)"
+    return ""
+
+
+def _check_combination(cfg: Config) -> None:
+    """Refuse switches that the chosen components would ignore, rather than drop them silently."""
+    collector = cfg.collector
+    if collector.ray_address is not None and collector.backend != "ray":
+        raise ConfigError(
+            f"collector.ray_address={collector.ray_address!r} is only read by the Ray backend; "
+            "set collector.backend=ray or drop the address"
+        )
+    if collector.ray_resources and collector.backend != "ray":
+        raise ConfigError(
+            f"collector.ray_resources={dict(collector.ray_resources)} is only read by the Ray "
+            "backend; set collector.backend=ray or drop the resources"
+        )
+    if collector.ray_resources and collector.ray_address is None:
+        raise ConfigError(
+            "collector.ray_resources places actors on the nodes of a cluster; the Ray instance a "
+            "run starts on this machine has no custom resources: set collector.ray_address"
+        )
+    if collector.ray_runtime_env and collector.ray_address is None:
+        raise ConfigError(
+            "collector.ray_runtime_env ships code to the nodes of a cluster; the Ray instance a "
+            "run starts on this machine runs this Python: set collector.ray_address or drop it"
+        )
+    for name, amount in collector.ray_resources.items():
+        if not (math.isfinite(amount) and amount > 0):
+            raise ConfigError(
+                f"collector.ray_resources.{name}={amount} must be a positive number of that "
+                "resource per actor (as Ray's resources option)"
+            )
+    if not collector.sync and collector.workers == 1 and collector.backend == "local":
+        raise ConfigError(
+            "collector.sync=false needs collector.workers > 1 (one local worker collects in the "
+            "training process); raise collector.workers"
+        )
+    if collector.backend == "ray" and importlib.util.find_spec("ray") is None:
+        raise ConfigError(
+            "collector.backend=ray needs Ray, which is not installed: "
+            'pip install -e ".[distributed]"'
+        )
+    if not collector.sync and collector.workers > 1 and cfg.buffer.n_steps > 1:
+        raise ConfigError(
+            f"buffer.n_steps={cfg.buffer.n_steps} needs each env's steps in order, but with "
+            "collector.sync=false consecutive batches come from different workers; set "
+            "buffer.n_steps=1 or collector.sync=true"
+        )
+    noisy, schedule = cfg.network.noisy, cfg.exploration.schedule
+    if noisy and schedule != "none":
+        raise ConfigError(
+            f"network.noisy=true explores through its parameter noise, so exploration.schedule="
+            f"{schedule!r} would add epsilon-greedy on top; set exploration.schedule=none"
+        )
+    if not noisy and schedule == "none":
+        raise ConfigError(
+            "exploration.schedule=none leaves a plain network with no exploration at all; "
+            "set network.noisy=true or choose exploration.schedule=linear|exponential"
+        )
+    if cfg.network.distributional:
+        if not cfg.loss.double_dqn:
+            raise ConfigError(
+                "network.distributional=true always picks the next action with the online "
+                "network (double DQN) and cannot switch it off; set loss.double_dqn=true"
+            )
+        if cfg.loss.loss_function != "smooth_l1":
+            raise ConfigError(
+                f"network.distributional=true trains with the cross-entropy to the projected "
+                f"target, not loss.loss_function={cfg.loss.loss_function!r}; leave it smooth_l1"
+            )

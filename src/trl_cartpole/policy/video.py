@@ -1,0 +1,206 @@
+"""Watch an agent: greedy episodes rendered to a GIF or MP4, or to a live window.
+
+Frames come from Gymnasium's ``render_mode="rgb_array"`` through the same ``make_env`` the
+training used; each frame carries the episode number, the step and the return so far. GIFs
+are written with Pillow (a matplotlib dependency); MP4 needs ``imageio[ffmpeg]``
+(``pip install -e '.[video]'``). In a notebook, :func:`show_agent` does it all in one call.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image, ImageDraw
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
+
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.parts.pixels import PIXELS_KEY
+from trl_cartpole.policy.load import load_trained_policy
+from trl_cartpole.report.console import quiet_libraries, shown_path
+from trl_cartpole.store.files import write_atomic
+
+__all__ = [
+    "EpisodeFrames",
+    "Recording",
+    "record_agent",
+    "render_episodes",
+    "show_agent",
+    "write_video",
+]
+
+
+@dataclass
+class EpisodeFrames:
+    """One rendered episode: ``frames`` ``[T + 1]`` of ``[H, W, 3]`` uint8 and its return."""
+
+    frames: list[np.ndarray]
+    episode_return: float
+
+
+def _captioned(frame: np.ndarray, text: str, scale: float) -> np.ndarray:
+    """``frame`` ``[H, W, 3]`` resized by ``scale``, with ``text`` drawn in its top-left corner."""
+    image = Image.fromarray(frame)
+    if scale != 1.0:
+        size = (max(1, round(image.width * scale)), max(1, round(image.height * scale)))
+        image = image.resize(size)
+    ImageDraw.Draw(image).text((6, 6), text, fill=(0, 0, 0))
+    return np.asarray(image)
+
+
+@torch.no_grad()
+def _with_agent_view(scene: np.ndarray, pixels: torch.Tensor) -> np.ndarray:
+    """``scene`` ``[H, W, 3]`` above the agent's newest patch (``pixels`` ``[frames, h, w]``
+    uint8), enlarged to the scene's width by whole pixels and shown in gray."""
+    patch = pixels[-1].numpy()  # [h, w]
+    factor = max(scene.shape[1] // patch.shape[1], 1)
+    view = np.repeat(np.repeat(patch, factor, axis=0), factor, axis=1)  # [h * f, w * f]
+    view = np.pad(view, ((0, 0), (0, scene.shape[1] - view.shape[1])), constant_values=255)
+    return np.concatenate([scene, np.repeat(view[..., None], 3, axis=-1)], axis=0)
+
+
+def render_episodes(
+    actor: TensorDictModuleBase,
+    env: EnvBase,
+    episodes: int,
+    max_steps: int = 10_000,
+    scale: float = 1.0,
+) -> Iterator[EpisodeFrames]:
+    """Play ``episodes`` greedy episodes on ``env`` (made with ``render_mode="rgb_array"``).
+
+    Yields each episode's frames: the reset state, then one frame after every step, each
+    resized by ``scale`` and captioned with the episode, step and return so far. For a policy
+    from pixels (``env`` writes ``"pixels"``), what the agent saw (its newest gray patch,
+    enlarged) is drawn under the scene.
+    """
+    gymnasium_env = gym_env(env)  # the Gymnasium env behind TorchRL's GymWrapper
+
+    def frame(td: TensorDictBase, caption: str) -> np.ndarray:
+        scene = _captioned(gymnasium_env.render(), caption, scale)
+        return scene if PIXELS_KEY not in td else _with_agent_view(scene, td[PIXELS_KEY])
+
+    for episode in range(1, episodes + 1):
+        td = env.reset()
+        frames = [frame(td, f"episode {episode}  step 0  return 0")]
+        episode_return = 0.0
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            for step in range(1, max_steps + 1):
+                td = env.step(actor(td))
+                episode_return += td["next", "reward"].item()
+                caption = f"episode {episode}  step {step}  return {episode_return:g}"
+                frames.append(frame(td["next"], caption))
+                if td["next", "done"].item():
+                    break
+                td = td["next"]
+        yield EpisodeFrames(frames, episode_return)
+
+
+def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Path:
+    """Write ``frames`` to ``path`` (``.gif`` or ``.mp4``) under a temporary name, then rename."""
+    path = Path(path)
+    if path.suffix == ".gif":
+        images = [Image.fromarray(frame) for frame in frames]
+        return write_atomic(
+            path,
+            lambda tmp: images[0].save(
+                tmp, save_all=True, append_images=images[1:], duration=1000 / fps, loop=0
+            ),
+        )
+    if path.suffix == ".mp4":
+        try:
+            import imageio.v3 as iio
+        except ImportError:
+            raise ConfigError(
+                "writing .mp4 needs imageio[ffmpeg]: pip install -e '.[video]' (or use .gif)"
+            ) from None
+        return write_atomic(
+            path, lambda tmp: iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")
+        )
+    raise ConfigError(f"output={str(path)!r}: choose a .gif or .mp4 file name")
+
+
+@dataclass
+class Recording:
+    """What :func:`record_agent` wrote: the file, each episode's return and the frame count."""
+
+    path: Path
+    env_id: str
+    returns: list[float]
+    frames: int
+
+    def __str__(self) -> str:
+        episodes = len(self.returns)
+        returns = ", ".join(f"{value:g}" for value in self.returns)
+        return (
+            f"{self.env_id}: {episodes} greedy episode{'s' * (episodes != 1)}, return "
+            f"{returns}; {self.frames} frames in {shown_path(self.path)}"
+        )
+
+
+# Frames are kept until the file is written: a 500-step CartPole episode at scale 0.5 is
+# 500 x 300 x 200 x 3 bytes = 90 MB.
+MAX_EPISODES_IN_A_VIDEO = 20
+
+
+def record_agent(
+    run_dir_or_checkpoint: str | Path,
+    episodes: int = 1,
+    seed: int | None = None,
+    output: str | Path | None = None,
+    fps: int = 50,
+    scale: float = 0.5,
+) -> Recording:
+    """Play ``episodes`` greedy episodes of a trained policy into a GIF (or MP4) file.
+
+    ``run_dir_or_checkpoint`` is a run directory (its best policy plays) or a checkpoint;
+    ``seed`` defaults to the run's final evaluation seeds and ``output`` to ``video.gif``
+    beside the checkpoint; frames are scaled by ``scale``.
+    """
+    if episodes < 1 or fps < 1 or not 0 < scale <= 4:
+        raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
+    if episodes > MAX_EPISODES_IN_A_VIDEO:
+        raise ConfigError(
+            f"episodes={episodes}: a video holds at most {MAX_EPISODES_IN_A_VIDEO} episodes (their "
+            "frames are kept in memory until the file is written); make several"
+        )
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only, no window
+    frames, returns = [], []
+    with quiet_libraries():  # no TorchRL INFO lines (spec checks), as in the scripts
+        trained = load_trained_policy(run_dir_or_checkpoint, seed=seed, render_mode="rgb_array")
+        try:
+            for episode in render_episodes(
+                trained.actor, trained.env, episodes, trained.cfg.eval.max_steps, scale
+            ):
+                frames.extend(episode.frames)
+                returns.append(episode.episode_return)
+        finally:
+            trained.env.close()
+    path = write_video(frames, output or trained.checkpoint.parent / "video.gif", fps)
+    return Recording(Path(path), trained.cfg.env.id, returns, len(frames))
+
+
+def show_agent(run_dir_or_checkpoint: str | Path, episodes: int = 1, **options: Any) -> Any:
+    """:func:`record_agent` into a GIF, shown inline when it ends a notebook cell.
+
+    ``options`` are :func:`record_agent`'s (``seed``, ``output``, ``fps``, ``scale``). Prints
+    what was recorded; returns an ``IPython.display.Image`` of the GIF, or its path where
+    IPython is not installed.
+    """
+    output = options.get("output")
+    if output is not None and Path(output).suffix != ".gif":
+        raise ConfigError(f"output={str(output)!r}: show_agent writes a .gif file")
+    recording = record_agent(run_dir_or_checkpoint, episodes, **options)
+    print(recording)
+    try:
+        from IPython.display import Image as IPythonImage
+    except ImportError:
+        return recording.path
+    return IPythonImage(filename=str(recording.path))

@@ -1,0 +1,170 @@
+"""Envs from the config's ``env`` section: the run's envs, the pixel envs, each collector
+worker's env constructor and the observation statistics.
+
+The factories in :mod:`trl_cartpole.parts` take TorchRL's arguments and know nothing of the
+config; this module reads the ``env`` section (and the run's seed) and calls them.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+import torch
+from torchrl.envs import EnvBase, ObservationNorm, SerialEnv, TransformedEnv
+
+from trl_cartpole.config.schema import Config, EnvConfig
+from trl_cartpole.env_ids import resolve_env_id
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
+from trl_cartpole.parts.pixels import pixel_transforms
+
+__all__ = [
+    "WorkerEnvFactory",
+    "estimate_observation_norm",
+    "make_env_from_config",
+    "make_pixel_env",
+    "worker_env_constructors",
+]
+
+
+def make_env_from_config(
+    env_cfg: EnvConfig,
+    seed: int | None = None,
+    device: str | torch.device = "cpu",
+    num_envs: int | None = None,
+    observation_norm: Mapping[str, Sequence[float]] | None = None,
+    render_mode: str | None = None,
+) -> TransformedEnv:
+    """:func:`make_env` for the ``env`` section of a config (``num_envs`` overrides its own).
+
+    ``observation_norm`` must be given when ``env_cfg.normalize_observations`` is on: the
+    statistics belong to a run (:func:`estimate_observation_norm`, stored in its checkpoints).
+    """
+    if env_cfg.normalize_observations and observation_norm is None:
+        raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
+    if env_cfg.from_pixels:
+        if render_mode not in (None, "rgb_array"):
+            raise ConfigError(
+                f"render_mode={render_mode!r}: a policy from pixels plays on rendered frames "
+                "(rgb_array); write a file instead (output=x.gif)"
+            )
+        return make_pixel_env(env_cfg, seed, device, num_envs)
+    return make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        device,
+        seed=seed,
+        max_episode_steps=env_cfg.max_episode_steps,
+        num_envs=env_cfg.num_envs if num_envs is None else num_envs,
+        render_mode=render_mode,
+        observation_norm=observation_norm if env_cfg.normalize_observations else None,
+    )
+
+
+def make_pixel_env(
+    env_cfg: EnvConfig,
+    seed: int | None = None,
+    device: str | torch.device = "cpu",
+    num_envs: int | None = None,
+) -> EnvBase:
+    """The env of ``env_cfg`` seen through its rendered frames only (``trl_cartpole.parts.pixels``).
+
+    One env is ``make_env(..., from_pixels=True, pixels_only=True)`` plus the pixel transforms:
+    its only observation is ``"pixels"`` ``[frames, h, w]`` uint8. Gymnasium renders one env
+    at a time, so ``num_envs > 1`` is TorchRL's ``SerialEnv`` of such envs, seeded ``seed``,
+    ``seed + 1``, ... (batch ``[num_envs]``).
+    """
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
+    count = env_cfg.num_envs if num_envs is None else num_envs
+    build = partial(_one_pixel_env, env_cfg, device)
+    env = build() if count == 1 else SerialEnv(count, build, device=device)
+    if seed is not None:
+        env.set_seed(seed)
+    return env
+
+
+def _one_pixel_env(env_cfg: EnvConfig, device: str | torch.device) -> TransformedEnv:
+    env = make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        device,
+        max_episode_steps=env_cfg.max_episode_steps,
+        from_pixels=True,
+        pixels_only=True,
+    )
+    for transform in pixel_transforms(
+        env_cfg.pixels_crop, env_cfg.pixels_pool, env_cfg.pixels_frames
+    ):
+        env = env.append_transform(transform)
+    return env
+
+
+def estimate_observation_norm(env_cfg: EnvConfig, seed: int) -> dict[str, list[float]]:
+    """Mean and std per observation feature over ``env_cfg.normalization_frames`` random frames.
+
+    TorchRL's ``ObservationNorm.init_stats`` plays uniform random actions in one env; the torch
+    RNG is forked, so estimating does not shift the run's random numbers. The scale is floored
+    at ``MIN_OBSERVATION_SCALE``. Returns ``{"loc": [...], "scale": [...]}`` (JSON-ready).
+    """
+    env = make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        seed=seed,
+        max_episode_steps=env_cfg.max_episode_steps,
+    )
+    norm = ObservationNorm(in_keys=[OBSERVATION_KEY], standard_normal=True)
+    env.append_transform(norm)
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        norm.init_stats(num_iter=env_cfg.normalization_frames, reduce_dim=0, cat_dim=0)
+    env.close()
+    return {
+        "loc": norm.loc.tolist(),  # [obs_dim]
+        "scale": norm.scale.clamp_min(MIN_OBSERVATION_SCALE).tolist(),  # [obs_dim]
+    }
+
+
+@dataclass(frozen=True)
+class WorkerEnvFactory:
+    """Builds one worker's envs and seeds that worker's torch RNG (its epsilon-greedy draws).
+
+    A fresh worker process (spawned, or a Ray actor) otherwise starts from a random torch seed,
+    so its exploration could not be repeated. The training process itself keeps its RNG:
+    TorchRL builds the first worker's envs there once to read their specs.
+    """
+
+    env_cfg: EnvConfig
+    env_seed: int  # the worker's envs are seeded env_seed, env_seed + 1, ...
+    rng_seed: int
+    device: str
+    observation_norm: Mapping[str, Sequence[float]] | None
+    parent_pid: int
+
+    def __call__(self) -> EnvBase:
+        if os.getpid() != self.parent_pid:  # in the worker
+            torch.manual_seed(self.rng_seed)
+        return make_env_from_config(
+            self.env_cfg, self.env_seed, self.device, observation_norm=self.observation_norm
+        )
+
+
+def worker_env_constructors(cfg: Config, observation_norm=None) -> list[WorkerEnvFactory]:
+    """One picklable env constructor per collector worker.
+
+    Worker ``i`` seeds its ``env.num_envs`` envs from ``seed + i * env.num_envs`` (no two envs
+    of a run share a seed) and its torch RNG from child ``i`` of ``SeedSequence(seed)``.
+    """
+    workers = cfg.collector.workers
+    rng_seeds = np.random.SeedSequence(cfg.seed).spawn(workers)
+    return [
+        WorkerEnvFactory(
+            cfg.env,
+            cfg.seed + worker * cfg.env.num_envs,
+            int(rng_seeds[worker].generate_state(1)[0]),
+            cfg.device,
+            observation_norm,
+            os.getpid(),
+        )
+        for worker in range(workers)
+    ]

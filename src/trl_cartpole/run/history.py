@@ -1,0 +1,93 @@
+"""The training curves of a run, kept in memory: episodes, TD losses and gradient norms.
+
+The final plots and ``summary.json`` read them; a training state saves them, so a resumed
+run's plots cover the whole run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from tensordict import TensorDictBase
+from torch import Tensor
+
+from trl_cartpole.report.plotting import LearningCurves
+from trl_cartpole.run.evaluation import EvalCurve
+from trl_cartpole.run.learner import UpdateReport
+
+__all__ = ["Episode", "History"]
+
+
+@dataclass(frozen=True)
+class Episode:
+    """A training episode that ended: its return, its length and the frame it ended at."""
+
+    episode_return: float
+    length: int
+    frame: int
+
+
+@dataclass
+class History:
+    """The training curves the plots and the summary read."""
+
+    episode_returns: list[float] = field(default_factory=list)  # in the order they ended
+    episode_lengths: list[int] = field(default_factory=list)
+    episode_frames: list[int] = field(default_factory=list)  # the frame each episode ended at
+    update_frames: list[int] = field(default_factory=list)
+    td_losses: list[float] = field(default_factory=list)
+    grad_norms: list[float] = field(default_factory=list)
+
+    def record_episodes(self, batch: TensorDictBase, frames: int) -> list[Episode]:
+        """Keep the episodes that finished in ``batch`` ``[rows, T]`` (or ``[T]``); return them.
+
+        Episodes are kept in the order they ended (time-major over the envs), each with the
+        frame it ended at; ``frames`` (the run's count) already counts this batch.
+        """
+        steps = batch.shape[-1]
+        rows = batch.numel() // steps
+
+        def time_major(key: tuple[str, str]) -> Tensor:  # [T, rows]
+            return batch[key].reshape(rows, steps).T
+
+        done = time_major(("next", "done"))  # [T, rows]
+        if not done.any():
+            return []
+        returns = time_major(("next", "episode_reward"))[done].tolist()
+        lengths = time_major(("next", "step_count"))[done].tolist()
+        step_index = done.nonzero()[:, 0]  # [episodes]: the step of the batch each one ended at
+        first_frame = frames - batch.numel()
+        ended = (first_frame + (step_index + 1) * rows).tolist()
+        episodes = [
+            Episode(episode_return, length, frame)
+            for episode_return, length, frame in zip(returns, lengths, ended, strict=True)
+        ]
+        for episode in episodes:
+            self.episode_returns.append(episode.episode_return)
+            self.episode_lengths.append(episode.length)
+            self.episode_frames.append(episode.frame)
+        return episodes
+
+    def record_updates(self, report: UpdateReport, frames: int) -> None:
+        """Keep the TD losses and gradient norms of one round of updates."""
+        self.update_frames.extend([frames] * len(report))
+        self.td_losses.extend(report.losses)
+        self.grad_norms.extend(report.grad_norms)
+
+    def curves(self, evaluations: EvalCurve, threshold: float | None) -> LearningCurves:
+        """The training episodes so far, with ``evaluations`` (the evaluator's curve)."""
+        return LearningCurves(
+            self.episode_frames,
+            self.episode_returns,
+            evaluations.frames,
+            evaluations.returns,
+            threshold,
+        )
+
+    def state_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for name, values in state.items():
+            getattr(self, name)[:] = values

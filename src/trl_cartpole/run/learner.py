@@ -1,0 +1,88 @@
+"""The learner: sample minibatches, take gradient steps, write priorities, move the target.
+
+One call of :meth:`Learner.step` is the "update" part of one DQN iteration (Mnih et al. 2015,
+algorithm 1): ``count`` minibatches from the replay buffer, each one gradient step on the TD
+loss (``update``: loss, backward, clipping, optimizer, new network noise), then the new
+priorities for a prioritized buffer, written TorchRL's way (``update_tensordict_priority``:
+the loss's ``td_error``, Schaul et al. 2016) and one step of the target
+network's updater (``SoftUpdate`` or ``HardUpdate``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import TensorDictReplayBuffer
+from torchrl.objectives import DistributionalDQNLoss, DQNLoss
+from torchrl.objectives.utils import TargetNetUpdater
+
+from trl_cartpole.errors import TrainingFailed
+from trl_cartpole.parts.replay import is_prioritized, sample_minibatches
+from trl_cartpole.run.progress import Progress
+
+__all__ = ["Learner", "UpdateReport"]
+
+
+@dataclass
+class UpdateReport:
+    """What the updates of one :meth:`Learner.step` measured, one entry per update."""
+
+    losses: list[float] = field(default_factory=list)
+    grad_norms: list[float] = field(default_factory=list)
+    last_sample: TensorDictBase | None = None  # [batch_size], the last minibatch
+    prioritized: bool = False  # the samples carry importance weights ("priority_weight")
+
+    def __len__(self) -> int:
+        return len(self.losses)
+
+
+class Learner:
+    """Gradient updates on replayed minibatches, and the target network that follows them."""
+
+    def __init__(
+        self,
+        buffer: TensorDictReplayBuffer,
+        loss: DQNLoss | DistributionalDQNLoss,
+        target_updater: TargetNetUpdater,
+        optimizer: torch.optim.Optimizer,
+        update: Callable[[TensorDictBase], TensorDict],
+    ) -> None:
+        self.buffer, self.loss, self.target_updater = buffer, loss, target_updater
+        self.optimizer = optimizer  # (stepped inside ``update``; saved with the training state)
+        self.update = update  # make_update(...): one gradient step, possibly torch.compile'd
+        self.prioritized = is_prioritized(buffer)
+        self.last_report = UpdateReport(prioritized=self.prioritized)  # of the last step
+
+    def step(self, count: int, progress: Progress) -> UpdateReport:
+        """Take ``count`` updates; raise :class:`TrainingFailed` on a non-finite TD loss."""
+        report = UpdateReport(prioritized=self.prioritized)
+        for sample in sample_minibatches(self.buffer, count):  # sample: [batch_size]
+            metrics = self.update(sample)
+            if self.prioritized:
+                self.buffer.update_tensordict_priority(sample)  # the loss wrote "td_error"
+            self.target_updater.step()
+            progress.updates += 1
+            loss = metrics["loss"].item()
+            if not math.isfinite(loss):
+                raise TrainingFailed(
+                    f"TD loss is {loss} at update {progress.updates} (frame {progress.frames}); "
+                    "training stopped"
+                )
+            report.losses.append(loss)
+            report.grad_norms.append(metrics["grad_norm"].item())
+            report.last_sample = sample
+        self.last_report = report
+        return report
+
+    def state_dict(self) -> dict[str, Any]:
+        """The hard update's call counter (the networks and optimizer are saved on their own)."""
+        return {"hard_update_counter": getattr(self.target_updater, "counter", None)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state["hard_update_counter"] is not None:
+            self.target_updater.counter = state["hard_update_counter"]

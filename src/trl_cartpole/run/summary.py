@@ -1,0 +1,181 @@
+"""How a run ends: the final evaluation of the best policy, the plots and ``summary.json``.
+
+:func:`finish` runs after the loop: it saves the last training state, evaluates the best
+policy (by periodic evaluation) over ``eval.final_episodes`` fresh episodes, draws the plots
+and writes ``summary.json``, whose keys other tools rely on (docs/architecture.md).
+:func:`record_failure` writes the summary of a run stopped by a numerical fault.
+"""
+
+from __future__ import annotations
+
+import resource
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import tensordict
+import torch
+import torchrl
+
+from trl_cartpole.errors import TrainingFailed
+from trl_cartpole.report.plotting import plot_dashboard, plot_durations
+from trl_cartpole.run.build import REPLAY_FILES, Components, evaluate_episodes, run_title
+from trl_cartpole.run.evaluation import EvalResult, Evaluator
+from trl_cartpole.store.files import write_json_atomic
+
+__all__ = ["finish", "peak_rss_mb", "record_failure", "run_summary"]
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory in MiB (Linux reports ``ru_maxrss`` in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def finish(run: Components) -> dict[str, Any]:
+    """Save the last state, evaluate the best policy, draw the plots, write ``summary.json``."""
+    cfg, progress, evaluator = run.cfg, run.progress, run.evaluator
+    progress.clock.pause()
+    run.progress_bar.close()
+    run.checkpointer.save_last(progress)
+    run.release_collector()
+    if cfg.buffer.storage == "memmap":  # the training state just saved holds its own copy
+        shutil.rmtree(run.run_dir / REPLAY_FILES, ignore_errors=True)
+    # a live plot to a file is the durations.png the end draws anew: no last redraw first
+    if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
+        run.live_plot.flush()
+    evaluator.load_best()
+    final = evaluate_episodes(
+        cfg,
+        run.actor,
+        cfg.seed + 2 * cfg.eval.seed_offset,
+        cfg.eval.final_episodes,
+        run.observation_norm,
+    )
+    run.metrics.log({"eval/final_return_mean": final.mean}, progress.frames)
+    run.metrics.close()
+    if cfg.logger.plots:
+        history, curve = run.history, evaluator.curve
+        title = run_title(cfg)
+        plot_durations(history.curves(curve, run.threshold), run.run_dir / "durations.png", title)
+        plot_dashboard(
+            curve.frames,
+            curve.returns,
+            curve.initial_values,
+            history.update_frames,
+            history.td_losses,
+            history.grad_norms,
+            run.run_dir / "dashboard.png",
+            title=title,
+            threshold=run.threshold,
+        )
+    phases = progress.phase_seconds
+    summary = run_summary(
+        env_id=cfg.env.id,
+        seed=cfg.seed,
+        algo=cfg.algo.name,
+        frames=progress.frames,
+        updates=progress.updates,
+        train_seconds=progress.clock.seconds,
+        wall_start=run.wall_start,
+        threshold=run.threshold,
+        evaluator=evaluator,
+        final=final,
+        run_dir=run.run_dir,
+        episodes=len(run.history.episode_returns),
+        # Throughput of the two halves of the loop.
+        collect_frames_per_second=round(progress.frames / max(phases["collect"], 1e-9)),
+        updates_per_second=round(progress.updates / max(phases["update"], 1e-9), 1),
+        phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
+        checkpoint=str(run.run_dir / "checkpoints" / "best") if cfg.checkpoint.save_best else None,
+        **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
+        versions={
+            "torch": torch.__version__,
+            "torchrl": torchrl.__version__,
+            "tensordict": tensordict.__version__,
+            "gymnasium": gym.__version__,
+        },
+    )
+    write_json_atomic(run.run_dir / "summary.json", summary)
+    return summary
+
+
+def run_summary(
+    *,
+    env_id: str,
+    seed: int,
+    algo: str,
+    frames: int,
+    updates: int,
+    train_seconds: float,
+    wall_start: float,
+    threshold: float | None,
+    evaluator: Evaluator,
+    final: EvalResult,
+    run_dir: str | Path,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The ``summary.json`` of a finished run: ours, and a benchmark peer's under the protocol.
+
+    ``evaluator`` holds the periodic evaluations (curve, best, solve point), ``final`` the
+    best policy's evaluation on new episodes; ``extra`` keys (throughput, versions...) follow
+    the shared ones, before ``peak_rss_mb``, ``run_dir`` and the end.
+    """
+    seconds_to_solve = evaluator.seconds_to_solve
+    return {
+        "env_id": env_id,
+        "seed": seed,
+        "algo": algo,
+        "frames": frames,
+        "updates": updates,
+        "train_seconds": round(train_seconds, 3),
+        "wall_seconds": round(time.perf_counter() - wall_start, 3),
+        "solved": evaluator.frames_to_solve is not None,
+        "solve_threshold": threshold,
+        "frames_to_solve": evaluator.frames_to_solve,
+        "seconds_to_solve": None if seconds_to_solve is None else round(seconds_to_solve, 3),
+        "final_eval_return_mean": final.mean,
+        "final_eval_return_std": final.std,
+        "final_eval_episodes": len(final.returns),
+        "final_eval_returns": final.returns,
+        "best_eval_return_mean": evaluator.best_return,
+        "eval_curve": {
+            "frames": evaluator.curve.frames,
+            "seconds": evaluator.curve.seconds,  # training seconds, evaluation excluded
+            "returns": evaluator.curve.returns,
+            "rss_mb": evaluator.curve.rss_mb,  # resident memory (MiB) at each evaluation
+        },
+        **extra,
+        # this process's peak, or more where its workers and it held more at an evaluation
+        "peak_rss_mb": round(
+            max([peak_rss_mb(), *(mb for mb in evaluator.curve.rss_mb if mb is not None)]), 1
+        ),
+        "run_dir": str(run_dir),
+    }
+
+
+def record_failure(run: Components, failure: TrainingFailed) -> TrainingFailed:
+    """Write the failure to ``summary.json``; return the error to raise, naming that file.
+
+    The last periodic checkpoint (written before the fault) stays the one to resume from.
+    """
+    periodic = run.run_dir / "checkpoints" / "periodic"
+    progress, evaluator = run.progress, run.evaluator
+    summary = {
+        "env_id": run.cfg.env.id,
+        "seed": run.cfg.seed,
+        "algo": run.cfg.algo.name,
+        "frames": progress.frames,
+        "updates": progress.updates,
+        "wall_seconds": round(time.perf_counter() - run.wall_start, 3),
+        "solved": evaluator.frames_to_solve is not None,
+        "frames_to_solve": evaluator.frames_to_solve,
+        "failed": True,
+        "failure": str(failure),
+        "best_eval_return_mean": evaluator.best_return if evaluator.best_state else None,
+        "last_good_checkpoint": str(periodic) if periodic.is_dir() else None,
+        "run_dir": str(run.run_dir),
+    }
+    write_json_atomic(run.run_dir / "summary.json", summary)
+    return TrainingFailed(f"{failure}; the failure is recorded in {run.run_dir / 'summary.json'}")

@@ -1,0 +1,1 @@
+"""Tools over many runs: comparisons of runs, Optuna tuning, sweeps."""
