@@ -73,6 +73,7 @@ from trl_cartpole.run.memory_needs import (
     memory_need,
 )
 from trl_cartpole.run.progress import Progress
+from trl_cartpole.run.schedules import Schedules
 from trl_cartpole.store.checkpoint import read_observation_norm
 from trl_cartpole.store.env_state import EnvState
 from trl_cartpole.store.files import free_bytes, write_text_atomic
@@ -386,6 +387,8 @@ class Components:
     lock: RunLock  # the run directory's, released on close
     threshold: float | None
     learning_starts: int  # no update before the buffer holds this many transitions
+    updates_per_batch: int  # gradient steps after each collected batch
+    schedules: Schedules  # epsilon, network noise, beta: stepped after each batch
     sync_policy_weights: bool  # the collector steps a copy of the policy
     ray_nodes: dict[str, Any] | None  # Ray runs: the learner's and each actor's node id
     transition_keys: tuple[Any, ...]  # what the buffer stores of each frame (transition_keys)
@@ -586,6 +589,14 @@ def _assemble(
         threshold,
         learning_starts=max(
             cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
+        ),
+        updates_per_batch=cfg.collector.updates_per_batch,
+        schedules=Schedules(
+            exploration,
+            actor if cfg.network.noisy else None,
+            buffer if cfg.buffer.prioritized else None,
+            cfg.buffer.beta,
+            cfg.buffer.beta_anneal_frames or cfg.collector.total_frames,
         ),
         sync_policy_weights=needs_weight_sync(collector, policy),
         ray_nodes=ray_placement(collector),

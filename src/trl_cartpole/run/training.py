@@ -22,8 +22,8 @@ from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.parts.collectors import lost_worker
-from trl_cartpole.parts.models import expected_action_values, reset_network_noise
-from trl_cartpole.parts.replay import annealed_beta, extend_with_batch
+from trl_cartpole.parts.models import expected_action_values
+from trl_cartpole.parts.replay import extend_with_batch
 from trl_cartpole.report.console import quiet_libraries
 from trl_cartpole.run.build import Components, build_components
 from trl_cartpole.run.evaluation import Evaluation
@@ -77,10 +77,10 @@ def train(
                 updates_before = progress.updates
                 with phase("update"):  # gradient steps, priorities, target network
                     if len(run.buffer) >= run.learning_starts:
-                        report = run.learner.step(cfg.collector.updates_per_batch, progress)
+                        report = run.learner.step(run.updates_per_batch, progress)
                         run.history.record_updates(report, progress.frames)
                 with phase("explore"):  # epsilon, network noise, beta, weight sync, the bar
-                    _step_schedules(run, batch.numel())
+                    run.schedules.step(batch.numel(), progress.frames)
                     if run.sync_policy_weights:
                         run.collector.update_policy_weights_()
                     _report_batch(run, batch, updates_before)
@@ -100,18 +100,6 @@ def train(
                 raise
             raise run.checkpointer.stop_for_lost_worker(progress, lost) from None
         return finish(run)
-
-
-def _step_schedules(run: Components, frames: int) -> None:
-    """Anneal epsilon, draw new network noise, anneal the prioritized buffer's beta."""
-    if run.exploration is not None:
-        run.exploration.step(frames)
-    if run.cfg.network.noisy:
-        reset_network_noise(run.actor)  # fresh noise for the next collected batch too
-    if run.cfg.buffer.prioritized:
-        buffer = run.cfg.buffer
-        anneal_frames = buffer.beta_anneal_frames or run.cfg.collector.total_frames
-        run.buffer.sampler.beta = annealed_beta(buffer.beta, run.progress.frames, anneal_frames)
 
 
 def _report_batch(run: Components, batch: TensorDictBase, updates_before: int) -> None:
