@@ -7,7 +7,8 @@ The dataclasses below are the schema Hydra composes ``configs/`` onto (registere
 Hydra's ConfigStore as ``base_config``): a misspelt key or a wrong type fails at
 composition time. ``trl_cartpole.config.validation.validate`` then checks what a type cannot
 express (ranges and rules between fields) and raises ``ConfigError`` with one line naming the
-field and how to fix it. This module imports nothing of the package.
+field and how to fix it. Of the package it imports only ``trl_cartpole.defaults``, where the
+defaults it shares with the factories are stated.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from datetime import datetime
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
+
+from trl_cartpole import defaults
 
 __all__ = [
     "AlgoConfig",
@@ -41,7 +44,7 @@ __all__ = [
 class EnvConfig:
     # Any Gymnasium id with a vector observation and discrete actions: a registered id, or
     # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.parts.env.
-    id: str = "CartPole-v1"  # a Gymnasium id (vector observation, discrete actions), or module:Id
+    id: str = defaults.ENV_ID  # a Gymnasium id (vector observation, discrete actions), or module:Id
     imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
     max_episode_steps: int | None = None  # null: Gymnasium's registered TimeLimit
     num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
@@ -67,10 +70,12 @@ class NetworkConfig:
     cnn_channels: list[int] = field(default_factory=lambda: [16, 32, 32])  # cnn: channels
     cnn_kernels: list[int] = field(default_factory=lambda: [5, 5, 5])  # cnn: kernel sizes
     cnn_strides: list[int] = field(default_factory=lambda: [2, 2, 2])  # cnn: strides
-    hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])  # MLP torso widths
-    activation: str = "relu"  # relu | tanh | elu | gelu
+    hidden_sizes: list[int] = field(
+        default_factory=lambda: list(defaults.HIDDEN_SIZES)
+    )  # MLP torso widths
+    activation: str = defaults.ACTIVATION  # relu | tanh | elu | gelu
     noisy: bool = False  # NoisyLinear layers (Fortunato et al. 2018); needs exploration=none
-    noisy_std: float = 0.5  # sigma_0 of the factorised noise (the paper's 0.5)
+    noisy_std: float = defaults.NOISY_STD  # sigma_0 of the factorised noise (the paper's 0.5)
     distributional: bool = False  # C51 (Bellemare et al. 2017): a return distribution per action
     atoms: int = 51  # support points of the distribution
     v_min: float = 0.0  # support [v_min, v_max]; CartPole's returns lie in [0, 1 / (1 - gamma)]
@@ -80,50 +85,60 @@ class NetworkConfig:
 @dataclass
 class ExplorationConfig:
     schedule: str = "linear"  # linear (TorchRL) | exponential (PyTorch tutorial) | none (noisy)
-    eps_start: float = 1.0  # probability of a random action at the start
-    eps_end: float = 0.05  # ... after decay_frames (linear) and the floor (exponential)
-    decay_frames: int = 3000  # linear: frames to reach eps_end; exponential: time constant
+    eps_start: float = defaults.EPS_START  # probability of a random action at the start
+    eps_end: float = defaults.EPS_END  # ... after decay_frames (linear) and the floor (exponential)
+    decay_frames: int = (
+        defaults.DECAY_FRAMES
+    )  # linear: frames to reach eps_end; exponential: time constant
 
 
 @dataclass
 class BufferConfig:
-    size: int = 50_000  # transitions kept (the oldest are overwritten)
+    size: int = defaults.BUFFER_SIZE  # transitions kept (the oldest are overwritten)
     # memory: TorchRL's LazyTensorStorage, in RAM | memmap: its LazyMemmapStorage, files in
     # RUN_DIR/replay_buffer (removed at the end), for a buffer larger than the RAM to spare
     storage: str = "memory"
-    batch_size: int = 512  # transitions per gradient step
+    batch_size: int = defaults.BATCH_SIZE  # transitions per gradient step
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
-    alpha: float = 0.6  # P(i) ~ (|delta_i| + priority_eps) ** alpha
-    beta: float = 0.4  # importance-sampling exponent at the start, annealed linearly to 1
+    alpha: float = defaults.ALPHA  # P(i) ~ (|delta_i| + priority_eps) ** alpha
+    beta: float = defaults.BETA  # importance-sampling exponent at the start, annealed linearly to 1
     beta_anneal_frames: int | None = None  # frames to reach beta = 1; null: collector.total_frames
-    priority_eps: float = 1e-6  # added to |delta| so that no transition has priority 0
-    n_steps: int = 3  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
+    priority_eps: float = (
+        defaults.PRIORITY_EPS
+    )  # added to |delta| so that no transition has priority 0
+    n_steps: int = (
+        defaults.N_STEPS
+    )  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
 
 
 @dataclass
 class LossConfig:
-    gamma: float = 0.995  # discount factor
-    loss_function: str = "smooth_l1"  # smooth_l1 (Huber, as the tutorial) | l2
+    gamma: float = defaults.GAMMA  # discount factor
+    loss_function: str = defaults.LOSS_FUNCTION  # smooth_l1 (Huber, as the tutorial) | l2
     double_dqn: bool = False  # double DQN target (van Hasselt et al. 2016)
     target_update: str = "hard"  # hard (copy every N updates) | soft (Polyak, tau)
-    tau: float = 0.02  # soft: target <- (1 - tau) target + tau online, after each update
-    hard_update_interval: int = 50  # gradient updates between hard copies
+    tau: float = defaults.TAU  # soft: target <- (1 - tau) target + tau online, after each update
+    hard_update_interval: int = (
+        defaults.HARD_UPDATE_INTERVAL
+    )  # gradient updates between hard copies
 
 
 @dataclass
 class OptimConfig:
-    lr: float = 4e-3  # AdamW learning rate
-    amsgrad: bool = True  # AdamW's AMSGrad variant, as the tutorial
-    weight_decay: float = 0.0  # the tutorial keeps AdamW's default 0.01
-    grad_clip: str = "norm"  # norm | value | none
-    max_grad: float = 10.0  # the max norm, or the clip value per element
+    lr: float = defaults.LR  # AdamW learning rate
+    amsgrad: bool = defaults.AMSGRAD  # AdamW's AMSGrad variant, as the tutorial
+    weight_decay: float = defaults.WEIGHT_DECAY  # the tutorial keeps AdamW's default 0.01
+    grad_clip: str = defaults.GRAD_CLIP  # norm | value | none
+    max_grad: float = defaults.MAX_GRAD  # the max norm, or the clip value per element
 
 
 @dataclass
 class CollectorConfig:
-    total_frames: int = 50_000  # env steps at most (rounded up to whole batches)
-    frames_per_batch: int = 32  # frames per collected batch, over all envs
-    init_random_frames: int = 1000  # frames with a uniform random policy first (whole batches)
+    total_frames: int = defaults.TOTAL_FRAMES  # env steps at most (rounded up to whole batches)
+    frames_per_batch: int = defaults.FRAMES_PER_BATCH  # frames per collected batch, over all envs
+    init_random_frames: int = (
+        defaults.INIT_RANDOM_FRAMES
+    )  # frames with a uniform random policy first (whole batches)
     updates_per_batch: int = 6  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
     # Scaling out (docs/scaling.md): collection in worker processes or Ray actors, each with

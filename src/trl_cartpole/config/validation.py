@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from trl_cartpole import defaults
 from trl_cartpole.config.schema import Config, flat_fields
 from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
@@ -33,16 +34,16 @@ __all__ = [
 ]
 
 # network.head and network.activation: the keys of trl_cartpole.parts.models.HEADS and ACTIVATIONS
-HEAD_NAMES = ("dueling", "plain")
-ACTIVATION_NAMES = ("elu", "gelu", "relu", "tanh")
+HEAD_NAMES = defaults.HEADS
+ACTIVATION_NAMES = defaults.ACTIVATIONS
 
 _CHOICES = {
-    "exploration.schedule": ("exponential", "linear", "none"),
+    "exploration.schedule": defaults.SCHEDULES,
     "loss.loss_function": ("smooth_l1", "l2"),
     "loss.target_update": ("soft", "hard"),
-    "optim.grad_clip": ("value", "norm", "none"),
+    "optim.grad_clip": defaults.GRAD_CLIPS,
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
-    "collector.backend": ("local", "ray"),
+    "collector.backend": defaults.COLLECTOR_BACKENDS,
     "buffer.storage": ("memory", "memmap"),
     "network.torso": ("mlp", "cnn"),
 }

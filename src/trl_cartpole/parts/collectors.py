@@ -29,6 +29,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
 
+from trl_cartpole import defaults
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.compat import close_weight_sync_schemes
 
@@ -47,7 +48,7 @@ __all__ = [
     "whole_batches",
 ]
 
-BACKENDS = ("local", "ray")
+BACKENDS = defaults.COLLECTOR_BACKENDS
 # Each Ray collector actor reserves this much of a node (TorchRL's default reserves 2 GiB).
 RAY_ACTOR_OPTIONS = {"num_cpus": 1, "memory": 512 * 1024**2}
 
@@ -107,9 +108,9 @@ def whole_batches(frames: int, frames_per_batch: int) -> int:
 def make_collector(
     create_env_fn: EnvBase | Callable[[], EnvBase] | Sequence[Callable[[], EnvBase]],
     policy: TensorDictModuleBase,
-    frames_per_batch: int = 32,
-    total_frames: int = 50_000,
-    init_random_frames: int = 1000,
+    frames_per_batch: int = defaults.FRAMES_PER_BATCH,
+    total_frames: int = defaults.TOTAL_FRAMES,
+    init_random_frames: int = defaults.INIT_RANDOM_FRAMES,
     device: str = "cpu",
     *,
     sync: bool = True,

@@ -26,6 +26,7 @@ from torchrl.envs import (
     TransformedEnv,
 )
 
+from trl_cartpole import defaults
 from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id, solve_threshold
 from trl_cartpole.errors import ConfigError
 
@@ -79,7 +80,7 @@ GYM_WRAPPER_KEYWORDS = frozenset(
 
 
 def make_env(
-    env_name: str = "CartPole-v1",
+    env_name: str = defaults.ENV_ID,
     device: str | torch.device = "cpu",
     *,
     seed: int | None = None,

@@ -12,11 +12,12 @@ import torch
 from torchrl.data import TensorSpec
 from torchrl.modules import EGreedyModule
 
+from trl_cartpole import defaults
 from trl_cartpole.parts.aliases import resolve_alias
 
 __all__ = ["SCHEDULES", "ExponentialEGreedyModule", "make_exploration"]
 
-SCHEDULES = ("linear", "exponential", "none")
+SCHEDULES = defaults.SCHEDULES
 
 
 class ExponentialEGreedyModule(EGreedyModule):
@@ -47,9 +48,9 @@ class ExponentialEGreedyModule(EGreedyModule):
 
 def make_exploration(
     spec: TensorSpec | None = None,
-    eps_init: float = 1.0,
-    eps_end: float = 0.05,
-    annealing_num_steps: int = 3000,
+    eps_init: float = defaults.EPS_START,
+    eps_end: float = defaults.EPS_END,
+    annealing_num_steps: int = defaults.DECAY_FRAMES,
     *,
     schedule: str = "linear",
     device: str | torch.device | None = None,

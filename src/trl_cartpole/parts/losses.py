@@ -26,6 +26,7 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
+from trl_cartpole import defaults
 from trl_cartpole.parts.replay import DEFAULT_GAMMA, N_STEP_GAMMA_KEY, n_step_gamma
 
 __all__ = [
@@ -37,9 +38,9 @@ __all__ = [
 
 # This project's defaults, the default config's loss section (tests/test_defaults.py holds
 # them together).
-DEFAULT_LOSS_FUNCTION = "smooth_l1"
-DEFAULT_TAU = 0.02
-DEFAULT_HARD_UPDATE_INTERVAL = 50
+DEFAULT_LOSS_FUNCTION = defaults.LOSS_FUNCTION
+DEFAULT_TAU = defaults.TAU
+DEFAULT_HARD_UPDATE_INTERVAL = defaults.HARD_UPDATE_INTERVAL
 
 
 def make_dqn_loss(

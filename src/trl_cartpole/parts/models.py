@@ -29,6 +29,7 @@ from torchrl.modules import (
     reset_noise,
 )
 
+from trl_cartpole import defaults
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.aliases import resolve_alias
 from trl_cartpole.parts.compat import use_first_greedy_action
@@ -114,11 +115,11 @@ def check_head(head: str) -> None:
 def make_q_network(
     obs_dim: int,
     num_actions: int,
-    num_cells: Sequence[int] | int | None = (128, 128),
+    num_cells: Sequence[int] | int | None = defaults.HIDDEN_SIZES,
     activation_class: type[nn.Module] = nn.ReLU,
     head: str = "plain",
     noisy: bool = False,
-    noisy_std: float = 0.5,
+    noisy_std: float = defaults.NOISY_STD,
     atoms: int | None = None,
     *,
     hidden_sizes: Sequence[int] | None = None,
@@ -267,12 +268,12 @@ def make_q_actor(
     spec: TensorSpec | None = None,
     *,
     module: nn.Module | None = None,
-    num_cells: Sequence[int] | int | None = (128, 128),
+    num_cells: Sequence[int] | int | None = defaults.HIDDEN_SIZES,
     activation_class: type[nn.Module] = nn.ReLU,
     head: str = "plain",
     device: str | torch.device | None = None,
     noisy: bool = False,
-    noisy_std: float = 0.5,
+    noisy_std: float = defaults.NOISY_STD,
     support: torch.Tensor | None = None,
     in_keys: Sequence[str] = ("observation",),
     torso: str | nn.Module = "mlp",

@@ -13,6 +13,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
+from trl_cartpole import defaults
 from trl_cartpole.parts.models import reset_network_noise
 
 __all__ = ["make_optimizer", "make_update"]
@@ -20,9 +21,9 @@ __all__ = ["make_optimizer", "make_update"]
 
 def make_optimizer(
     params: Iterable[nn.Parameter],
-    lr: float = 4e-3,
-    amsgrad: bool = True,
-    weight_decay: float = 0.0,
+    lr: float = defaults.LR,
+    amsgrad: bool = defaults.AMSGRAD,
+    weight_decay: float = defaults.WEIGHT_DECAY,
     **adamw_kwargs: Any,
 ) -> torch.optim.AdamW:
     """AdamW (Loshchilov & Hutter 2019), with AMSGrad (Reddi et al. 2018) as in the tutorial.
@@ -52,8 +53,8 @@ def make_optimizer(
 def make_update(
     loss_module: nn.Module,
     optimizer: torch.optim.Optimizer,
-    grad_clip: str = "norm",
-    max_grad: float = 10.0,
+    grad_clip: str = defaults.GRAD_CLIP,
+    max_grad: float = defaults.MAX_GRAD,
     noisy_network: nn.Module | None = None,
 ) -> Callable[[TensorDictBase], TensorDict]:
     """Return ``update(batch) -> TensorDict(loss=[], grad_norm=[])``.

@@ -30,6 +30,7 @@ from torchrl.data import (
 from torchrl.data.replay_buffers import PrioritizedSampler, RandomSampler, Sampler, Storage
 from torchrl.envs import Compose, MultiStepTransform, Transform
 
+from trl_cartpole import defaults
 from trl_cartpole.parts.compat import held_steps, replay_transform
 
 __all__ = [
@@ -47,12 +48,16 @@ __all__ = [
 
 # This project's discount (the default config's loss.gamma; tests/test_defaults.py): the
 # default of an n-step buffer and of the loss, so the two agree when neither is given.
-DEFAULT_GAMMA = 0.995
+DEFAULT_GAMMA = defaults.GAMMA
 # The prioritized sampler's defaults here (TorchRL's PrioritizedSampler requires alpha and
 # beta and defaults eps to 1e-8): the default config's buffer section. alpha is TorchRL's,
 # the exponent of the loss's td_error; DQNLoss writes delta ** 2, so 0.3 is Schaul et al.'s
 # 0.6 on |delta| (the config's buffer.alpha).
-DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_PRIORITY_EPS = 0.3, 0.4, 1e-6
+DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_PRIORITY_EPS = (
+    defaults.ALPHA / 2,
+    defaults.BETA,
+    defaults.PRIORITY_EPS,
+)
 # Each sample of an n-step buffer carries its discount under this key ([*B, 1], added when
 # sampling, not stored), so a loss built apart from the buffer can check that it agrees.
 N_STEP_GAMMA_KEY = "n_step_gamma"
@@ -174,9 +179,9 @@ def make_replay_buffer(
     *args: Any,
     storage: Storage | None = None,
     sampler: Sampler | None = None,
-    batch_size: int | None = 512,
+    batch_size: int | None = defaults.BATCH_SIZE,
     transform: Transform | None = None,
-    max_size: int = 50_000,
+    max_size: int = defaults.BUFFER_SIZE,
     device: str | torch.device = "cpu",
     prioritized: bool = False,
     alpha: float | None = None,
