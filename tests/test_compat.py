@@ -125,3 +125,16 @@ def test_segment_tree_stand_ins_answer_queries(tree):
         assert values.scan_lower_bound(torch.tensor([4.5, 7.5])).tolist() == [1, 3]
     else:
         assert values.query(0, 4) == 1.0 and values.query(1, 3) == 2.0
+
+
+def test_soft_update_pairs_are_the_online_and_target_parameters_in_order():
+    from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
+
+    env = make_env("CartPole-v1", seed=0)
+    loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
+    updater = make_target_updater(loss, tau=0.5)
+    sources, targets = compat.soft_update_pairs(updater)
+    online = [p.data for p in loss.value_network_params.values(True, True)]
+    assert len(sources) == len(targets) == len(online) > 0
+    assert all(s.shape == t.shape for s, t in zip(sources, targets, strict=True))
+    assert {s.data_ptr() for s in sources} == {p.data_ptr() for p in online}

@@ -798,3 +798,13 @@ def test_tune_refuses_a_damaged_or_foreign_study_database_unchanged(tmp_path, ma
     assert message in lines[0] and "Traceback" not in proc.stderr
     assert database.read_bytes() == before  # Optuna added no table to it
     assert not (tmp_path / "tuned.yaml").exists()
+
+
+def test_the_run_lock_names_its_process_while_held_and_nothing_once_released(tmp_path):
+    from trl_cartpole.store.run_lock import RunLock
+
+    lock = RunLock(tmp_path)
+    assert (tmp_path / ".lock").read_text().startswith(f"process {os.getpid()} on ")
+    lock.release()
+    assert (tmp_path / ".lock").read_text() == ""  # a finished run's lock reads as free
+    RunLock(tmp_path).release()  # and is taken again at once

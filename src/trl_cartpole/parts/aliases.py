@@ -7,7 +7,7 @@ still works, and giving both is refused.
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from typing import TypeVar
 
 __all__ = ["resolve_alias"]
 
@@ -21,8 +21,3 @@ def resolve_alias(name: str, value: T | None, alias: str, alias_value: T | None)
     if value is not None:
         raise TypeError(f"{alias}= is an alias of {name}=; pass one of them")
     return alias_value
-
-
-def pop_alias(kwargs: dict[str, Any], alias: str) -> Any:
-    """Remove and return ``kwargs[alias]`` (None when absent)."""
-    return kwargs.pop(alias, None)

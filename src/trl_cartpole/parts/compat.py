@@ -15,7 +15,8 @@ Private names read (each through one function below):
 - ``GymWrapper._env``: the Gymnasium env behind the wrapper (rendering, pickling its state);
 - ``BaseCollector._weight_sync_schemes``: the shared-memory weight-sync schemes a multi-process
   collector's ``shutdown()`` leaves open (the process hung at exit);
-- ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action.
+- ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action;
+- ``SoftUpdate._sources`` / ``_targets``: the parameters a soft update lerps, for the fused step.
 
 Stand-ins for TorchRL parts:
 
@@ -57,6 +58,7 @@ __all__ = [
     "set_autoreset_state",
     "set_gym_env",
     "set_n_step_window",
+    "soft_update_pairs",
     "use_first_greedy_action",
 ]
 
@@ -151,6 +153,16 @@ def close_weight_sync_schemes(collector: BaseCollector) -> None:
     """
     for scheme in (getattr(collector, "_weight_sync_schemes", None) or {}).values():
         scheme.shutdown()
+
+
+# --- the soft target update's parameters ----------------------------------------------------
+
+
+def soft_update_pairs(updater: Any) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """The online and target tensors a ``SoftUpdate`` lerps, in its order (after ``init_``)."""
+    sources = [p.data for p in updater._sources.values(True, True)]
+    targets = [p.data for p in updater._targets.values(True, True)]
+    return sources, targets
 
 
 # --- the greedy tie-break --------------------------------------------------------------------

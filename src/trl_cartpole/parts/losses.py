@@ -27,6 +27,7 @@ from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftU
 from torchrl.objectives.utils import TargetNetUpdater
 
 from trl_cartpole import defaults
+from trl_cartpole.parts.compat import soft_update_pairs
 from trl_cartpole.parts.replay import DEFAULT_GAMMA, N_STEP_GAMMA_KEY, n_step_gamma
 
 __all__ = [
@@ -171,8 +172,7 @@ class FusedSoftUpdate(SoftUpdate):
     def step(self) -> None:
         if not self.initialized:
             return super().step()  # raises: init_() first
-        sources = [p.data for p in self._sources.values(True, True)]
-        targets = [p.data for p in self._targets.values(True, True)]
+        sources, targets = soft_update_pairs(self)
         torch._foreach_lerp_(targets, sources, 1 - self.eps)
 
 

@@ -54,7 +54,11 @@ class RunLock:
         self._file = handle
 
     def release(self) -> None:
-        """Give the directory up (closing the file releases the lock); safe to call twice."""
+        """Give the directory up (closing the file releases the lock); safe to call twice.
+
+        The holder's line is cleared first, so a finished run's ``.lock`` names no process."""
         if self._file is not None:
+            self._file.seek(0)
+            self._file.truncate()
             self._file.close()
             self._file = None
