@@ -11,7 +11,8 @@ Two ways to bring a network, both TorchRL's ``QValueActor`` in the end:
 This example trains the first on CartPole-v1: a torso of two layers with layer norm (something
 the factory does not build), the dueling head, double DQN on 3-step returns and a soft target.
 
-    python examples/own_network.py                 # 20 000 frames, about 1 min here
+    python examples/own_network.py                 # 20 000 frames, about 40 s here
+                                                   # (seed 0: 500.0 +/- 0.0 over 20 episodes)
     python examples/own_network.py --frames 2000
 """
 
