@@ -128,10 +128,10 @@ def test_compile_without_a_cpp_compiler_is_refused_before_the_run(compose, monke
 @pytest.mark.parametrize(
     ("override", "expected"),
     [
-        ("loss.gama=0.5", "Key 'gama' not in 'LossConfig'"),
+        ("loss.gama=0.5", "loss.gama is not a setting (did you mean 'loss.gamma'?)"),
         ("loss.gamma=1.5", "loss.gamma=1.5 must lie in (0, 1]"),
         ("env.id=Nope-v0", "env.id='Nope-v0' is not a registered Gymnasium env"),
-        ("buffer.batch_size=big", "could not be converted to Integer"),
+        ("buffer.batch_size=big", "buffer.batch_size='big' is not an integer"),
         ("network.noisy=true", "set exploration.schedule=none"),
     ],
 )

@@ -370,9 +370,9 @@ def _damaged_copy(run_dir: Path, target: Path, how: str) -> Path:
 
 
 BAD_INPUTS = [
-    ("unknown key", ["loss.gama=0.5"], "Key 'gama' not in 'LossConfig'"),
-    ("unknown group option", ["algo=nosuch"], "Could not find 'algo/nosuch'"),
-    ("wrong type", ["buffer.batch_size=big"], "could not be converted to Integer"),
+    ("unknown key", ["loss.gama=0.5"], "loss.gama is not a setting"),
+    ("unknown group option", ["algo=nosuch"], "algo='nosuch' is not a preset"),
+    ("wrong type", ["buffer.batch_size=big"], "buffer.batch_size='big' is not an integer"),
     ("impossible value", ["loss.gamma=1.5"], "loss.gamma=1.5 must lie in (0, 1]"),
     ("unknown env id", ["env.id=Nope-v0"], "is not a registered Gymnasium env"),
     ("continuous actions", ["env.id=Pendulum-v1"], "discrete"),

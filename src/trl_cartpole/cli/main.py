@@ -34,6 +34,7 @@ from trl_cartpole.config.compose import (
     compose_config,
     compose_run_config,
 )
+from trl_cartpole.config.messages import explain
 from trl_cartpole.errors import (
     ConfigError,
     DiskFull,
@@ -110,7 +111,10 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     except (ConfigError, HydraException, OmegaConfBaseException) as error:
         if os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
-        print(f"error: {_one_line(error)}", file=sys.stderr)
+        line = _one_line(error)
+        if not isinstance(error, ConfigError):  # Hydra's words: the project's where it has them
+            line = explain(line, command("train"), argv) or line
+        print(f"error: {line}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except TrainingInterrupted as interrupted:
         print(str(interrupted), file=sys.stderr)

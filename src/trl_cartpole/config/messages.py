@@ -1,0 +1,78 @@
+"""Hydra's and OmegaConf's composition errors, said in this project's words.
+
+Composition fails in Hydra's terms (``Could not override 'seeed': Key 'seeed' not in
+'Config'``, ``LexerNoViableAltException``...). :func:`explain` turns the ones a user meets
+first into one line naming the key or preset, with the closest known name ("did you mean") and
+the form that works; any other error keeps its own words.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from collections.abc import Iterable, Sequence
+
+from trl_cartpole.config.schema import Config, flat_fields
+
+__all__ = ["did_you_mean", "explain"]
+
+# The keys a command line may set besides the schema's fields.
+_COMMAND_KEYS = ("algo", "env", "presets", "resume")
+
+
+def did_you_mean(word: str, known: Iterable[str]) -> str:
+    """``" (did you mean 'seed'?)"`` for the closest of ``known``, or ``""``."""
+    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _keys() -> list[str]:
+    return [*flat_fields(Config()), *_COMMAND_KEYS]
+
+
+def explain(
+    message: str, command: str = "trl-cartpole train", argv: Sequence[str] = ()
+) -> str | None:
+    """The project's one line for a composition error's one-line ``message``, or None.
+
+    ``argv`` (the command line) gives the value of a dashed ``--key VALUE``."""
+    unknown = re.search(r"Could not override '([^']+)': Key '[^']+' not in '\w*Config'", message)
+    if unknown:
+        key = unknown.group(1)
+        return (
+            f"{key} is not a setting{did_you_mean(key, _keys())}; `{command} --help` lists "
+            "every key"
+        )
+    dashed = re.search(r"LexerNoViableAltException: (--?[\w.]+)(=[^\s:]*)?", message)
+    if dashed:
+        flag = dashed.group(1)
+        value = (dashed.group(2) or "").lstrip("=")
+        following = list(argv)[list(argv).index(flag) + 1 :] if flag in argv else []
+        if not value and following and "=" not in following[0]:
+            value = following[0]  # --seed 1
+        return (
+            f"arguments are key=value here, without dashes: write {flag.lstrip('-')}="
+            f"{value or 'VALUE'}"
+        )
+    preset = re.search(
+        r"Could not find '(\w+)/([^']+)': Available options in '\w+': (.*)$", message
+    )
+    if preset:
+        group, name = preset.group(1), preset.group(2)
+        options = [option.strip() for option in preset.group(3).split(":") if option.strip()]
+        return (
+            f"{group}={name!r} is not a preset{did_you_mean(name, options)}; choose one of "
+            f"{options} (configs/{group}/), or a YAML file of your own under presets=DIR"
+        )
+    wrong_type = re.search(
+        r"Error merging override ([\w.]+)=(.*?): Value '.*' of type '\w+' could not be converted "
+        r"to (\w+)",
+        message,
+    )
+    if wrong_type:
+        key, value, kind = wrong_type.groups()
+        kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false"}.get(
+            kind, kind.lower()
+        )
+        return f"{key}={value!r} is not {kind}; write {key}=<{kind}>"
+    return None

@@ -1,0 +1,38 @@
+"""Mistakes on the command line are answered in the project's words: the key or preset named,
+the closest known name, the form that works; one line, exit status 2."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from tests.conftest import run_script_in_process
+from trl_cartpole.config.messages import did_you_mean
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["seeed=1"], r"^seeed is not a setting \(did you mean 'seed'\?\); .* --help"),
+        (["loss.gama=0.9"], r"^loss\.gama is not a setting \(did you mean 'loss\.gamma'\?\)"),
+        (["--seed", "1"], r"^arguments are key=value here, without dashes: write seed=1$"),
+        (["--seed=1"], r"write seed=1$"),
+        (["algo=dobule"], r"^algo='dobule' is not a preset \(did you mean 'double'\?\); choose"),
+        (["env=cartpol"], r"^env='cartpol' is not a preset \(did you mean 'cartpole'\?\)"),
+        (["seed=abc"], r"^seed='abc' is not an integer; write seed=<an integer>$"),
+        (["buffer.alpha=high"], r"^buffer\.alpha='high' is not a number"),
+    ],
+    ids=["typo", "nested typo", "dashes", "dashes with =", "algo", "env", "int", "float"],
+)
+def test_composition_mistakes_are_answered_in_the_projects_words(args, expected):
+    done = run_script_in_process("train.py", *args)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert re.search(expected, lines[0].removeprefix("error: ")), lines[0]
+    assert "Hydra" not in lines[0] and "Exception" not in lines[0]
+
+
+def test_no_suggestion_when_nothing_is_close():
+    assert did_you_mean("zzz", ["seed", "env"]) == ""
+    assert did_you_mean("sede", ["seed", "env"]) == " (did you mean 'seed'?)"
