@@ -36,3 +36,18 @@ def test_composition_mistakes_are_answered_in_the_projects_words(args, expected)
 def test_no_suggestion_when_nothing_is_close():
     assert did_you_mean("zzz", ["seed", "env"]) == ""
     assert did_you_mean("sede", ["seed", "env"]) == " (did you mean 'seed'?)"
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        ([], r"^checkpoint= is needed: add checkpoint=runs/latest"),
+        (["checkpoint=runs/latest", "episodes=abc"], r"^episodes='abc' is not an integer"),
+    ],
+    ids=["no checkpoint", "episodes"],
+)
+def test_evaluate_names_the_missing_or_mistyped_key(args, expected):
+    done = run_script_in_process("evaluate.py", *args)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert re.search(expected, lines[0].removeprefix("error: ")), lines[0]

@@ -65,14 +65,25 @@ def explain(
             f"{options} (configs/{group}/), or a YAML file of your own under presets=DIR"
         )
     wrong_type = re.search(
-        r"Error merging override ([\w.]+)=(.*?): Value '.*' of type '\w+' could not be converted "
-        r"to (\w+)",
+        r"Value '(.*)' of type '\w+' could not be converted to (\w+)",
         message,
     )
     if wrong_type:
-        key, value, kind = wrong_type.groups()
+        value, kind = wrong_type.groups()
+        named = re.search(r"Error merging override ([\w.]+)=", message)
+        keys = (
+            [named.group(1)]
+            if named
+            else [arg.split("=", 1)[0] for arg in argv if arg.split("=", 1)[-1] == value]
+        )
         kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false"}.get(
             kind, kind.lower()
         )
+        key = keys[0] if keys else "a value"
         return f"{key}={value!r} is not {kind}; write {key}=<{kind}>"
+    missing = re.search(r"has missing mandatory value: ([\w.]+)", message)
+    if missing:
+        key = missing.group(1)
+        example = "runs/latest (a run directory or a checkpoint)" if key == "checkpoint" else "..."
+        return f"{key}= is needed: add {key}={example}"
     return None
