@@ -51,3 +51,34 @@ def test_evaluate_names_the_missing_or_mistyped_key(args, expected):
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr
     assert re.search(expected, lines[0].removeprefix("error: ")), lines[0]
+
+
+def _summary(env_id: str, solved: bool) -> dict:
+    return {
+        "run_dir": "runs/x",
+        "env_id": env_id,
+        "algo": "dqn",
+        "seed": 0,
+        "solve_threshold": -110.0,
+        "solved": solved,
+        "frames": 50_016,
+        "frames_to_solve": 40_000 if solved else None,
+        "seconds_to_solve": 60.0 if solved else None,
+        "eval_curve": {"frames": [1000] * 49},
+        "final_eval_return_mean": -100.0 if solved else -200.0,
+        "final_eval_return_std": 0.0,
+        "final_eval_episodes": 100,
+        "best_eval_return_mean": -100.0 if solved else -200.0,
+        "checkpoint": "runs/x/checkpoints/best",
+    }
+
+
+def test_a_run_that_ends_short_of_its_target_says_what_to_try():
+    from trl_cartpole.report.console import ending
+
+    short = ending(_summary("MountainCar-v0", solved=False)).splitlines()
+    tries = short[short.index("try:") + 1 : short.index("next:")]
+    assert "env=mountaincar" in tries[0] and "collector.total_frames=100032" in tries[1]
+    no_preset = ending(_summary("Taxi-v3", solved=False)).splitlines()
+    assert not any("env=" in line for line in no_preset)  # no preset to point at: more frames
+    assert "try:" not in ending(_summary("MountainCar-v0", solved=True))

@@ -11,12 +11,19 @@ searched after the package's, through Hydra's search path. Imports no torch.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
 from trl_cartpole.errors import ConfigError
 
-__all__ = ["PRESETS_DIR", "PRESETS_ENV_VAR", "preset_dirs", "with_search_path"]
+__all__ = [
+    "PRESETS_DIR",
+    "PRESETS_ENV_VAR",
+    "env_presets_for",
+    "preset_dirs",
+    "with_search_path",
+]
 
 PRESETS_DIR = Path(__file__).resolve().parent.parent / "configs"
 PRESETS_ENV_VAR = "TRL_CARTPOLE_PRESETS"
@@ -47,3 +54,14 @@ def with_search_path(overrides: Sequence[str]) -> list[str]:
     if not dirs:
         return rest
     return [*rest, f"hydra.searchpath=[{','.join(f'file://{d}' for d in dirs)}]"]
+
+
+def env_presets_for(env_id: str) -> list[str]:
+    """The names of the shipped ``configs/env/`` presets that train ``env_id`` (state vectors
+    first), read from each preset's ``id:`` line."""
+    found = [
+        path.stem
+        for path in sorted((PRESETS_DIR / "env").glob("*.yaml"))
+        if re.search(rf"^\s+id:\s*{re.escape(env_id)}\s*$", path.read_text(), re.MULTILINE)
+    ]
+    return sorted(found, key=lambda name: "pixels" in name)

@@ -19,6 +19,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from trl_cartpole.config.presets import env_presets_for
+
 __all__ = [
     "command",
     "ending",
@@ -155,6 +157,21 @@ def _outcome(summary: dict[str, Any]) -> str:
     )
 
 
+def _what_to_try(summary: dict[str, Any]) -> list[str]:
+    """For a run that ended short of its target: the env's tuned preset, and more frames."""
+    presets = env_presets_for(summary["env_id"])
+    lines = ["try:"]
+    if presets:
+        lines.append(
+            f"  {command('train')} env={presets[0]}   # tuned for {summary['env_id']}, if this "
+            "run did not use it"
+        )
+    lines.append(
+        f"  {command('train')} collector.total_frames={2 * summary['frames']}   # twice the frames"
+    )
+    return lines
+
+
 def ending(summary: dict[str, Any]) -> str:
     """The lines a finished run prints: the verdict, the run directory and what to try next."""
     run = shlex.quote(shown_path(summary["run_dir"]))
@@ -162,6 +179,8 @@ def ending(summary: dict[str, Any]) -> str:
         verdict(summary),
         f"run directory: {run} (durations.png, dashboard.png, summary.json, checkpoints/)",
     ]
+    if summary.get("solve_threshold") is not None and not summary["solved"]:
+        lines += _what_to_try(summary)
     if summary.get("checkpoint"):
         lines += [
             "next:",
