@@ -60,10 +60,16 @@ def readme_next_steps() -> str:
         seconds = step.get("seconds")
         timing = "" if seconds is None else f" ({_duration(seconds)})"
         lines.append(f"{step['command']:<64} # {step['what']}{timing}")
+    apart = [
+        f" `{step['command'].split()[-1]}`: measured {step['measured']}."
+        for step in results["next_steps"]
+        if step.get("measured")
+    ]
     return (
         _fenced("\n".join(lines), "bash")
         + "\n\nTimes: command to prompt, one command at a time (`python -m benchmarks readme`). "
         + provenance_line(results)
+        + "".join(apart)
     )
 
 

@@ -44,7 +44,7 @@ NEXT_STEPS = [
     (f"{PYTHON} scripts/train.py algo=tutorial", "the PyTorch DQN tutorial's settings", True),
     (f"{PYTHON} scripts/train.py env=acrobot", "Acrobot-v1, tuned preset", True),
     (
-        f"{PYTHON} scripts/train.py env.id=MountainCar-v0",
+        f"{PYTHON} scripts/train.py env.id=Acrobot-v1",
         "any Gymnasium id, CartPole's settings",
         True,
     ),
