@@ -82,3 +82,16 @@ def test_a_run_that_ends_short_of_its_target_says_what_to_try():
     no_preset = ending(_summary("Taxi-v3", solved=False)).splitlines()
     assert not any("env=" in line for line in no_preset)  # no preset to point at: more frames
     assert "try:" not in ending(_summary("MountainCar-v0", solved=True))
+
+
+def test_a_preset_of_ones_own_without_its_header_is_told_to_add_it(tmp_path):
+    (tmp_path / "env").mkdir()
+    (tmp_path / "env" / "tuned.yaml").write_text("env:\n  id: Acrobot-v1\n")
+    done = run_script_in_process("train.py", f"presets={tmp_path}", "env=tuned")
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert "make '# @package _global_' its first line" in lines[0]
+    (tmp_path / "env" / "tuned.yaml").write_text("# @package _global_\nenv:\n  id: Acrobot-v1\n")
+    from trl_cartpole.config.compose import compose_config
+
+    assert compose_config(overrides=[f"presets={tmp_path}", "env=tuned"]).env.id == "Acrobot-v1"

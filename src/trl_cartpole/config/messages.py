@@ -36,6 +36,16 @@ def explain(
     """The project's one line for a composition error's one-line ``message``, or None.
 
     ``argv`` (the command line) gives the value of a dashed ``--key VALUE``."""
+    header = re.search(
+        r"In '(\w+)/([^']+)': ConfigKeyError raised while composing config: Key '(\w+)' not in",
+        message,
+    )
+    if header and header.group(1) == header.group(3):
+        group, name = header.group(1), header.group(2)
+        return (
+            f"the preset {group}/{name}.yaml sets {group}: inside the {group} group; make "
+            "'# @package _global_' its first line, as the shipped presets do"
+        )
     unknown = re.search(r"Could not override '([^']+)': Key '[^']+' not in '\w*Config'", message)
     if unknown:
         key = unknown.group(1)
