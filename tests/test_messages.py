@@ -95,3 +95,34 @@ def test_a_preset_of_ones_own_without_its_header_is_told_to_add_it(tmp_path):
     from trl_cartpole.config.compose import compose_config
 
     assert compose_config(overrides=[f"presets={tmp_path}", "env=tuned"]).env.id == "Acrobot-v1"
+
+
+@pytest.mark.parametrize("command", ["evaluate", "render"])
+def test_a_missing_checkpoint_is_answered_before_torch_is_imported(command, tmp_path):
+    import subprocess
+    import sys
+
+    script = (
+        "import sys\n"
+        "from trl_cartpole.cli.main import run_cli, _command_main\n"
+        f"code = run_cli(_command_main({command!r}), ['checkpoint={tmp_path / 'nope'}'])\n"
+        "print(code, 'torch' in sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert "does not exist" in done.stderr
+
+
+def test_an_env_dqn_cannot_play_is_refused_before_torch_is_imported():
+    import subprocess
+    import sys
+
+    script = (
+        "import sys\n"
+        "from trl_cartpole.cli.main import run_cli, _command_main\n"
+        "code = run_cli(_command_main('train'), ['env.id=Pendulum-v1'])\n"
+        "print(code, 'torch' in sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert "has continuous actions" in done.stderr

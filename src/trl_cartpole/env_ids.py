@@ -17,7 +17,13 @@ import gymnasium as gym
 
 from trl_cartpole.errors import ConfigError
 
-__all__ = ["check_env_fits", "missing_dependency", "resolve_env_id", "solve_threshold"]
+__all__ = [
+    "check_builtin_env_fits",
+    "check_env_fits",
+    "missing_dependency",
+    "resolve_env_id",
+    "solve_threshold",
+]
 
 # Gymnasium env families whose dependencies come with an extra of this project (pyproject.toml).
 OPTIONAL_EXTRAS = {"gymnasium.envs.box2d": "box2d"}
@@ -142,3 +148,23 @@ def check_env_fits(
             f"env {env_id!r} has an observation of shape {shape}; DQN here needs a vector "
             "(rank 1): flatten it (gymnasium.wrappers.FlattenObservation) or use a vector-state env"
         )
+
+
+def check_builtin_env_fits(env_id: str, pixels: bool = False) -> None:
+    """:func:`check_env_fits` on one env built by Gymnasium, for the envs Gymnasium itself
+    ships (``gymnasium.envs``), before torch is imported: a continuous-action env or an image
+    observation is refused in about a second instead of after the heavy imports. Envs of other
+    packages are left to the build (making them may cost or do more); a missing dependency is
+    left to it too, where it is reported with the extra to install."""
+    spec = gym.spec(env_id)
+    entry = spec.entry_point if isinstance(spec.entry_point, str) else ""
+    if not entry.startswith("gymnasium.envs."):
+        return
+    try:
+        env = gym.make(env_id)
+    except (ImportError, gym.error.DependencyNotInstalled):
+        return
+    try:
+        check_env_fits(env.observation_space, env.action_space, env_id, pixels=pixels)
+    finally:
+        env.close()

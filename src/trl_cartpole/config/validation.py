@@ -16,7 +16,7 @@ from typing import Any
 
 from trl_cartpole import defaults
 from trl_cartpole.config.schema import Config, flat_fields
-from trl_cartpole.env_ids import resolve_env_id
+from trl_cartpole.env_ids import check_builtin_env_fits, resolve_env_id
 from trl_cartpole.errors import ConfigError
 
 __all__ = [
@@ -214,7 +214,7 @@ def validate(cfg: Config) -> Config:
         check_compiler(cfg.device)
     _check_combination(cfg)
     check_network_choices(cfg.network.head, cfg.network.activation)
-    resolve_env_id(cfg.env.id, cfg.env.imports)
+    check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
     return cfg
 
 

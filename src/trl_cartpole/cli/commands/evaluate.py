@@ -15,6 +15,7 @@ from pathlib import Path
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.config.validation import check_envs_at_once, check_seed
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.store.files import check_checkpoint_exists
 
 
 @dataclass
@@ -28,6 +29,7 @@ class EvaluateArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(EvaluateArgs, argv, __doc__)
+    check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy.load import evaluate_checkpoint, policy_checkpoint
     from trl_cartpole.store.files import write_json_atomic

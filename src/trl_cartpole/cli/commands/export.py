@@ -15,6 +15,7 @@ from pathlib import Path
 
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.store.files import check_checkpoint_exists
 
 FORMATS = {
     ".onnx": ("ONNX model", "export_onnx"),
@@ -30,6 +31,7 @@ class ExportArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(ExportArgs, argv, __doc__)
+    check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy import export
 

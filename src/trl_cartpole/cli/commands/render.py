@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.config.validation import check_seed
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.store.files import check_checkpoint_exists
 
 
 @dataclass
@@ -30,6 +31,7 @@ class RenderArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(RenderArgs, argv, __doc__)
+    check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy.load import load_trained_policy
     from trl_cartpole.policy.video import record_agent
