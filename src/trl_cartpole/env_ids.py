@@ -98,9 +98,17 @@ def missing_dependency(env_id: str, error: Exception) -> ConfigError:
     extra = next(
         (e for prefix, e in OPTIONAL_EXTRAS.items() if entry_point.startswith(prefix)), None
     )
-    how = f'pip install -e ".[{extra}]"' if extra else "install the package the message names"
+    if extra:  # the project's extra: the command to type, with the README's torch pin
+        return ConfigError(
+            f"env {env_id!r} needs the {extra} extra, which is not installed; install it with "
+            f'pip install torch==2.13.0 -e ".[{extra}]" (from a clone; '
+            f'pip install "trl_cartpole[{extra}]" otherwise)'
+        )
     reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-    return ConfigError(f"env {env_id!r} needs a package that is not installed ({reason}); {how}")
+    return ConfigError(
+        f"env {env_id!r} needs a package that is not installed ({reason}); install the package "
+        "the message names"
+    )
 
 
 def check_env_fits(
