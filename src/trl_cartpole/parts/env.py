@@ -111,8 +111,9 @@ def make_env(
     With ``num_envs > 1`` the base env is a Gymnasium ``SyncVectorEnv`` (one process, same-step
     autoreset) in TorchRL's ``GymWrapper``, batch size ``[num_envs]``: evaluation plays all its
     episodes in one batched rollout. ``from_pixels=True`` renders frames into ``"pixels"``
-    (``render_mode="rgb_array"`` is set for it); the Q-networks here read a vector
-    ``"observation"``.
+    (``render_mode="rgb_array"`` is set for it); ``make_q_actor(..., torso="cnn",
+    in_keys=["pixels"])`` reads them (``trl_cartpole.parts.pixels`` has the transforms that
+    crop, pool and stack the frames).
 
     The returned env writes ``("next", "step_count")`` and ``("next", "episode_reward")`` so the
     training loop reads episode lengths and returns off the collected batch. Gymnasium's
