@@ -388,6 +388,7 @@ class Components:
     threshold: float | None
     learning_starts: int  # no update before the buffer holds this many transitions
     updates_per_batch: int  # gradient steps after each collected batch
+    env_id: str  # the env's id, for messages about it
     schedules: Schedules  # epsilon, network noise, beta: stepped after each batch
     sync_policy_weights: bool  # the collector steps a copy of the policy
     ray_nodes: dict[str, Any] | None  # Ray runs: the learner's and each actor's node id
@@ -591,6 +592,7 @@ def _assemble(
             cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
         ),
         updates_per_batch=cfg.collector.updates_per_batch,
+        env_id=cfg.env.id,
         schedules=Schedules(
             exploration,
             actor if cfg.network.noisy else None,

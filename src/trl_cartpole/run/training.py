@@ -26,6 +26,7 @@ from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.parts.replay import extend_with_batch
 from trl_cartpole.report.console import quiet_libraries
 from trl_cartpole.run.build import Components, build_components
+from trl_cartpole.run.env_faults import check_finite_batch, env_fault
 from trl_cartpole.run.evaluation import Evaluation
 from trl_cartpole.run.signals import StopRequest
 from trl_cartpole.run.summary import finish, record_failure
@@ -64,6 +65,7 @@ def train(
             for batch in progress.timed(run.collector, "collect"):
                 batch = batch.reshape(-1, batch.shape[-1]) if batch.ndim > 2 else batch
                 with phase("store"):
+                    check_finite_batch(batch, run.env_id, progress.frames)
                     progress.frames += batch.numel()
                     extend_with_batch(run.buffer, batch.select(*run.transition_keys))
                     for episode in run.history.record_episodes(batch, progress.frames):
@@ -95,6 +97,9 @@ def train(
         except TrainingFailed as failure:
             raise record_failure(run, failure) from None
         except Exception as error:
+            fault = env_fault(error, run.env_id, progress.frames)  # the env's own code raised
+            if fault is not None:
+                raise record_failure(run, fault) from None
             lost = lost_worker(error, run.collector)  # a Ray actor died: checkpoint, then stop
             if lost is None:
                 raise
