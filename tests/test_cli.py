@@ -70,12 +70,21 @@ def test_a_run_prints_its_evaluations_and_ending_and_nothing_else(tmp_path):
     output = proc.stdout + proc.stderr
     for noise in ("[INFO]", "Warning", "\x1b[", "Traceback"):
         assert noise not in output
-    # stderr is not a terminal here: one line per evaluation instead of a redrawn bar
-    evaluations = proc.stderr.splitlines()
+    # stderr is not a terminal here: one line per evaluation instead of a redrawn bar, then a
+    # line per long step of the end
+    lines = proc.stderr.splitlines()
+    steps = ["saving the last training state", "final evaluation: ", "drawing the plots"]
+    evaluations = [line for line in lines if not line.startswith(tuple(steps))]
     assert evaluations and all(
         re.fullmatch(r"\d+ / 300 frames: greedy return -?[\d.]+ \(best -?[\d.]+\)", line)
         for line in evaluations
     ), proc.stderr
+    ending = lines[len(evaluations) :]
+    assert [line.split(":")[0].removesuffix(" ...") for line in ending] == [
+        "saving the last training state",
+        "final evaluation",
+        "drawing the plots",
+    ], proc.stderr
     lines = proc.stdout.splitlines()
     assert lines[0].startswith("CartPole-v1 [dqn, seed 0]: not solved in 300 frames")
     assert lines[1].startswith(f"run directory: {run_dir}")

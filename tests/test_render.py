@@ -34,6 +34,12 @@ def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, t
     with Image.open(out) as gif:
         assert gif.n_frames == expected_frames
         assert gif.size == (150, 100)  # 600x400 scaled by 0.25
+    # the long steps are said as they start (stderr redirected here: a line each)
+    assert proc.stderr.splitlines() == [
+        "rendering episode 1 of 2 ...",
+        "rendering episode 2 of 2 ...",
+        f"writing {expected_frames} frames to {out} ...",
+    ], proc.stderr
 
 
 def test_human_mode_without_a_display_is_a_clear_error(smoke_checkpoint, tmp_path):

@@ -26,6 +26,7 @@ from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.pixels import PIXELS_KEY
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.report.console import quiet_libraries, shown_path
+from trl_cartpole.report.progress_bar import clear_status, show_status
 from trl_cartpole.store.files import write_atomic
 
 __all__ = [
@@ -176,14 +177,20 @@ def record_agent(
     with quiet_libraries():  # no TorchRL INFO lines (spec checks), as in the scripts
         trained = load_trained_policy(run_dir_or_checkpoint, seed=seed, render_mode="rgb_array")
         try:
+            show_status(f"rendering episode 1 of {episodes}")
             for episode in render_episodes(
                 trained.actor, trained.env, episodes, trained.cfg.eval.max_steps, scale
             ):
                 frames.extend(episode.frames)
                 returns.append(episode.episode_return)
+                if len(returns) < episodes:
+                    show_status(f"rendering episode {len(returns) + 1} of {episodes}")
         finally:
             trained.env.close()
-    path = write_video(frames, output or trained.checkpoint.parent / "video.gif", fps)
+    target = Path(output or trained.checkpoint.parent / "video.gif")
+    show_status(f"writing {len(frames)} frames to {shown_path(target)}")
+    path = write_video(frames, target, fps)
+    clear_status()
     return Recording(Path(path), trained.cfg.env.id, returns, len(frames))
 
 

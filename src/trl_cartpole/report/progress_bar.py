@@ -88,3 +88,36 @@ class ProgressBar:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+    def status(self, text: str) -> None:
+        """Say which long step runs now (the final evaluation, the plots): on a terminal one
+        line rewritten in place, cleared by :meth:`clear`; redirected, a line each."""
+        show_status(text, "off" if self.mode == "off" else None)
+
+    def clear(self) -> None:
+        """Remove the status line from a terminal."""
+        clear_status("off" if self.mode == "off" else None)
+
+
+def show_status(text: str, mode: str | None = None) -> None:
+    """``text`` on stderr: rewritten in place on a terminal (``bar``), a line when redirected
+    (``lines``), nothing when ``off``; ``mode`` None picks as :func:`bar_mode` does."""
+    mode = _status_mode() if mode is None else mode
+    if mode == "bar":
+        print(f"\r\033[K{text} ...", end="", file=sys.stderr, flush=True)
+    elif mode == "lines":
+        print(f"{text} ...", file=sys.stderr, flush=True)
+
+
+def clear_status(mode: str | None = None) -> None:
+    """Remove :func:`show_status`'s line from a terminal."""
+    if (_status_mode() if mode is None else mode) == "bar":
+        print("\r\033[K", end="", file=sys.stderr, flush=True)
+
+
+def _status_mode() -> str:
+    """``bar`` on a terminal, ``lines`` when redirected, ``off`` in a notebook (whose cell
+    output shows no rewritten line)."""
+    if sys.stderr.isatty():
+        return "bar"
+    return "off" if live_plot_target() == "notebook" else "lines"

@@ -38,6 +38,7 @@ def finish(run: Components) -> dict[str, Any]:
     cfg, progress, evaluator = run.cfg, run.progress, run.evaluator
     progress.clock.pause()
     run.progress_bar.close()
+    run.progress_bar.status("saving the last training state")
     run.checkpointer.save_last(progress)
     run.release_collector()
     if cfg.buffer.storage == "memmap":  # the training state just saved holds its own copy
@@ -46,6 +47,9 @@ def finish(run: Components) -> dict[str, Any]:
     if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
         run.live_plot.flush()
     evaluator.load_best()
+    run.progress_bar.status(
+        f"final evaluation: the best policy over {cfg.eval.final_episodes} new episodes"
+    )
     final = evaluate_episodes(
         cfg,
         run.actor,
@@ -56,6 +60,7 @@ def finish(run: Components) -> dict[str, Any]:
     run.metrics.log({"eval/final_return_mean": final.mean}, progress.frames)
     run.metrics.close()
     if cfg.logger.plots:
+        run.progress_bar.status("drawing the plots")
         history, curve = run.history, evaluator.curve
         title = run_title(cfg)
         plot_durations(history.curves(curve, run.threshold), run.run_dir / "durations.png", title)
@@ -98,6 +103,7 @@ def finish(run: Components) -> dict[str, Any]:
         },
     )
     write_json_atomic(run.run_dir / "summary.json", summary)
+    run.progress_bar.clear()
     return summary
 
 
