@@ -78,7 +78,8 @@ def test_a_run_that_ends_short_of_its_target_says_what_to_try():
 
     short = ending(_summary("MountainCar-v0", solved=False)).splitlines()
     tries = short[short.index("try:") + 1 : short.index("next:")]
-    assert "env=mountaincar" in tries[0] and "collector.total_frames=100032" in tries[1]
+    assert "env=mountaincar algo=dqn" in tries[0]
+    assert "this run's command with collector.total_frames=100032" in tries[1]
     no_preset = ending(_summary("Taxi-v3", solved=False)).splitlines()
     assert not any("env=" in line for line in no_preset)  # no preset to point at: more frames
     assert "try:" not in ending(_summary("MountainCar-v0", solved=True))

@@ -335,3 +335,43 @@ def test_a_factory_called_from_python_answers_in_its_arguments_names():
         make_exploration(OneHot(2), schedule="exp")
     with pytest.raises(ValueError, match=r"^torso='resnet': choose 'mlp', 'cnn' or an nn.Module"):
         make_q_actor(Composite(observation=OneHot(4)), OneHot(2), torso="resnet")
+
+
+def test_module_refuses_the_arguments_that_would_build_a_network(env):
+    net = nn.Linear(4, 2)
+    for given in ({"num_cells": [64]}, {"activation_class": nn.Tanh}, {"noisy_std": 0.1}):
+        with pytest.raises(
+            TypeError, match=rf"module= is your whole Q-network, so {next(iter(given))}"
+        ):
+            make_q_actor(spec=env.action_spec, module=net, **given)
+
+
+def test_an_earlier_layout_with_norm_layers_loads_without_keys_colliding(env):
+    """With norm_class the earlier torso key 0.1.weight becomes 1.weight, the earlier head's
+    own name: the renaming is done all at once."""
+    torch.manual_seed(0)
+    earlier = nn.Sequential(
+        MLP(
+            in_features=4,
+            out_features=16,
+            num_cells=[16],
+            activate_last_layer=True,
+            activation_class=nn.ReLU,
+            norm_class=nn.LayerNorm,
+            norm_kwargs={"normalized_shape": 16},
+        ),
+        nn.Linear(16, 2),
+    )
+    earlier_actor = QValueActor(earlier, in_keys=["observation"], spec=env.action_spec)
+    actor = make_q_actor(
+        env.observation_spec,
+        env.action_spec,
+        num_cells=[16, 16],
+        norm_class=nn.LayerNorm,
+        norm_kwargs={"normalized_shape": 16},
+    )
+    actor.load_state_dict(earlier_actor.state_dict())
+    observation = env.reset()
+    assert torch.equal(
+        actor(observation.clone())["action_value"], earlier_actor(observation)["action_value"]
+    )

@@ -87,9 +87,8 @@ class ExplorationConfig:
     schedule: str = "linear"  # linear (TorchRL) | exponential (PyTorch tutorial) | none (noisy)
     eps_start: float = defaults.EPS_START  # probability of a random action at the start
     eps_end: float = defaults.EPS_END  # ... after decay_frames (linear) and the floor (exponential)
-    decay_frames: int = (
-        defaults.DECAY_FRAMES
-    )  # linear: frames to reach eps_end; exponential: time constant
+    # linear: frames to reach eps_end; exponential: time constant
+    decay_frames: int = defaults.DECAY_FRAMES
 
 
 @dataclass
@@ -100,15 +99,15 @@ class BufferConfig:
     storage: str = "memory"
     batch_size: int = defaults.BATCH_SIZE  # transitions per gradient step
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
-    alpha: float = defaults.ALPHA  # P(i) ~ (|delta_i| + priority_eps) ** alpha
+    # P(i) ~ |delta_i| ** alpha (Schaul et al.); stored TorchRL's way as
+    # (delta_i ** 2 + priority_eps) ** (alpha / 2)
+    alpha: float = defaults.ALPHA
     beta: float = defaults.BETA  # importance-sampling exponent at the start, annealed linearly to 1
     beta_anneal_frames: int | None = None  # frames to reach beta = 1; null: collector.total_frames
-    priority_eps: float = (
-        defaults.PRIORITY_EPS
-    )  # added to |delta| so that no transition has priority 0
-    n_steps: int = (
-        defaults.N_STEPS
-    )  # n-step returns (Sutton 1988) through MultiStepTransform when > 1
+    # added to delta ** 2 (TorchRL's td_error) so that no transition has priority 0
+    priority_eps: float = defaults.PRIORITY_EPS
+    # n-step returns (Sutton 1988) through MultiStepTransform when > 1
+    n_steps: int = defaults.N_STEPS
 
 
 @dataclass
@@ -118,9 +117,8 @@ class LossConfig:
     double_dqn: bool = False  # double DQN target (van Hasselt et al. 2016)
     target_update: str = "hard"  # hard (copy every N updates) | soft (Polyak, tau)
     tau: float = defaults.TAU  # soft: target <- (1 - tau) target + tau online, after each update
-    hard_update_interval: int = (
-        defaults.HARD_UPDATE_INTERVAL
-    )  # gradient updates between hard copies
+    # gradient updates between hard copies
+    hard_update_interval: int = defaults.HARD_UPDATE_INTERVAL
 
 
 @dataclass
@@ -136,9 +134,8 @@ class OptimConfig:
 class CollectorConfig:
     total_frames: int = defaults.TOTAL_FRAMES  # env steps at most (rounded up to whole batches)
     frames_per_batch: int = defaults.FRAMES_PER_BATCH  # frames per collected batch, over all envs
-    init_random_frames: int = (
-        defaults.INIT_RANDOM_FRAMES
-    )  # frames with a uniform random policy first (whole batches)
+    # frames with a uniform random policy first (whole batches)
+    init_random_frames: int = defaults.INIT_RANDOM_FRAMES
     updates_per_batch: int = 6  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
     # Scaling out (docs/scaling.md): collection in worker processes or Ray actors, each with

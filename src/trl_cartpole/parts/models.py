@@ -1,7 +1,9 @@
 """Q-network factories: an MLP torso and a head inside a TorchRL Q-value actor.
 
 ``HEADS`` maps a config name (``network.head``) to a function building the output layers on
-top of the torso. Two switches apply to every head:
+top of the torso. ``make_q_network`` builds the plain head as TorchRL's own layout instead: one
+``MLP`` whose last linear layer is what ``HEADS["plain"]`` builds.
+Two switches apply to every head:
 
 - ``noisy``: every linear layer is TorchRL's ``NoisyLinear`` (Fortunato et al. 2018), whose
   factorised Gaussian noise is on under ``ExplorationType.RANDOM`` and off otherwise;
@@ -198,13 +200,15 @@ class _EarlierLayoutKeys:
     def __call__(self, state_dict: dict[str, Any], prefix: str, *_: Any) -> None:
         if not any(key.startswith(f"{prefix}0.0.") for key in state_dict):
             return  # TorchRL's layout already
+        renamed = {}  # all at once: a new name may be another old one (0.1.* -> 1.*)
         for key in [key for key in state_dict if key.startswith(prefix)]:
             layer, _, name = key[len(prefix) :].partition(".")
             if layer == "0":  # the torso: 0.{j}.name -> {j}.name
                 new = name
             else:  # the head: 1.name, or 1.0.name for C51's Sequential(linear, Unflatten)
                 new = f"{self.last_linear}.{name[2:] if name.startswith('0.') else name}"
-            state_dict[prefix + new] = state_dict.pop(key)
+            renamed[prefix + new] = state_dict.pop(key)
+        state_dict.update(renamed)
 
 
 def make_cnn_features(
@@ -365,8 +369,19 @@ def make_q_actor(
         )
     else:
         _refuse_network_arguments_with_module(
-            mlp_kwargs, hidden_sizes, head, noisy, torso, cnn_kwargs, activation
+            mlp_kwargs,
+            hidden_sizes,
+            head,
+            noisy,
+            torso,
+            cnn_kwargs,
+            activation,
+            num_cells if isinstance(num_cells, int) else tuple(num_cells or ()),
+            activation_class,
+            noisy_std,
         )
+    if device is None:  # the spec's device, as documented
+        device = getattr(spec, "device", None)
     if device is not None:
         module, spec = module.to(device), spec.to(device)
     in_keys = list(in_keys)
@@ -431,6 +446,9 @@ def _refuse_network_arguments_with_module(
     given = sorted(mlp_kwargs) + [
         name
         for name, value, default in (
+            ("num_cells", rest[2], defaults.HIDDEN_SIZES),
+            ("activation_class", rest[3], nn.ReLU),
+            ("noisy_std", rest[4], defaults.NOISY_STD),
             ("hidden_sizes", hidden_sizes, None),
             ("head", head, "plain"),
             ("noisy", noisy, False),
@@ -450,8 +468,17 @@ def _refuse_network_arguments_with_module(
 def _output_width(torso: nn.Module, observation_spec: TensorSpec, in_keys: Sequence[str]) -> int:
     """The feature width ``F`` of ``torso`` on one observation of ``observation_spec``."""
     key = _input_key(observation_spec, in_keys)
-    with torch.no_grad():
-        features = torso(observation_spec[key].zero())  # [*spec, F]
+    parameter = next(torso.parameters(), None)
+    observation = observation_spec[key].zero()  # [*spec]
+    if parameter is not None:
+        observation = observation.to(parameter.device)
+    training = torso.training
+    torso.eval()  # no running statistics updated by this probe (BatchNorm)
+    try:
+        with torch.no_grad():
+            features = torso(observation)  # [*spec, F]
+    finally:
+        torso.train(training)
     return features.shape[-1]
 
 

@@ -2,7 +2,8 @@
 
 - Uniform: ``TensorDictReplayBuffer`` over a ``LazyTensorStorage`` with a ``RandomSampler``.
 - Prioritized (Schaul et al. 2016, proportional variant): ``TensorDictPrioritizedReplayBuffer``
-  samples i with P(i) = p_i / sum_k p_k, p_i = (|delta_i| + eps) ** alpha, and writes the
+  samples i with P(i) = p_i / sum_k p_k, p_i = (td_error_i + eps) ** alpha (TorchRL's rule;
+  ``DQNLoss``'s td_error is delta ** 2), and writes the
   importance weights w_i = (N P(i)) ** -beta / max_k w_k to ``"priority_weight"``, which
   ``DQNLoss`` and ``DistributionalDQNLoss`` apply. New transitions get the largest priority seen.
 - n-step (Sutton 1988; Hessel et al. 2018): TorchRL's ``MultiStepTransform`` (through

@@ -187,10 +187,13 @@ def record_agent(
                     show_status(f"rendering episode {len(returns) + 1} of {episodes}")
         finally:
             trained.env.close()
+            clear_status()  # an error's line starts on a clean line
     target = Path(output or trained.checkpoint.parent / "video.gif")
     show_status(f"writing {len(frames)} frames to {shown_path(target)}")
-    path = write_video(frames, target, fps)
-    clear_status()
+    try:
+        path = write_video(frames, target, fps)
+    finally:
+        clear_status()
     return Recording(Path(path), trained.cfg.env.id, returns, len(frames))
 
 

@@ -163,11 +163,12 @@ def _what_to_try(summary: dict[str, Any]) -> list[str]:
     lines = ["try:"]
     if presets:
         lines.append(
-            f"  {command('train')} env={presets[0]}   # tuned for {summary['env_id']}, if this "
-            "run did not use it"
+            f"  {command('train')} env={presets[0]} algo={summary['algo']}   # tuned for "
+            f"{summary['env_id']}, if this run did not use it"
         )
     lines.append(
-        f"  {command('train')} collector.total_frames={2 * summary['frames']}   # twice the frames"
+        f"  this run's command with collector.total_frames={2 * summary['frames']}   # twice "
+        "the frames"
     )
     return lines
 

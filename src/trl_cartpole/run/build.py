@@ -405,6 +405,7 @@ class Components:
     def close(self) -> None:
         """Release the collector (workers, Ray actors), the envs, the logger and the lock."""
         self.progress_bar.close()
+        self.progress_bar.clear()  # a status line of the end, before an error's line
         self.release_collector()
         for env in (self.env, self.eval_env):
             close_env(env)

@@ -64,6 +64,11 @@ class Learner:
         for sample in sample_minibatches(self.buffer, count):  # sample: [batch_size]
             metrics = self.update(sample)
             if self.prioritized:
+                if self.loss.tensor_keys.priority not in sample.keys(True):
+                    raise TrainingFailed(
+                        f"the loss wrote no {self.loss.tensor_keys.priority!r} into the sample, "
+                        "so no priorities can be updated (a compiled update must write it back)"
+                    )
                 self.buffer.update_tensordict_priority(sample)  # the loss wrote "td_error"
             self.target_updater.step()
             progress.updates += 1

@@ -70,8 +70,9 @@ RESUMABLE_FIELDS = (
 
 
 # The layout of a training state's components; a state of another format is refused in one line
-# (format 2: the loop's history under "history"; no state of format 1 is read any more).
-TRAINING_STATE_FORMAT = 2
+# (format 3: the plain Q-network in TorchRL's MLP layout, in the policy and the loss; format 2,
+# the loop's history under "history", is not read any more).
+TRAINING_STATE_FORMAT = 3
 
 # Room asked for beyond a checkpoint's expected size before it is written (file-system blocks,
 # the manifest, the integrity record): a full disk would otherwise end the run mid-write, where

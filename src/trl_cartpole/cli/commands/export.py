@@ -15,7 +15,6 @@ from pathlib import Path
 
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.report.progress_bar import clear_status, show_status
 from trl_cartpole.store.files import check_checkpoint_exists
 
 FORMATS = {
@@ -47,11 +46,15 @@ def main(argv: list[str]) -> None:
             f"output={args.output!r}: directory {str(output.parent)!r} does not exist"
         )
     kind, exporter = FORMATS[output.suffix]
-    show_status(f"loading the policy of {args.checkpoint}")
-    module = export.greedy_q_network(args.checkpoint)
-    show_status(f"exporting it as {kind}")
-    getattr(export, exporter)(module, module.obs_dim, output)
-    clear_status()
+    from trl_cartpole.report.progress_bar import clear_status, show_status
+
+    try:
+        show_status(f"loading the policy of {args.checkpoint}")
+        module = export.greedy_q_network(args.checkpoint)
+        show_status(f"exporting it as {kind}")
+        getattr(export, exporter)(module, module.obs_dim, output)
+    finally:
+        clear_status()
     shape = ", ".join(str(size) for size in module.input_shape)
     dtype = str(module.input_dtype).removeprefix("torch.")
     print(
