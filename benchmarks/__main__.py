@@ -16,6 +16,7 @@ from benchmarks import (
     ablate,
     docs,
     envs,
+    lock,
     memory,
     profile,
     readme,
@@ -37,6 +38,7 @@ SUBCOMMANDS = {
     "memory": memory,
     "readme": readme,
     "docs": docs,
+    "lock": lock,
 }
 
 
