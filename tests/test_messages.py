@@ -4,6 +4,8 @@ the closest known name, the form that works; one line, exit status 2."""
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 
 import pytest
 
@@ -98,32 +100,26 @@ def test_a_preset_of_ones_own_without_its_header_is_told_to_add_it(tmp_path):
     assert compose_config(overrides=[f"presets={tmp_path}", "env=tuned"]).env.id == "Acrobot-v1"
 
 
-@pytest.mark.parametrize("command", ["evaluate", "render"])
-def test_a_missing_checkpoint_is_answered_before_torch_is_imported(command, tmp_path):
-    import subprocess
-    import sys
-
+def _run_in_a_fresh_interpreter(command: str, *args: str) -> subprocess.CompletedProcess:
+    """``trl-cartpole COMMAND ARGS`` in a new interpreter; its stdout: the exit code and whether
+    torch had been imported by then."""
     script = (
         "import sys\n"
         "from trl_cartpole.cli.main import run_cli, _command_main\n"
-        f"code = run_cli(_command_main({command!r}), ['checkpoint={tmp_path / 'nope'}'])\n"
+        f"code = run_cli(_command_main({command!r}), {list(args)!r})\n"
         "print(code, 'torch' in sys.modules)\n"
     )
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("command", ["evaluate", "render"])
+def test_a_missing_checkpoint_is_answered_before_torch_is_imported(command, tmp_path):
+    done = _run_in_a_fresh_interpreter(command, f"checkpoint={tmp_path / 'nope'}")
     assert done.stdout.split() == ["2", "False"], done.stderr
     assert "does not exist" in done.stderr
 
 
 def test_an_env_dqn_cannot_play_is_refused_before_torch_is_imported():
-    import subprocess
-    import sys
-
-    script = (
-        "import sys\n"
-        "from trl_cartpole.cli.main import run_cli, _command_main\n"
-        "code = run_cli(_command_main('train'), ['env.id=Pendulum-v1'])\n"
-        "print(code, 'torch' in sys.modules)\n"
-    )
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    done = _run_in_a_fresh_interpreter("train", "env.id=Pendulum-v1")
     assert done.stdout.split() == ["2", "False"], done.stderr
     assert "has continuous actions" in done.stderr

@@ -53,6 +53,7 @@ __all__ = [
     "gym_env",
     "held_steps",
     "install_segment_trees_if_missing",
+    "n_step_transform",
     "n_step_window",
     "replay_transform",
     "set_autoreset_state",
@@ -119,7 +120,8 @@ def replay_transform(buffer: ReplayBuffer) -> Any | None:
     return parts or None
 
 
-def _multi_step(buffer: ReplayBuffer) -> MultiStepTransform | None:
+def n_step_transform(buffer: ReplayBuffer) -> MultiStepTransform | None:
+    """The ``MultiStepTransform`` of ``buffer`` (None for a one-step buffer)."""
     transform = replay_transform(buffer)
     steps = [t for t in transform or [] if isinstance(t, MultiStepTransform)]
     return steps[0] if steps else None
@@ -132,13 +134,13 @@ def held_steps(transform: MultiStepTransform) -> TensorDictBase | None:
 
 def n_step_window(buffer: ReplayBuffer) -> TensorDictBase | None:
     """The steps an n-step buffer's ``MultiStepTransform`` holds back (None: nothing held)."""
-    transform = _multi_step(buffer)
+    transform = n_step_transform(buffer)
     return None if transform is None else transform._buffer
 
 
 def set_n_step_window(buffer: ReplayBuffer, window: TensorDict) -> None:
     """Give the buffer's ``MultiStepTransform`` the held-back steps ``window``."""
-    _multi_step(buffer)._buffer = window
+    n_step_transform(buffer)._buffer = window
 
 
 # --- collectors ------------------------------------------------------------------------------

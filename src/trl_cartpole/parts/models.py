@@ -370,15 +370,18 @@ def make_q_actor(
     else:
         _refuse_network_arguments_with_module(
             mlp_kwargs,
-            hidden_sizes,
-            head,
-            noisy,
-            torso,
-            cnn_kwargs,
-            activation,
-            num_cells if isinstance(num_cells, int) else tuple(num_cells or ()),
-            activation_class,
-            noisy_std,
+            num_cells=(
+                num_cells if isinstance(num_cells, int) else tuple(num_cells or ()),
+                defaults.HIDDEN_SIZES,
+            ),
+            activation_class=(activation_class, nn.ReLU),
+            noisy_std=(noisy_std, defaults.NOISY_STD),
+            hidden_sizes=(hidden_sizes, None),
+            head=(head, "plain"),
+            noisy=(noisy, False),
+            torso=(torso, "mlp"),
+            cnn_kwargs=(cnn_kwargs, None),
+            activation=(activation, None),
         )
     if device is None:  # the spec's device, as documented
         device = getattr(spec, "device", None)
@@ -440,23 +443,14 @@ def _build_q_network(
 
 
 def _refuse_network_arguments_with_module(
-    mlp_kwargs: dict[str, Any], hidden_sizes: Any, head: str, noisy: bool, torso: Any, *rest: Any
+    mlp_kwargs: dict[str, Any], **arguments: tuple[Any, Any]
 ) -> None:
-    """``module=`` is the whole Q-network: arguments that would build one are refused."""
+    """``module=`` is the whole Q-network: arguments that would build one are refused.
+
+    ``arguments`` maps each network-building argument to ``(value, default)``; MLP keywords
+    are refused whenever given."""
     given = sorted(mlp_kwargs) + [
-        name
-        for name, value, default in (
-            ("num_cells", rest[2], defaults.HIDDEN_SIZES),
-            ("activation_class", rest[3], nn.ReLU),
-            ("noisy_std", rest[4], defaults.NOISY_STD),
-            ("hidden_sizes", hidden_sizes, None),
-            ("head", head, "plain"),
-            ("noisy", noisy, False),
-            ("torso", torso, "mlp"),
-            ("cnn_kwargs", rest[0], None),
-            ("activation", rest[1], None),
-        )
-        if value != default
+        name for name, (value, default) in arguments.items() if value != default
     ]
     if given:
         raise TypeError(

@@ -32,7 +32,7 @@ from torchrl.data.replay_buffers import PrioritizedSampler, RandomSampler, Sampl
 from torchrl.envs import Compose, MultiStepTransform, Transform
 
 from trl_cartpole import defaults
-from trl_cartpole.parts.compat import held_steps, replay_transform
+from trl_cartpole.parts.compat import held_steps, n_step_transform
 
 __all__ = [
     "DEFAULT_GAMMA",
@@ -142,15 +142,6 @@ def check_time_order(held: TensorDictBase | None, data: TensorDictBase) -> None:
                 "them); extend with each env's steps in time order, [T] or [envs, T] as the "
                 "collector yields them, not a batch flattened from several envs"
             )
-
-
-def n_step_transform(buffer: ReplayBuffer) -> MultiStepTransform | None:
-    """The ``MultiStepTransform`` of ``buffer`` (None for a one-step buffer)."""
-    transform = replay_transform(buffer)
-    if transform is None:
-        return None
-    steps = [t for t in transform if isinstance(t, MultiStepTransform)]
-    return steps[0] if steps else None
 
 
 def n_step_gamma(buffer: ReplayBuffer) -> float | None:
