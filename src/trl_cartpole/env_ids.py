@@ -92,6 +92,14 @@ def solve_threshold(env_id: str, override: float | None = None) -> float | None:
     return None if threshold is None else float(threshold)
 
 
+def time_limit(env_id: str, override: int | None = None) -> int | None:
+    """The steps after which an episode is truncated: ``override`` or Gymnasium's registered
+    ``max_episode_steps`` (None for none)."""
+    if override is not None:
+        return int(override)
+    return gym.spec(resolve_env_id(env_id)).max_episode_steps
+
+
 def missing_dependency(env_id: str, error: Exception) -> ConfigError:
     """The one-line error for an env whose package is missing, naming the extra to install."""
     entry_point = str(gym.spec(env_id).entry_point)

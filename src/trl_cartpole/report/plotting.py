@@ -22,8 +22,11 @@ from matplotlib.figure import Figure
 from trl_cartpole.store.files import write_atomic
 
 __all__ = [
+    "DashboardData",
+    "FinalEvaluation",
     "LearningCurves",
     "LiveDurationPlot",
+    "discounted_return_reference",
     "draw_durations",
     "hold_last",
     "live_plot_target",
@@ -50,6 +53,16 @@ def _atomic_savefig(fig: Figure, path: Path) -> None:
     write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
 
 
+@dataclass(frozen=True)
+class FinalEvaluation:
+    """The end of a run's evaluation: the best policy over ``episodes`` new episodes."""
+
+    frame: int  # where it is drawn: the run's last frame
+    mean: float
+    std: float
+    episodes: int
+
+
 @dataclass
 class LearningCurves:
     """What the duration plot draws: training episodes and greedy evaluations, by frame."""
@@ -59,14 +72,18 @@ class LearningCurves:
     eval_frames: Sequence[int]  # frame of each periodic greedy evaluation
     eval_returns: Sequence[float]  # its mean return over eval.episodes episodes
     threshold: float | None = None  # the solve threshold (475 on CartPole-v1), if any
+    eval_episodes: int | None = None  # episodes per periodic evaluation, for the label
+    final: FinalEvaluation | None = None  # the best policy's final evaluation, once run
 
 
 def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
     """The PyTorch DQN tutorial's duration plot, against frames, with the greedy evaluations.
 
     Training episodes (epsilon-greedy, from all envs, ordered by the frame they ended at) are
-    dots with their 100-episode mean, as the tutorial draws them; the greedy evaluations and
-    the solve threshold show whether the policy itself is solved.
+    dots with their 100-episode mean, as the tutorial draws them; the greedy evaluations, the
+    final evaluation of the best policy and the solve threshold show whether the policy itself
+    is solved. The legend says why the mean lags the greedy line: it averages exploring
+    episodes played by older policies.
     """
     returns = np.asarray(curves.episode_returns, dtype=np.float64)
     frames = np.asarray(curves.episode_frames)
@@ -74,22 +91,42 @@ def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
         frames = np.linspace(0, curves.episode_frames[-1] if frames.size else 0, returns.size)
     ax.scatter(frames, returns, s=4, alpha=0.3, label="training episode (epsilon-greedy)")
     if returns.size >= 100:  # the tutorial draws the mean only once 100 episodes exist
-        ax.plot(frames[99:], moving_average(returns, 100)[99:], label="100-episode mean")
+        ax.plot(
+            frames[99:],
+            moving_average(returns, 100)[99:],
+            label="mean of the last 100 training episodes\n"
+            "(lags: they explore, and older policies played them)",
+        )
     if len(curves.eval_frames):
+        episodes = f"{curves.eval_episodes} episodes" if curves.eval_episodes else "episodes"
         ax.plot(
             curves.eval_frames,
             curves.eval_returns,
             marker="o",
             linewidth=2,
             color="black",
-            label="greedy evaluation (mean)",
+            label=f"greedy evaluation (mean of {episodes}, no exploration)",
+        )
+    if curves.final is not None:
+        final = curves.final
+        ax.errorbar(
+            [final.frame],
+            [final.mean],
+            yerr=[final.std],
+            fmt="D",
+            markersize=8,
+            capsize=5,
+            color="tab:red",
+            zorder=5,
+            label=f"final: best policy, {final.episodes} new episodes: "
+            f"{final.mean:.1f} +/- {final.std:.1f}",
         )
     if curves.threshold is not None:
         ax.axhline(
             curves.threshold, color="green", linestyle="--", label=f"solved ({curves.threshold:g})"
         )
-    ax.set_xlabel("Frames")
-    ax.set_ylabel("Episode return (= duration on CartPole)")
+    ax.set_xlabel("Frames (environment steps, all envs)")
+    ax.set_ylabel("Episode return (on CartPole: its length)")
     ax.set_title(title or "Training episodes and greedy evaluations")
     ax.legend(loc="best", fontsize="small")
     ax.grid(alpha=0.3)
@@ -196,46 +233,127 @@ class LiveDurationPlot:
             plt.pause(0.001)
 
 
-def plot_dashboard(
-    eval_frames: Sequence[int],
-    eval_returns: Sequence[float],
-    eval_initial_values: Sequence[float],
-    update_frames: Sequence[int],
-    td_losses: Sequence[float],
-    grad_norms: Sequence[float],
-    path: str | Path,
-    smoothing: int = 100,
-    title: str = "",
-    threshold: float | None = None,
-) -> Path:
-    """The Practical RL DQN assignment's 4 panels: eval return, TD loss, initial V, grad norm.
+@dataclass
+class DashboardData:
+    """What the dashboard draws, by frame; empty sequences leave their panel with a note."""
 
-    TD loss and grad norm are smoothed with a moving average over ``smoothing`` updates; the
-    eval panel shows the solve ``threshold`` when there is one.
+    update_frames: Sequence[int]  # frame of each gradient update
+    td_losses: Sequence[float]  # [updates]
+    grad_norms: Sequence[float]  # [updates], before clipping
+    eval_frames: Sequence[int]  # frame of each periodic greedy evaluation
+    eval_initial_values: Sequence[float]  # mean max_a Q(s_0, a) at each evaluation
+    epsilon_frames: Sequence[int] = ()  # after each batch; empty without epsilon-greedy
+    epsilons: Sequence[float] = ()
+    value_reference: float | None = None  # see :func:`discounted_return_reference`
+    max_grad_norm: float | None = None  # the clipping norm, when gradients are clipped by norm
+
+
+def discounted_return_reference(
+    returns: Sequence[float], lengths: Sequence[int], gamma: float, time_limit: int | None
+) -> float:
+    """The initial-state value a policy's episodes earn, averaged over them.
+
+    Each episode's return ``R`` over ``T`` steps is spread as an equal reward ``r = R / T`` per
+    step (exact when every step earns the same, as on CartPole, Acrobot and MountainCar) and
+    discounted: ``r (1 - gamma^T) / (1 - gamma)`` for an episode that ended, and
+    ``r / (1 - gamma)`` for one cut by the ``time_limit``, since DQN's target bootstraps
+    through a truncation (TorchRL stops it only at ``terminated``): 200 on CartPole at
+    gamma = 0.995. ``max_a Q(s_0, a)`` approaches this value as the values converge.
+    """
+    values = []
+    for episode_return, length in zip(returns, lengths, strict=True):
+        if length <= 0:
+            continue
+        per_step = episode_return / length
+        truncated = time_limit is not None and length >= time_limit
+        horizon = 1.0 if truncated else 1 - gamma**length
+        values.append(per_step * horizon / (1 - gamma))
+    return float(np.mean(values)) if values else float("nan")
+
+
+def plot_dashboard(
+    data: DashboardData, path: str | Path, smoothing: int = 100, title: str = ""
+) -> Path:
+    """The Practical RL DQN assignment's 4 panels: exploration, TD loss, initial V, grad norm.
+
+    TD loss and grad norm are smoothed with a moving average over ``smoothing`` updates. The
+    greedy evaluations are on ``durations.png``; here the first panel is what the agent
+    explored with (epsilon), and the initial-state value has its reference line.
     """
     path = Path(path)
     fig = Figure(figsize=(12, 8))
     axes = fig.subplots(2, 2)
     if title:
         fig.suptitle(title)
-    if threshold is not None:
-        axes[0, 0].axhline(threshold, color="green", linestyle="--", label="solved")
-        axes[0, 0].legend(loc="lower right", fontsize="small")
-    panels = [
-        (axes[0, 0], eval_frames, eval_returns, "Mean greedy return (eval)", False),
-        (axes[0, 1], update_frames, td_losses, "TD loss (smoothed)", True),
-        (axes[1, 0], eval_frames, eval_initial_values, "Initial-state V = max_a Q(s0, a)", False),
-        (axes[1, 1], update_frames, grad_norms, "Grad norm (smoothed)", True),
-    ]
-    for ax, x, y, title, smooth in panels:
-        values = moving_average(y, smoothing) if smooth else np.asarray(y, dtype=np.float64)
-        ax.plot(np.asarray(x), values)
-        ax.set_title(title)
-        ax.set_xlabel("Frames")
-        ax.grid(alpha=0.3)
+    exploration, loss, value, gradient = axes.flat
+    _draw_panel(
+        exploration,
+        data.epsilon_frames,
+        data.epsilons,
+        "Exploration: epsilon after each batch",
+        "Probability of a random action",
+        empty_note="no epsilon-greedy: noisy layers explore, or none",
+    )
+    exploration.set_ylim(-0.02, 1.02)
+    _draw_panel(
+        loss,
+        data.update_frames,
+        moving_average(data.td_losses, smoothing),
+        f"TD loss (mean of {smoothing} updates)\n"
+        "rising while the values grow toward the return is normal for DQN",
+        "TD loss",
+        empty_note="no update yet",
+    )
+    _draw_panel(
+        value,
+        data.eval_frames,
+        data.eval_initial_values,
+        "Initial-state value at each greedy evaluation",
+        "max_a Q(s0, a)",
+        empty_note="no evaluation yet",
+        label="the network's estimate",
+    )
+    if data.value_reference is not None and np.isfinite(data.value_reference):
+        value.axhline(
+            data.value_reference,
+            color="green",
+            linestyle="--",
+            label="discounted return of the final evaluation's episodes: "
+            f"{data.value_reference:.1f}",
+        )
+    if data.eval_frames:
+        value.legend(loc="lower right", fontsize="small")
+    _draw_panel(
+        gradient,
+        data.update_frames,
+        moving_average(data.grad_norms, smoothing),
+        f"Gradient norm before clipping (mean of {smoothing} updates)",
+        "Gradient L2 norm",
+        empty_note="no update yet",
+    )
+    if data.max_grad_norm is not None and len(data.update_frames):
+        gradient.axhline(
+            data.max_grad_norm,
+            color="gray",
+            linestyle="--",
+            label=f"clipped to {data.max_grad_norm:g}",
+        )
+        gradient.legend(loc="upper right", fontsize="small")
     fig.tight_layout()
     _atomic_savefig(fig, path)
     return path
+
+
+def _draw_panel(ax, x, y, title: str, ylabel: str, empty_note: str, label: str = "") -> None:
+    """One dashboard panel: ``y`` against frames, or ``empty_note`` when there is nothing."""
+    if len(x):
+        ax.plot(np.asarray(x), np.asarray(y, dtype=np.float64), label=label or None)
+    else:
+        ax.text(0.5, 0.5, empty_note, transform=ax.transAxes, ha="center", color="dimgray")
+    ax.set_title(title)
+    ax.set_xlabel("Frames")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
 
 
 def hold_last(frames: Sequence[int], values: Sequence[float], grid: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ from typing import Any
 from tensordict import TensorDictBase
 from torch import Tensor
 
-from trl_cartpole.report.plotting import LearningCurves
+from trl_cartpole.report.plotting import FinalEvaluation, LearningCurves
 from trl_cartpole.run.evaluation import EvalCurve
 from trl_cartpole.run.learner import UpdateReport
 
@@ -38,6 +38,8 @@ class History:
     update_frames: list[int] = field(default_factory=list)
     td_losses: list[float] = field(default_factory=list)
     grad_norms: list[float] = field(default_factory=list)
+    epsilon_frames: list[int] = field(default_factory=list)  # after each batch, when epsilon-greedy
+    epsilons: list[float] = field(default_factory=list)
 
     def record_episodes(self, batch: TensorDictBase, frames: int) -> list[Episode]:
         """Keep the episodes that finished in ``batch`` ``[rows, T]`` (or ``[T]``); return them.
@@ -75,7 +77,18 @@ class History:
         self.td_losses.extend(report.losses)
         self.grad_norms.extend(report.grad_norms)
 
-    def curves(self, evaluations: EvalCurve, threshold: float | None) -> LearningCurves:
+    def record_epsilon(self, frames: int, epsilon: float) -> None:
+        """Keep epsilon as it stands after a batch (the dashboard's exploration panel)."""
+        self.epsilon_frames.append(frames)
+        self.epsilons.append(epsilon)
+
+    def curves(
+        self,
+        evaluations: EvalCurve,
+        threshold: float | None,
+        eval_episodes: int | None = None,
+        final: FinalEvaluation | None = None,
+    ) -> LearningCurves:
         """The training episodes so far, with ``evaluations`` (the evaluator's curve)."""
         return LearningCurves(
             self.episode_frames,
@@ -83,6 +96,8 @@ class History:
             evaluations.frames,
             evaluations.returns,
             threshold,
+            eval_episodes=eval_episodes,
+            final=final,
         )
 
     def state_dict(self) -> dict[str, Any]:

@@ -19,8 +19,15 @@ import tensordict
 import torch
 import torchrl
 
+from trl_cartpole.env_ids import time_limit
 from trl_cartpole.errors import TrainingFailed
-from trl_cartpole.report.plotting import plot_dashboard, plot_durations
+from trl_cartpole.report.plotting import (
+    DashboardData,
+    FinalEvaluation,
+    discounted_return_reference,
+    plot_dashboard,
+    plot_durations,
+)
 from trl_cartpole.run.build import REPLAY_FILES, Components, evaluate_episodes, run_title
 from trl_cartpole.run.evaluation import EvalResult, Evaluator
 from trl_cartpole.store.files import write_json_atomic
@@ -63,18 +70,29 @@ def finish(run: Components) -> dict[str, Any]:
         run.progress_bar.status("drawing the plots")
         history, curve = run.history, evaluator.curve
         title = run_title(cfg)
-        plot_durations(history.curves(curve, run.threshold), run.run_dir / "durations.png", title)
-        plot_dashboard(
-            curve.frames,
-            curve.returns,
-            curve.initial_values,
-            history.update_frames,
-            history.td_losses,
-            history.grad_norms,
-            run.run_dir / "dashboard.png",
-            title=title,
-            threshold=run.threshold,
+        final_point = FinalEvaluation(progress.frames, final.mean, final.std, len(final.returns))
+        plot_durations(
+            history.curves(curve, run.threshold, cfg.eval.episodes, final_point),
+            run.run_dir / "durations.png",
+            title,
         )
+        dashboard = DashboardData(
+            update_frames=history.update_frames,
+            td_losses=history.td_losses,
+            grad_norms=history.grad_norms,
+            eval_frames=curve.frames,
+            eval_initial_values=curve.initial_values,
+            epsilon_frames=history.epsilon_frames,
+            epsilons=history.epsilons,
+            value_reference=discounted_return_reference(
+                final.returns,
+                final.lengths,
+                cfg.loss.gamma,
+                time_limit(run.env_id, cfg.env.max_episode_steps),
+            ),
+            max_grad_norm=cfg.optim.max_grad if cfg.optim.grad_clip == "norm" else None,
+        )
+        plot_dashboard(dashboard, run.run_dir / "dashboard.png", title=title)
     phases = progress.phase_seconds
     summary = run_summary(
         env_id=cfg.env.id,

@@ -113,6 +113,8 @@ def _report_batch(run: Components, batch: TensorDictBase, updates_before: int) -
     epsilon = None if exploration is None else exploration.eps.item()
     last_return = history.episode_returns[-1] if history.episode_returns else None
     run.progress_bar.advance(batch.numel(), last_return, epsilon)
+    if epsilon is not None:
+        history.record_epsilon(progress.frames, epsilon)
     if progress.updates // UPDATE_LOG_INTERVAL <= updates_before // UPDATE_LOG_INTERVAL:
         return
     scalars = {
@@ -150,6 +152,8 @@ def _record_evaluation(
     if evaluation.new_best:
         run.checkpointer.save_best(run.actor, evaluation.frames, result.mean)
     if run.live_plot is not None:
-        run.live_plot.update(run.history.curves(run.evaluator.curve, run.threshold))
+        run.live_plot.update(
+            run.history.curves(run.evaluator.curve, run.threshold, run.cfg.eval.episodes)
+        )
     if on_evaluation is not None:
         on_evaluation(evaluation)

@@ -1,0 +1,118 @@
+"""The plots explain themselves: labels, the final evaluation, reference lines."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from matplotlib.figure import Figure
+
+from trl_cartpole.report.plotting import (
+    DashboardData,
+    FinalEvaluation,
+    LearningCurves,
+    discounted_return_reference,
+    draw_durations,
+    plot_dashboard,
+)
+
+
+def test_reference_of_episodes_that_ended_is_their_discounted_return():
+    # Acrobot-like: -1 per step for 80 steps, terminated: -(1 - 0.99^80) / 0.01
+    expected = -(1 - 0.99**80) / 0.01
+    assert discounted_return_reference([-80.0], [80], 0.99, time_limit=500) == pytest.approx(
+        expected
+    )
+    assert expected == pytest.approx(-55.25, abs=0.01)
+
+
+def test_reference_of_a_truncated_episode_bootstraps_forever():
+    # CartPole at its time limit: +1 per step, the target bootstraps through truncation
+    assert discounted_return_reference([500.0], [500], 0.995, time_limit=500) == pytest.approx(
+        200.0
+    )
+    # the same episode with no time limit counts its 500 steps only
+    assert discounted_return_reference([500.0], [500], 0.995, time_limit=None) == pytest.approx(
+        (1 - 0.995**500) / 0.005
+    )
+
+
+def test_reference_averages_episodes_and_skips_empty_ones():
+    both = discounted_return_reference([10.0, 500.0, 0.0], [10, 500, 0], 0.5, time_limit=500)
+    assert both == pytest.approx(((1 - 0.5**10) / 0.5 + 2.0) / 2)
+    assert math.isnan(discounted_return_reference([], [], 0.9, time_limit=None))
+
+
+def _legend_texts(ax) -> list[str]:
+    return [text.get_text() for text in ax.get_legend().get_texts()]
+
+
+def test_duration_plot_names_each_curve_and_shows_the_final_evaluation():
+    frames = list(range(10, 1510, 10))  # 150 episodes: the 100-episode mean is drawn
+    curves = LearningCurves(
+        frames,
+        [float(f % 70) for f in frames],
+        [500, 1000, 1500],
+        [20.0, 80.0, 490.0],
+        475.0,
+        eval_episodes=20,
+        final=FinalEvaluation(1500, 499.5, 1.25, 100),
+    )
+    ax = Figure().subplots()
+    draw_durations(ax, curves)
+    labels = _legend_texts(ax)
+    assert labels[0] == "training episode (epsilon-greedy)"
+    assert labels[1].startswith("mean of the last 100 training episodes") and "lags" in labels[1]
+    assert labels[2] == "greedy evaluation (mean of 20 episodes, no exploration)"
+    assert "solved (475)" in labels
+    assert "final: best policy, 100 new episodes: 499.5 +/- 1.2" in labels
+    assert ax.get_xlabel() and ax.get_ylabel()
+
+
+def _dashboard_axes(tmp_path, monkeypatch, data: DashboardData):
+    """Draw the dashboard to a file; return the axes of the figure it saved."""
+    figures = []
+    original = Figure.savefig
+
+    def keep(self, *args, **kwargs):
+        figures.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    path = plot_dashboard(data, tmp_path / "dashboard.png")
+    assert path.read_bytes()[:4] == b"\x89PNG"
+    return list(figures[0].axes)
+
+
+def test_dashboard_has_labels_everywhere_and_its_reference_lines(tmp_path, monkeypatch):
+    data = DashboardData(
+        update_frames=[100, 200, 300],
+        td_losses=[1.0, 2.0, 3.0],
+        grad_norms=[4.0, 5.0, 6.0],
+        eval_frames=[100, 300],
+        eval_initial_values=[1.0, 50.0],
+        epsilon_frames=[100, 200, 300],
+        epsilons=[1.0, 0.5, 0.05],
+        value_reference=200.0,
+        max_grad_norm=10.0,
+    )
+    axes = _dashboard_axes(tmp_path, monkeypatch, data)
+    assert len(axes) == 4
+    for ax in axes:
+        assert ax.get_xlabel() == "Frames" and ax.get_ylabel() and ax.get_title()
+    exploration, loss, value, gradient = axes
+    assert "epsilon" in exploration.get_title()
+    assert "normal for DQN" in loss.get_title()
+    assert any("200.0" in text for text in _legend_texts(value))
+    assert [line.get_ydata()[0] for line in value.get_lines()][-1] == 200.0
+    assert "clipped to 10" in _legend_texts(gradient)
+
+
+def test_dashboard_without_epsilon_or_updates_says_so(tmp_path, monkeypatch):
+    data = DashboardData(
+        update_frames=[], td_losses=[], grad_norms=[], eval_frames=[500], eval_initial_values=[3]
+    )
+    exploration, loss, _, gradient = _dashboard_axes(tmp_path, monkeypatch, data)
+    assert "noisy layers explore" in exploration.texts[0].get_text()
+    assert loss.texts[0].get_text() == "no update yet"
+    assert gradient.get_legend() is None
