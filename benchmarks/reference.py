@@ -182,21 +182,20 @@ def _torchrl_default(classes: list[Any], argument: str) -> str:
 
 
 def defaults_table() -> str:
-    """A markdown table: factory, what it returns, each argument's default, ours and TorchRL's."""
+    """Markdown: per factory, what it returns, then a table of each argument's default, ours
+    beside TorchRL's (three columns, so it fits the page's content column)."""
     import trl_cartpole
 
     resolved = _resolved()
-    rows = [
-        "| factory | returns | argument | ours | TorchRL's |",
-        "| --- | --- | --- | --- | --- |",
-    ]
+    sections = []
     for factory, (returns, classes, arguments) in _builds().items():
         parameters = inspect.signature(getattr(trl_cartpole, factory)).parameters
-        if not arguments:
-            rows.append(f"| `{factory}` | {returns} | | | |")
-        for index, argument in enumerate(arguments):
+        lines = [f"**`{factory}`** returns {returns}."]
+        if arguments:
+            lines += ["", "| argument | ours | TorchRL's |", "| --- | --- | --- |"]
+        for argument in arguments:
             ours = resolved.get((factory, argument), parameters[argument].default)
-            first = f"`{factory}` | {returns}" if index == 0 else " | "
             theirs = _torchrl_default(classes, argument)
-            rows.append(f"| {first} | `{argument}` | {_shown(ours)} | {theirs} |")
-    return "\n".join(rows)
+            lines.append(f"| `{argument}` | {_shown(ours)} | {theirs} |")
+        sections.append("\n".join(lines))
+    return "\n\n".join(sections)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import html
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -33,3 +35,52 @@ def test_the_site_builds_strict_with_every_factory_and_its_defaults_beside_torch
     # a row of the table: HardUpdate's own default beside ours, read off both signatures
     assert "value_network_update_interval" in page and "(<code>HardUpdate</code>)" in page
     assert ":func:" not in page and "&gt;&gt;&gt; " in page  # roles resolved; examples kept
+
+
+def _build(config_dir: Path, site_dir: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site_dir)],
+        cwd=config_dir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def _copy_of_the_docs(tmp_path: Path) -> Path:
+    """The site's sources in ``tmp_path/repo``: mkdocs.yml, docs/, the README; src linked."""
+    repo = tmp_path / "repo"
+    shutil.copytree(ROOT / "docs", repo / "docs", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("mkdocs.yml", "README.md"):
+        shutil.copy(ROOT / name, repo / name)
+    (repo / "src").symlink_to(ROOT / "src")
+    return repo
+
+
+@pytest.mark.parametrize(
+    "link, said",
+    [
+        ("[a page](no-such-page.md)", "no-such-page.md"),
+        ("[an anchor](guide.md#no-such-anchor)", "#no-such-anchor"),
+    ],
+)
+def test_a_broken_link_fails_the_build(tmp_path, link, said):
+    repo = _copy_of_the_docs(tmp_path)
+    with (repo / "docs" / "tutorial.md").open("a", encoding="utf-8") as tutorial:
+        tutorial.write(f"\n{link}\n")
+    proc = _build(repo, tmp_path / "site")
+    assert proc.returncode != 0
+    assert "contains a link" in proc.stderr and said in proc.stderr
+
+
+def test_the_index_shows_the_readme_quick_start_and_reuse_example(tmp_path):
+    repo = _copy_of_the_docs(tmp_path)
+    proc = _build(repo, tmp_path / "site")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    index = (tmp_path / "site" / "index.html").read_text()
+    readme = (ROOT / "README.md").read_text()
+    install = next(line for line in readme.splitlines() if line.startswith("python3 -m venv"))
+    assert html.escape(install, quote=False) in index
+    assert 'id="reuse-the-parts-in-your-own-torchrl-code"' in index
+    assert 'href="reference/factories/"' in index  # the README's docs/ links, as site links
+    assert "readme-section" not in index
