@@ -62,13 +62,16 @@ def test_markdown_table_rows():
     # > 2.5 %, so the bootstrap interval's ends are 20 and 500.
     assert lines[2] == (
         "| a | 2/3 | not solved | 3000 | not solved | not solved | 6.0 | not solved | "
-        "337 [20.0, 500] | 1000, 3000, - | 2.0, 6.0, - | 10.0 | 1000 | 200 | 450 |"
+        "337 [20.0, 500] | 10.0 | 1000 | 200 | 450 |"
     )
     # A peer's summary has no throughput figures: dashes.
     assert lines[3] == (
         "| b | 0/1 | not solved | not solved | not solved | not solved | not solved | not solved "
-        "| 10.0 [10.0, 10.0] | - | - | 10.0 | - | - | - |"
+        "| 10.0 [10.0, 10.0] | 10.0 | - | - | - |"
     )
+    # Each seed's figures in a table of their own, after a blank line.
+    assert lines[4] == ""
+    assert lines[7:] == ["| a | 1000, 3000, - | 2.0, 6.0, - |", "| b | - | - |"]
 
 
 def test_env_table_needs_every_seed_at_the_target_and_lunarlanders_median():

@@ -35,6 +35,8 @@ def test_the_site_builds_strict_with_every_factory_and_its_defaults_beside_torch
     # a row of the table: HardUpdate's own default beside ours, read off both signatures
     assert "value_network_update_interval" in page and "(<code>HardUpdate</code>)" in page
     assert ":func:" not in page and "&gt;&gt;&gt; " in page  # roles resolved; examples kept
+    # every factory's arguments as a parameter list, not a paragraph
+    assert page.count("Parameters:") >= len(FACTORIES) and ":param" not in page
 
 
 def _build(config_dir: Path, site_dir: Path) -> subprocess.CompletedProcess:
@@ -84,3 +86,4 @@ def test_the_index_shows_the_readme_quick_start_and_reuse_example(tmp_path):
     assert 'id="reuse-the-parts-in-your-own-torchrl-code"' in index
     assert 'href="reference/factories/"' in index  # the README's docs/ links, as site links
     assert "readme-section" not in index
+    assert 'href="css/site.css"' in index  # the tables scroll inside the content column

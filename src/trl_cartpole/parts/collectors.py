@@ -122,22 +122,10 @@ def make_collector(
 ) -> BaseCollector:
     """Return a collector yielding batches of ``frames_per_batch`` transitions.
 
-    ``create_env_fn`` is what TorchRL's ``Collector`` takes: the env itself or a callable
-    that builds it (one local worker: collection in this process), or a list of env
-    constructors, one per worker (picklable, each seeding its own envs). The first
-    ``init_random_frames`` frames come from the env's uniform random policy. The policy runs
-    under ``ExplorationType.RANDOM``, so epsilon-greedy is active. A batch is ``[T]`` or
-    ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single envs) for a
-    synchronous multi-worker batch. The defaults are the default config's ``collector`` section;
-    ``collector_kwargs`` go to TorchRL's ``Collector`` (``storing_device``, ``compile_policy``,
-    ``split_trajs``, ...). ``total_frames`` and ``init_random_frames`` are rounded up to whole
-    batches (:func:`whole_batches`), as TorchRL would do with a warning. ``remote_configs``
-    are the Ray options of each actor (``RayCollector``'s argument: ``num_cpus``, ``memory``,
-    ``resources``...); None: :data:`RAY_ACTOR_OPTIONS`. ``ray_init_config`` (``RayCollector``'s
-    too) adds to or replaces the ``ray.init`` arguments of :func:`default_ray_init_config` (e.g.
-    ``{"runtime_env": {"py_modules": [...]}}``). TorchRL's defaults:
-    ``total_frames=-1`` (endless), no random frames, ``device`` the policy's, 1 CPU and 2 GiB
-    per Ray actor.
+    The policy runs under ``ExplorationType.RANDOM``, so epsilon-greedy is active. A batch is
+    ``[T]`` or ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single
+    envs) for a synchronous multi-worker batch. The defaults are the default config's
+    ``collector`` section, given with each argument beside TorchRL's.
 
     Example::
 
@@ -148,6 +136,39 @@ def make_collector(
         >>> [batch.numel() for batch in collector]
         [8, 8]
         >>> collector.shutdown()
+
+    :param create_env_fn: what TorchRL's ``Collector`` takes: the env itself or a callable
+        that builds it (one local worker: collection in this process), or a list of env
+        constructors, one per worker (picklable, each seeding its own envs).
+    :param policy: the policy the collector steps (workers and Ray actors step copies of it).
+    :param frames_per_batch: the transitions in each batch. Default 32 (TorchRL's
+        ``Collector``: required).
+    :param total_frames: the frames to collect, rounded up to whole batches
+        (:func:`whole_batches`), as TorchRL would do with a warning. Default 50 000 (TorchRL:
+        ``-1``, endless).
+    :param init_random_frames: the first ``init_random_frames`` frames come from the env's
+        uniform random policy; rounded up to whole batches. Default 1000 (TorchRL: no random
+        frames).
+    :param device: the collector's device. Default ``"cpu"`` (TorchRL: the policy's).
+    :param sync: with several workers, ``True`` (default): every worker contributes
+        ``frames_per_batch / workers`` frames to each batch (``MultiSyncCollector`` on the
+        local backend); ``False``: each batch is one worker's ``frames_per_batch`` frames,
+        whichever is ready first (``MultiAsyncCollector``).
+    :param backend: ``"local"`` (default: this process, or worker processes for a list of
+        constructors) or ``"ray"`` (``torchrl.collectors.distributed.RayCollector``, one Ray
+        actor per env constructor).
+    :param ray_address: with ``backend="ray"``, the running cluster to join; None: a Ray
+        instance started on this machine (:func:`default_ray_init_config`).
+    :param remote_configs: the Ray options of each actor (``RayCollector``'s argument:
+        ``num_cpus``, ``memory``, ``resources``...); None: :data:`RAY_ACTOR_OPTIONS` (TorchRL:
+        1 CPU and 2 GiB per Ray actor).
+    :param ray_init_config: ``RayCollector``'s too: adds to or replaces the ``ray.init``
+        arguments of :func:`default_ray_init_config` (e.g.
+        ``{"runtime_env": {"py_modules": [...]}}``).
+    :param collector_kwargs: go to TorchRL's ``Collector`` (``storing_device``,
+        ``compile_policy``, ``split_trajs``, ...).
+    :returns: TorchRL's ``Collector`` (with ``backend="process"`` or ``"ray"`` for several
+        workers or Ray actors).
     """
     if backend not in BACKENDS:
         raise ConfigError(f"backend={backend!r}: choose one of {list(BACKENDS)}")

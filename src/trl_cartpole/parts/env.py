@@ -51,6 +51,14 @@ def make_sync_vector_env(env_id: str, num_envs: int, **make_kwargs: Any) -> gym.
 
     The Gymnasium env under a batched :func:`make_env`, and the evaluation envs of the
     benchmark's peers (``benchmarks.peers.protocol``), so both evaluate on the same envs.
+
+    :param env_id: a registered Gymnasium id (:func:`resolve_env_id` turns any accepted id
+        into one).
+    :param num_envs: how many copies of the env are stepped together.
+    :param make_kwargs: passed on to ``gymnasium.make_vec``, which makes each copy with
+        ``gymnasium.make(env_id, **make_kwargs)`` (``max_episode_steps``, an env's own options).
+    :returns: Gymnasium's ``SyncVectorEnv`` (``vectorization_mode="sync"``, autoreset mode
+        ``SAME_STEP``).
     """
     return gym.make_vec(
         env_id,
@@ -93,27 +101,13 @@ def make_env(
     """Return TorchRL's ``TransformedEnv(GymWrapper(gymnasium env), StepCounter, RewardSum)``.
 
     The arguments are TorchRL's ``GymEnv``'s: ``env_name`` and ``device`` (positional, as in
-    TorchRL's DQN example's ``make_env(env_name, device)``), and any keyword of ``GymWrapper``
-    (``categorical_action_encoding``, ``from_pixels``, ``pixels_only``, ``frame_skip``,
-    ``batch_size``... the set ``GYM_WRAPPER_KEYWORDS``) goes to it; every other keyword goes
-    to ``gymnasium.make`` (``max_episode_steps``, ``render_mode``, an env's own options), as
-    ``GymEnv`` does. Defaults are TorchRL's (``categorical_action_encoding=False``: one-hot
-    actions); ``env_name`` defaults to the default config's ``env.id``, CartPole-v1.
+    TorchRL's DQN example's ``make_env(env_name, device)``), then keywords; every keyword goes
+    to ``GymWrapper`` or to ``gymnasium.make``, as ``GymEnv`` does.
 
     The base env is ``GymWrapper(gymnasium.make(env_id))``: the env ``GymEnv(env_id)`` builds,
     made here because ``GymEnv`` first calls the env's constructor with ``frameskip=1``, which a
-    custom env class whose ``__init__`` takes no arguments rejects. ``env_name`` is any id
-    :func:`resolve_env_id` accepts. ``DoubleToFloat`` is added for float64 observations,
-    ``DTypeCastTransform`` to float32 for other dtypes. With ``observation_norm``
-    (``{"loc": [...], "scale": [...]}``, from :func:`estimate_observation_norm`) a TorchRL
-    ``ObservationNorm`` maps the observation to ``(obs - loc) / scale``.
-
-    With ``num_envs > 1`` the base env is a Gymnasium ``SyncVectorEnv`` (one process, same-step
-    autoreset) in TorchRL's ``GymWrapper``, batch size ``[num_envs]``: evaluation plays all its
-    episodes in one batched rollout. ``from_pixels=True`` renders frames into ``"pixels"``
-    (``render_mode="rgb_array"`` is set for it); ``make_q_actor(..., torso="cnn",
-    in_keys=["pixels"])`` reads them (``trl_cartpole.parts.pixels`` has the transforms that
-    crop, pool and stack the frames).
+    custom env class whose ``__init__`` takes no arguments rejects. ``DoubleToFloat`` is added
+    for float64 observations, ``DTypeCastTransform`` to float32 for other dtypes.
 
     The returned env writes ``("next", "step_count")`` and ``("next", "episode_reward")`` so the
     training loop reads episode lengths and returns off the collected batch. Gymnasium's
@@ -126,6 +120,34 @@ def make_env(
         >>> env = make_env("CartPole-v1", seed=0, categorical_action_encoding=True)
         >>> env.rollout(3)["next", "step_count"].squeeze(-1).tolist()
         [1, 2, 3]
+
+    :param env_name: the env id, any id :func:`resolve_env_id` accepts. Default: the default
+        config's ``env.id``, CartPole-v1 (TorchRL's ``GymEnv``: required).
+    :param device: the env's device, given to ``GymWrapper``. Default ``"cpu"`` (TorchRL's
+        ``EnvBase``: None).
+    :param seed: given to ``env.set_seed`` once the env is built; None: no seed is set here.
+    :param max_episode_steps: the step limit (Gymnasium's ``TimeLimit``), given to
+        ``gymnasium.make``; None: the env's registered limit.
+    :param num_envs: with ``num_envs > 1`` the base env is a Gymnasium ``SyncVectorEnv`` (one
+        process, same-step autoreset: :func:`make_sync_vector_env`) in TorchRL's
+        ``GymWrapper``, batch size ``[num_envs]``: evaluation plays all its episodes in one
+        batched rollout. Default 1: a single env.
+    :param render_mode: given to ``gymnasium.make`` (a single env only: ``num_envs=1``).
+        ``from_pixels=True`` sets ``render_mode="rgb_array"`` when it is None.
+    :param observation_norm: ``{"loc": [...], "scale": [...]}``, from
+        :func:`estimate_observation_norm`: a TorchRL ``ObservationNorm`` maps the observation
+        to ``(obs - loc) / scale``. None: no normalisation.
+    :param kwargs: any keyword of ``GymWrapper`` (``categorical_action_encoding``,
+        ``from_pixels``, ``pixels_only``, ``frame_skip``, ``batch_size``... the set
+        ``GYM_WRAPPER_KEYWORDS``) goes to it, with TorchRL's defaults
+        (``categorical_action_encoding=False``: one-hot actions); every other keyword goes to
+        ``gymnasium.make`` (an env's own options), as ``GymEnv`` does. ``from_pixels=True``
+        renders frames into ``"pixels"``; ``make_q_actor(..., torso="cnn",
+        in_keys=["pixels"])`` reads them (``trl_cartpole.parts.pixels`` has the transforms
+        that crop, pool and stack the frames).
+    :returns: TorchRL's ``TransformedEnv`` over the ``GymWrapper``, with ``StepCounter``,
+        ``RewardSum``, the dtype cast where one is needed and ``ObservationNorm`` with
+        ``observation_norm``.
     """
     # ids the config has resolved pass unchanged; a Python caller's error names env_name
     env_id = resolve_env_id(env_name, field="env_name", imports_field=None)

@@ -59,21 +59,9 @@ def make_exploration(
 ) -> EGreedyModule | None:
     """Return TorchRL's ``EGreedyModule``; the loop calls ``.step(frames)`` after each batch.
 
-    The arguments are ``EGreedyModule``'s, in its order and with its meanings;
-    ``egreedy_kwargs`` go to its constructor (``action_key``, ``action_mask_key``, ...).
-    Defaults, ours (the default config's ``exploration`` section) beside TorchRL's:
-    ``eps_init`` 1.0 (TorchRL 1.0), ``eps_end`` 0.05 (0.1), ``annealing_num_steps`` 3000
-    (1000), ``device`` the spec's (TorchRL's too). ``action_spec`` is this project's
-    earlier name for ``spec``, kept as an alias.
-
-    ``schedule`` picks the module:
-
-    - ``"linear"``: TorchRL's ``EGreedyModule``: eps falls by
-      ``(eps_init - eps_end) / annealing_num_steps`` per frame down to ``eps_end``;
-    - ``"exponential"``: :class:`ExponentialEGreedyModule` (an ``EGreedyModule``), the PyTorch
-      DQN tutorial's schedule, with ``annealing_num_steps`` its time constant;
-    - ``"none"``: returns None (noisy networks explore through their weights; the policy is
-      the greedy actor itself).
+    The arguments are ``EGreedyModule``'s, in its order and with its meanings; ``schedule``
+    picks the module. Defaults, ours (the default config's ``exploration`` section) beside
+    TorchRL's, are given with each argument.
 
     Example::
 
@@ -82,6 +70,24 @@ def make_exploration(
         >>> explore.step(50)
         >>> round(explore.eps.item(), 3)
         0.525
+
+    :param spec: the env's action spec, ``EGreedyModule``'s ``spec``.
+    :param eps_init: epsilon at the start. Default 1.0 (TorchRL's: 1.0).
+    :param eps_end: the final epsilon. Default 0.05 (TorchRL's: 0.1).
+    :param annealing_num_steps: frames of the schedule (with ``"exponential"``, its time
+        constant). Default 3000 (TorchRL's: 1000).
+    :param schedule: ``"linear"`` (default): TorchRL's ``EGreedyModule``, eps falls by
+        ``(eps_init - eps_end) / annealing_num_steps`` per frame down to ``eps_end``;
+        ``"exponential"``: :class:`ExponentialEGreedyModule` (an ``EGreedyModule``), the
+        PyTorch DQN tutorial's schedule, with ``annealing_num_steps`` its time constant;
+        ``"none"``: returns None (noisy networks explore through their weights; the policy is
+        the greedy actor itself).
+    :param device: the module's device. Default: the spec's (TorchRL's too).
+    :param action_spec: this project's earlier name for ``spec``, kept as an alias.
+    :param egreedy_kwargs: go to ``EGreedyModule``'s constructor (``action_key``,
+        ``action_mask_key``, ...).
+    :returns: TorchRL's ``EGreedyModule`` (``ExponentialEGreedyModule`` with
+        ``schedule="exponential"``), or None with ``schedule="none"``.
     """
     spec = resolve_alias("spec", spec, "action_spec", action_spec)
     if spec is None:

@@ -56,28 +56,13 @@ def make_dqn_loss(
 ) -> DQNLoss | DistributionalDQNLoss:
     """Return TorchRL's ``DQNLoss`` (or ``DistributionalDQNLoss``) for ``value_network``.
 
-    The arguments are ``DQNLoss``'s, with its meanings, keywords after ``value_network`` as
-    in ``DQNLoss``; ``loss_kwargs`` go to its constructor (``action_space``, ``reduction``,
-    ...). Defaults, ours beside TorchRL's:
-
-    - ``gamma``: the replay buffer's n-step discount when ``replay_buffer`` is given, else the
-      default config's ``loss.gamma`` (0.995); TorchRL's value estimator defaults to 0.99. It
-      is set with ``loss.make_value_estimator(gamma=...)``, TorchRL's way.
-    - ``loss_function``: ``"smooth_l1"`` (Huber, as the PyTorch DQN tutorial); TorchRL's
-      ``"l2"``.
-    - ``delay_value``: ``True`` (a target network), as TorchRL.
-    - ``double_dqn``: ``False``, as TorchRL.
+    The arguments are ``DQNLoss``'s, with its meanings, keywords after ``value_network`` as in
+    ``DQNLoss``. Defaults, ours beside TorchRL's, are given with each argument.
 
     One discount: an n-step buffer (:func:`~trl_cartpole.parts.replay.make_replay_buffer`) sums
     rewards with its own gamma, and the loss bootstraps with gamma ** k, so the two must agree.
-    Pass ``replay_buffer`` and the loss takes the buffer's gamma (a different ``gamma`` raises
-    ``ValueError`` naming both); without it, the loss checks the first n-step batch it sees
-    and raises the same error there.
-
-    A ``DistributionalDQNLoss`` (for a ``DistributionalQValueActor``) has no ``loss_function``
-    and no ``double_dqn`` (it is always double): passing either raises ``ValueError``.
-    Importance weights in the batch (``"priority_weight"``) are applied by both: loss = sum_i
-    w_i l_i / sum_i w_i.
+    Importance weights in the batch (``"priority_weight"``) are applied by both losses:
+    loss = sum_i w_i l_i / sum_i w_i.
 
     TorchRL runs a loss's forward under its ``deterministic_sampling_mode``
     (``DETERMINISTIC``), which would switch ``NoisyLinear`` noise off; for a network with noisy
@@ -92,6 +77,29 @@ def make_dqn_loss(
         >>> loss = make_dqn_loss(actor, gamma=0.99, double_dqn=True)
         >>> type(loss).__name__, loss.double_dqn
         ('DQNLoss', True)
+
+    :param value_network: the Q-value actor (:func:`~trl_cartpole.parts.models.make_q_actor`);
+        a ``DistributionalQValueActor`` gets a ``DistributionalDQNLoss``.
+    :param args: refused: the arguments after ``value_network`` are keywords, as in
+        ``DQNLoss``; a positional one raises ``TypeError`` naming the keyword.
+    :param gamma: the discount. Default: the replay buffer's n-step discount when
+        ``replay_buffer`` is given, else the default config's ``loss.gamma`` (0.995);
+        TorchRL's value estimator defaults to 0.99. It is set with
+        ``loss.make_value_estimator(gamma=...)``, TorchRL's way.
+    :param loss_function: ``"smooth_l1"`` (Huber, as the PyTorch DQN tutorial) by default;
+        TorchRL's ``"l2"``. A ``DistributionalDQNLoss`` has none.
+    :param delay_value: ``True`` (a target network), as TorchRL.
+    :param double_dqn: ``False``, as TorchRL. A ``DistributionalDQNLoss`` has none (it is
+        always double).
+    :param replay_buffer: the n-step buffer the loss learns from: the loss takes the buffer's
+        gamma (a different ``gamma`` raises ``ValueError`` naming both); without it, the loss
+        checks the first n-step batch it sees and raises the same error there.
+    :param loss_kwargs: go to the loss's constructor (``action_space``, ``reduction``, ...).
+    :returns: TorchRL's ``DQNLoss``, or ``DistributionalDQNLoss`` for a
+        ``DistributionalQValueActor``.
+    :raises ValueError: when ``gamma`` differs from the n-step buffer's (at the first n-step
+        batch without ``replay_buffer``), or when ``loss_function`` or ``double_dqn`` is passed
+        for a ``DistributionalDQNLoss``.
     """
     if args:
         raise TypeError(
@@ -187,22 +195,7 @@ def make_target_updater(
 ) -> TargetNetUpdater:
     """Return TorchRL's ``SoftUpdate`` or ``HardUpdate`` of ``loss_module``'s target network.
 
-    The arguments are TorchRL's, with its meanings; which updater is built follows from them:
-
-    - ``eps`` or ``tau`` (``SoftUpdate``): theta' <- tau theta + (1 - tau) theta' at each
-      ``.step()``, with ``eps = 1 - tau`` (Lillicrap et al. 2016). Built as
-      :class:`FusedSoftUpdate`, a ``SoftUpdate`` doing the same arithmetic in one fused call.
-    - ``value_network_update_interval`` (``HardUpdate``): counted as TorchRL counts, so the
-      copy happens on every ``(value_network_update_interval + 1)``-th ``.step()``
-      (``value_network_update_interval=3`` copies at steps 4, 8, 12).
-    - ``hard_update_interval``: this project's alias (the config's ``loss.hard_update_interval``)
-      for a copy on every ``hard_update_interval``-th step (3: steps 3, 6, 9), i.e.
-      ``value_network_update_interval = hard_update_interval - 1``.
-    - ``kind`` (``"soft"`` or ``"hard"``; this project's, also taken as the second positional
-      argument, its earlier form ``make_target_updater(loss, "soft", tau=0.01)``): pick the
-      updater with the default config's setting for the rest (``tau=0.02``; a copy every 50
-      updates).
-
+    The arguments are TorchRL's, with its meanings; which updater is built follows from them.
     With none of them: the default config's, a ``HardUpdate`` copying every 50 updates
     (``value_network_update_interval=49``). TorchRL has no default updater; its ``SoftUpdate``
     needs ``eps`` or ``tau`` and ``HardUpdate`` defaults to ``value_network_update_interval=1000``.
@@ -217,6 +210,24 @@ def make_target_updater(
         0.99
         >>> make_target_updater(loss, value_network_update_interval=3).value_network_update_interval
         3
+
+    :param loss_module: the loss (:func:`make_dqn_loss`) whose target network is updated.
+    :param args: ``kind``, taken as the second positional argument too: its earlier form
+        ``make_target_updater(loss, "soft", tau=0.01)``.
+    :param eps: ``SoftUpdate``'s: ``eps = 1 - tau``. With ``eps`` or ``tau``, a soft update
+        (Lillicrap et al. 2016), built as :class:`FusedSoftUpdate`, a ``SoftUpdate`` doing the
+        same arithmetic in one fused call.
+    :param tau: ``SoftUpdate``'s: theta' <- tau theta + (1 - tau) theta' at each ``.step()``.
+        Default 0.02 with ``kind="soft"`` (TorchRL's ``SoftUpdate``: eps or tau required).
+    :param value_network_update_interval: ``HardUpdate``'s, counted as TorchRL counts, so the
+        copy happens on every ``(value_network_update_interval + 1)``-th ``.step()``
+        (``value_network_update_interval=3`` copies at steps 4, 8, 12).
+    :param hard_update_interval: this project's alias (the config's
+        ``loss.hard_update_interval``) for a copy on every ``hard_update_interval``-th step
+        (3: steps 3, 6, 9), i.e. ``value_network_update_interval = hard_update_interval - 1``.
+    :param kind: ``"soft"`` or ``"hard"`` (this project's): pick the updater with the default
+        config's setting for the rest (``tau=0.02``; a copy every 50 updates).
+    :returns: TorchRL's ``HardUpdate``, or :class:`FusedSoftUpdate` (a ``SoftUpdate``).
     """
     if args:
         if len(args) > 1 or args[0] not in ("soft", "hard") or kind is not None:

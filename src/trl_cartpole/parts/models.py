@@ -129,11 +129,28 @@ def make_q_network(
 ) -> nn.Module:
     """Return ``[*B, obs_dim] -> [*B, num_actions]`` (or ``[*B, atoms, num_actions]`` logits).
 
-    The torso is TorchRL's ``MLP`` over the widths ``num_cells`` (an activation after every
-    hidden layer; an int with ``depth=`` in ``mlp_kwargs`` is ``depth`` layers of that width, as
-    ``MLP`` reads it); ``mlp_kwargs`` go to ``MLP`` (``norm_class``, ``dropout``...). The head
-    from ``HEADS`` maps its last hidden layer to the output. ``hidden_sizes`` is an alias of
-    ``num_cells``.
+    The torso is TorchRL's ``MLP`` (an activation after every hidden layer); the head from
+    ``HEADS`` maps its last hidden layer to the output. The plain head is TorchRL's own layout:
+    one ``MLP`` whose last linear layer is the head.
+
+    :param obs_dim: the width of the observation vector, the MLP's ``in_features``.
+    :param num_actions: the number of discrete actions.
+    :param num_cells: the hidden widths, read as ``MLP`` reads them: a list of widths
+        (``[]``: no hidden layer, the head reads the input), an int with ``depth=`` in
+        ``mlp_kwargs`` (``depth`` layers of that width). Default (128, 128).
+    :param activation_class: the activation after every hidden layer, ``MLP``'s. Default
+        ``nn.ReLU``.
+    :param head: a key of ``HEADS``: ``"plain"`` (default) or ``"dueling"``
+        (:class:`DuelingHead`).
+    :param noisy: every linear layer, the head's included, is TorchRL's ``NoisyLinear``
+        (Fortunato et al. 2018). Default False.
+    :param noisy_std: the ``NoisyLinear`` layers' ``std_init``, sigma_0 of their factorised
+        noise. Default 0.5.
+    :param atoms: with it, the output is logits ``[*B, atoms, num_actions]`` over a support of
+        returns (C51); None: action values ``[*B, num_actions]``.
+    :param hidden_sizes: an alias of ``num_cells``.
+    :param mlp_kwargs: go to ``MLP`` (``norm_class``, ``dropout``...).
+    :returns: TorchRL's ``MLP`` for the plain head, else ``nn.Sequential(torso MLP, head)``.
     """
     check_head(head)
     fixed = sorted(set(mlp_kwargs) & _MLP_SET_HERE)
@@ -221,9 +238,18 @@ def make_cnn_features(
     """``[*B, C, H, W]`` uint8 pixels -> ``[*B, F]`` features, and ``F``.
 
     The pixels are scaled to [0, 1] (:class:`~trl_cartpole.parts.pixels.ScaleImage`), then go
-    through TorchRL's ``ConvNet`` (a convolution and ``activation_class`` per entry of ``channels``,
-    flattened at the end). The defaults are the three 5x5, stride-2 convolutions of 16, 32 and
-    32 channels of the PyTorch DQN tutorial's first, pixel version (without its batch norm).
+    through TorchRL's ``ConvNet`` (a convolution and ``activation_class`` per entry of
+    ``channels``, flattened at the end). The defaults are the three 5x5, stride-2 convolutions
+    of 16, 32 and 32 channels of the PyTorch DQN tutorial's first, pixel version (without its
+    batch norm).
+
+    :param image_shape: the image's ``[C, H, W]``; ``C`` is the first convolution's input.
+    :param channels: the output channels of each convolution. Default (16, 32, 32).
+    :param kernel_sizes: each convolution's kernel size. Default (5, 5, 5).
+    :param strides: each convolution's stride. Default (2, 2, 2).
+    :param activation_class: the activation after each convolution. Default ``nn.ReLU``.
+    :returns: ``nn.Sequential(ScaleImage(), ConvNet)`` (TorchRL's ``ConvNet``) and the width
+        ``F`` of its flattened output.
     """
     conv = ConvNet(
         in_features=image_shape[0],
@@ -289,39 +315,13 @@ def make_q_actor(
 ) -> QValueActor | DistributionalQValueActor:
     """Return TorchRL's ``QValueActor`` reading ``in_keys`` and writing the greedy ``"action"``.
 
-    ``spec`` is the env's action spec (one discrete action: ``OneHot`` or ``Categorical``, or a
-    ``Composite`` holding it under ``"action"``, as ``QValueActor`` takes it), the actor's
-    ``spec``. The Q-network is built from ``observation_spec``, the env's full observation
-    spec (a ``Composite`` holding the entry ``in_keys`` names), unless ``module`` is given.
-
-    The arguments are TorchRL's where a TorchRL class has them:
-
-    - ``module`` (``QValueActor``'s): your whole Q-network, ``[*B, obs] -> [*B, num_actions]``
-      (``[*B, atoms, num_actions]`` with ``support``); nothing is built, as
-      ``QValueActor(module, spec=...)``. An ``nn.Module`` passed first takes this place too.
-    - ``num_cells`` and ``activation_class`` are ``MLP``'s and read as ``MLP`` reads them: a
-      list of hidden widths (``[]``: no hidden layer), an int with ``depth=``. Any other
-      keyword of ``MLP`` (``depth``, ``norm_class``, ``dropout``, ``activation_kwargs``...)
-      goes to it, and any other keyword to the actor (``action_space``,
-      ``action_value_key``, ``safe``...).
-
-    The plain head gives TorchRL's layout exactly: ``QValueActor(MLP(in_features,
-    num_actions, num_cells=num_cells, activation_class=...))``, so its ``state_dict`` loads
-    into an actor built with TorchRL alone. Defaults, ours (the default config's ``network``)
-    beside TorchRL's: ``num_cells`` (128, 128) (``MLP``: None, a single linear layer),
-    ``activation_class`` ``nn.ReLU`` (``MLP``: ``nn.Tanh``), ``in_keys`` ``["observation"]``
-    (as ``QValueActor``), ``device`` the spec's.
-
-    This project's own switches: ``head`` (``"plain"`` or ``"dueling"``: :class:`DuelingHead`,
-    a module of this project; TorchRL 0.14 has dueling networks only for images), ``noisy``
-    and ``noisy_std`` (every linear layer TorchRL's ``NoisyLinear``), ``support`` (a
-    ``DistributionalQValueActor`` over these atoms, C51), and ``torso``: ``"mlp"`` (the
-    observation goes straight to the MLP), ``"cnn"`` (a ``[C, H, W]`` uint8 image through
-    :func:`make_cnn_features`, ``cnn_kwargs`` its ``channels``, ``kernel_sizes``,
-    ``strides``), or your own ``nn.Module`` mapping the observation to features ``[*B, F]``
-    (``F`` is found by running it once on the spec's zero), under the MLP and the head.
-    ``action_spec``, ``hidden_sizes`` and ``activation`` (a name: relu, tanh, elu, gelu) are
-    this project's earlier names, kept as aliases.
+    The Q-network is built from ``observation_spec`` unless ``module`` is given. The arguments
+    are TorchRL's where a TorchRL class has them; ``head``, ``noisy``, ``noisy_std``,
+    ``support``, ``torso`` and ``cnn_kwargs`` are this project's own switches. The plain head
+    gives TorchRL's layout exactly: ``QValueActor(MLP(in_features, num_actions,
+    num_cells=num_cells, activation_class=...))``, so its ``state_dict`` loads into an actor
+    built with TorchRL alone. Defaults, ours (the default config's ``network``), are given
+    with each argument beside TorchRL's.
 
     Without ``support`` it is a ``QValueActor`` writing ``action_value`` ``[*B, num_actions]``
     and ``chosen_action_value`` ``[*B, 1]``; with a ``support`` ``[atoms]`` of returns it is a
@@ -336,6 +336,44 @@ def make_q_actor(
         ...                      head="dueling")
         >>> actor(env.reset())["action_value"].shape
         torch.Size([2])
+
+    :param observation_spec: the env's full observation spec (a ``Composite`` holding the
+        entry ``in_keys`` names), from which the Q-network is built. An ``nn.Module`` passed
+        here is taken as ``module``, ``QValueActor``'s first argument.
+    :param spec: the env's action spec, the actor's ``spec``: one discrete action
+        (``OneHot`` or ``Categorical``, or a ``Composite`` holding it under ``"action"``, as
+        ``QValueActor`` takes it).
+    :param module: ``QValueActor``'s: your whole Q-network, ``[*B, obs] -> [*B, num_actions]``
+        (``[*B, atoms, num_actions]`` with ``support``); nothing is built, as
+        ``QValueActor(module, spec=...)``. Default None (TorchRL's ``QValueActor``: required).
+    :param num_cells: ``MLP``'s, read as ``MLP`` reads it: a list of hidden widths (``[]``: no
+        hidden layer), an int with ``depth=``. Default (128, 128) (``MLP``: None, a single
+        linear layer).
+    :param activation_class: ``MLP``'s. Default ``nn.ReLU`` (``MLP``: ``nn.Tanh``).
+    :param head: ``"plain"`` (default) or ``"dueling"``: :class:`DuelingHead`, a module of this
+        project (TorchRL 0.14 has dueling networks only for images).
+    :param device: the actor's device. Default: the spec's.
+    :param noisy: every linear layer is TorchRL's ``NoisyLinear``. Default False.
+    :param noisy_std: the ``NoisyLinear`` layers' ``std_init``, sigma_0 of their factorised
+        noise. Default 0.5.
+    :param support: a ``DistributionalQValueActor`` over these atoms (C51): a tensor ``[atoms]``
+        of returns. Default None: a ``QValueActor``.
+    :param in_keys: the observation entry the network reads. Default ``["observation"]`` (as
+        ``QValueActor``).
+    :param torso: ``"mlp"`` (default: the observation goes straight to the MLP), ``"cnn"`` (a
+        ``[C, H, W]`` uint8 image through :func:`make_cnn_features`), or your own
+        ``nn.Module`` mapping the observation to features ``[*B, F]`` (``F`` is found by running
+        it once on the spec's zero), under the MLP and the head.
+    :param cnn_kwargs: with ``torso="cnn"``, :func:`make_cnn_features`'s ``channels``,
+        ``kernel_sizes``, ``strides``.
+    :param action_spec: this project's earlier name for ``spec``, kept as an alias.
+    :param hidden_sizes: this project's earlier name for ``num_cells``, kept as an alias.
+    :param activation: this project's earlier name, a name (relu, tanh, elu, gelu) for
+        ``activation_class``, kept as an alias.
+    :param kwargs: any other keyword of ``MLP`` (``depth``, ``norm_class``, ``dropout``,
+        ``activation_kwargs``...) goes to it, and any other keyword to the actor
+        (``action_space``, ``action_value_key``, ``safe``...).
+    :returns: TorchRL's ``QValueActor``, or its ``DistributionalQValueActor`` with ``support``.
     """
     if isinstance(observation_spec, nn.Module):  # QValueActor's first argument is the module
         module = resolve_alias("module", module, "a module passed first", observation_spec)

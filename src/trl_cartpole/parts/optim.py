@@ -28,13 +28,10 @@ def make_optimizer(
 ) -> torch.optim.AdamW:
     """AdamW (Loshchilov & Hutter 2019), with AMSGrad (Reddi et al. 2018) as in the tutorial.
 
-    The defaults are the default config's ``optim`` section (the tutorial keeps AdamW's
-    ``weight_decay=0.01``, ``algo=tutorial`` sets it); ``adamw_kwargs`` go to ``AdamW``.
-
     PyTorch's fused implementation: one kernel for all parameters instead of a Python loop
-    over them (0.55 -> 0.17 ms per step for the default network, docs/performance.md).
-    Defaults beside ``AdamW``'s: ``lr`` 4e-3 (1e-3), ``amsgrad`` True (False),
-    ``weight_decay`` 0.0 (0.01).
+    over them (0.55 -> 0.17 ms per step for the default network, docs/performance.md). The
+    defaults are the default config's ``optim`` section, given with each argument beside
+    ``AdamW``'s.
 
     Example::
 
@@ -43,6 +40,15 @@ def make_optimizer(
         >>> optimizer = make_optimizer(nn.Linear(4, 2).parameters(), lr=1e-3)
         >>> type(optimizer).__name__, optimizer.defaults["amsgrad"]
         ('AdamW', True)
+
+    :param params: the parameters to optimize, as ``AdamW`` takes them.
+    :param lr: the learning rate. Default 4e-3 (``AdamW``'s: 1e-3).
+    :param amsgrad: AMSGrad (Reddi et al. 2018) on or off. Default True
+        (``AdamW``'s: False).
+    :param weight_decay: AdamW's decoupled weight decay. Default 0.0 (``AdamW``'s: 0.01; the
+        tutorial keeps ``weight_decay=0.01``, ``algo=tutorial`` sets it).
+    :param adamw_kwargs: go to ``AdamW`` (``fused=True`` unless given).
+    :returns: PyTorch's ``torch.optim.AdamW``.
     """
     adamw_kwargs.setdefault("fused", True)
     return torch.optim.AdamW(
@@ -59,16 +65,10 @@ def make_update(
 ) -> Callable[[TensorDictBase], TensorDict]:
     """Return ``update(batch) -> TensorDict(loss=[], grad_norm=[])``.
 
-    The defaults are the default config's (``optim.grad_clip``, ``optim.max_grad``).
-
-    ``grad_clip="value"`` clamps each gradient element to ``[-max_grad, max_grad]`` (the
-    tutorial's ``clip_grad_value_(..., 100)``); ``"norm"`` rescales the whole gradient to an
-    L2 norm of at most ``max_grad``; ``"none"`` leaves it. ``grad_norm`` is measured before
-    clipping.
-
-    With ``noisy_network`` its ``NoisyLinear`` noise is resampled after the optimizer step,
-    once per update as in Fortunato et al. (2018, section 3.1). TorchRL has no such function:
-    this is the body of its examples' training loops.
+    One gradient step per call: ``loss_module(batch)["loss"]``, backward, gradient clipping,
+    ``optimizer.step()``. ``grad_norm`` is measured before clipping. TorchRL has no such
+    function: this is the body of its examples' training loops. The defaults are the default
+    config's (``optim.grad_clip``, ``optim.max_grad``).
 
     Example::
 
@@ -81,6 +81,20 @@ def make_update(
         >>> update = make_update(make_dqn_loss(actor), make_optimizer(actor.parameters()))
         >>> sorted(update(buffer.sample()).keys())
         ['grad_norm', 'loss']
+
+    :param loss_module: the loss (:func:`~trl_cartpole.parts.losses.make_dqn_loss`), whose
+        output's ``"loss"`` is differentiated.
+    :param optimizer: the optimizer stepped after each backward pass; the gradients clipped are
+        those of its parameter groups.
+    :param grad_clip: ``"value"`` clamps each gradient element to ``[-max_grad, max_grad]``
+        (the tutorial's ``clip_grad_value_(..., 100)``); ``"norm"`` rescales the whole gradient
+        to an L2 norm of at most ``max_grad``; ``"none"`` leaves it. Default ``"norm"``, the
+        config's ``optim.grad_clip``.
+    :param max_grad: the bound of ``grad_clip``. Default 10.0, the config's ``optim.max_grad``.
+    :param noisy_network: its ``NoisyLinear`` noise is resampled after the optimizer step, once
+        per update as in Fortunato et al. (2018, section 3.1); None: no noise to resample.
+    :returns: this project's function ``update(batch) -> TensorDict(loss=[], grad_norm=[])``,
+        with no Python-side state, so ``torch.compile`` can take it whole.
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
     if grad_clip not in ("value", "norm", "none"):

@@ -187,27 +187,7 @@ def make_replay_buffer(
 
     Keyword arguments only, as TorchRL's buffers. The arguments are TorchRL's, with their
     meanings and behaviour: a buffer built from TorchRL's arguments alone stores the one-step
-    transitions it is given. ``buffer_kwargs`` go to the buffer's constructor (``prefetch``,
-    ``pin_memory``, ``priority_key``, ...). Defaults, ours beside TorchRL's:
-
-    - ``storage``: ``LazyTensorStorage(max_size, device=device)`` (TorchRL: ``ListStorage``);
-      it allocates on the first ``extend`` from the batch's layout, so it serves any env.
-      ``max_size`` (50 000) and ``device`` ("cpu") are ``LazyTensorStorage``'s.
-    - ``sampler``: ``RandomSampler()``, uniform with replacement, as TorchRL. Your own
-      sampler (a ``PrioritizedSampler`` included) is used as given.
-    - ``prioritized=True``: ``TensorDictPrioritizedReplayBuffer`` (Schaul et al. 2016,
-      proportional), TorchRL's ``PrioritizedSampler`` with ``alpha``, ``beta`` and ``eps``
-      (ours 0.3, 0.4, 1e-6; TorchRL requires alpha and beta and defaults eps to 1e-8). It
-      brings its own sampler, so ``sampler`` is refused with it, and ``alpha``, ``beta`` and
-      ``eps`` are refused without it, as TorchRL's plain buffer refuses them.
-    - ``batch_size``: 512 (TorchRL: None, given at ``sample``).
-    - ``transform``: yours, as given (TorchRL: none).
-    - ``n_steps`` (this project's; default 1: one-step transitions, as TorchRL): with
-      ``n_steps > 1`` the buffer's transform is ``Compose(NStepTransform(n_steps, gamma),
-      transform)``, TorchRL's ``MultiStepTransform`` storing R_t^(n) = sum_{j<k} gamma^j
-      r_{t+j} (Sutton 1988) with ``gamma`` (ours 0.995, the loss's default too), your
-      ``transform`` seeing each extended batch before it. ``gamma`` without ``n_steps > 1``
-      is refused.
+    transitions it is given. Defaults, ours beside TorchRL's, are given with each argument.
 
     Priorities, TorchRL's way: after ``loss(sample)``, ``buffer.update_tensordict_priority(
     sample)`` stores ``(td_error + eps) ** alpha`` for each sampled index. ``DQNLoss`` writes
@@ -228,6 +208,41 @@ def make_replay_buffer(
         >>> buffer = make_replay_buffer(max_size=10_000, batch_size=64)
         >>> type(buffer).__name__, buffer.batch_size
         ('TensorDictReplayBuffer', 64)
+
+    :param args: refused: keyword arguments only, as TorchRL's buffers (a positional one raises
+        ``TypeError`` naming the keyword).
+    :param storage: Default ``LazyTensorStorage(max_size, device=device)`` (TorchRL:
+        ``ListStorage``); it allocates on the first ``extend`` from the batch's layout, so it
+        serves any env.
+    :param sampler: Default ``RandomSampler()``, uniform with replacement, as TorchRL. Your
+        own sampler (a ``PrioritizedSampler`` included) is used as given; refused with
+        ``prioritized=True``, which brings its own.
+    :param batch_size: Default 512 (TorchRL: None, given at ``sample``).
+    :param transform: yours, as given (TorchRL: none); with ``n_steps > 1`` it follows
+        ``NStepTransform`` in the ``Compose`` and sees each extended batch before it.
+    :param max_size: ``LazyTensorStorage``'s, for the default storage. Default 50 000.
+    :param device: ``LazyTensorStorage``'s, for the default storage. Default ``"cpu"``.
+    :param prioritized: ``True``: ``TensorDictPrioritizedReplayBuffer`` (Schaul et al. 2016,
+        proportional), TorchRL's ``PrioritizedSampler`` with ``alpha``, ``beta`` and ``eps``.
+        Default False.
+    :param alpha: the priority exponent, ``PrioritizedSampler``'s. Ours 0.3 (TorchRL requires
+        it); refused without ``prioritized=True``, as TorchRL's plain buffer refuses it.
+    :param beta: the importance-sampling exponent, ``PrioritizedSampler``'s. Ours 0.4 (TorchRL
+        requires it); refused without ``prioritized=True``.
+    :param eps: added to ``td_error`` before the exponent, ``PrioritizedSampler``'s. Ours 1e-6
+        (TorchRL: 1e-8); refused without ``prioritized=True``.
+    :param n_steps: this project's; default 1: one-step transitions, as TorchRL. With
+        ``n_steps > 1`` the buffer's transform is ``Compose(NStepTransform(n_steps, gamma),
+        transform)``, TorchRL's ``MultiStepTransform`` storing R_t^(n) = sum_{j<k} gamma^j
+        r_{t+j} (Sutton 1988).
+    :param gamma: the n-step discount. Ours 0.995, the loss's default too; refused without
+        ``n_steps > 1``.
+    :param buffer_kwargs: go to the buffer's constructor (``prefetch``, ``pin_memory``,
+        ``priority_key``, ...).
+    :returns: TorchRL's ``TensorDictReplayBuffer``, or ``TensorDictPrioritizedReplayBuffer``
+        with ``prioritized=True``.
+    :raises ValueError: when ``sampler`` is given with ``prioritized=True``, ``alpha``,
+        ``beta`` or ``eps`` without it, or ``gamma`` without ``n_steps > 1``.
     """
     _refuse_positional(args)
     if n_steps < 1:

@@ -71,17 +71,22 @@ def _estimate(values: Sequence[float | None], digits: int) -> tuple[str, str, st
 
 
 def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "preset") -> str:
-    """One row per preset: solve rate; frames and seconds to solve as the interquartile mean
-    with its 95 % stratified bootstrap interval, the median and the slowest seed (an unsolved
-    seed counts as infinitely slow); the final greedy return's IQM and interval; per-seed
-    figures; and the medians of wall time, throughput and peak memory
-    (:mod:`trl_cartpole.report.interval_estimates`)."""
+    """Two tables. The first, one row per preset: solve rate; frames and seconds to solve as the
+    interquartile mean with its 95 % stratified bootstrap interval, the median and the slowest
+    seed (an unsolved seed counts as infinitely slow); the final greedy return's IQM and
+    interval; and the medians of wall time, throughput and peak memory
+    (:mod:`trl_cartpole.report.interval_estimates`). The second, each seed's frames and seconds
+    to solve, apart so that their lists do not squeeze the first one's columns."""
     lines = [
         f"| {label} | solved | frames_to_solve IQM [95% CI] | median | slowest | "
         "seconds_to_solve IQM [95% CI] | median | slowest | "
-        "final 100-ep greedy return IQM [95% CI] | frames_to_solve per seed | seconds per seed | "
+        "final 100-ep greedy return IQM [95% CI] | "
         "median wall seconds | collect frames/s | updates/s | peak RSS MiB |",
-        "| --- " * 15 + "|",
+        "| --- " * 13 + "|",
+    ]
+    per_seed = [
+        f"| {label} | frames_to_solve per seed | seconds_to_solve per seed |",
+        "| --- | --- | --- |",
     ]
     for algo, runs in results.items():
         frames = [r["frames_to_solve"] for r in runs]
@@ -90,13 +95,16 @@ def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "prese
         lines.append(
             f"| {algo} | {sum(r['solved'] for r in runs)}/{len(runs)} | "
             f"{' | '.join(_estimate(frames, 0))} | {' | '.join(_estimate(seconds, 1))} | "
-            f"{final} | {', '.join('-' if f is None else str(f) for f in frames)} | "
-            f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} | "
+            f"{final} | "
             f"{statistics.median(r['wall_seconds'] for r in runs):.1f} | "
             f"{_median_of(runs, 'collect_frames_per_second', 0)} | "
             f"{_median_of(runs, 'updates_per_second', 0)} | {_median_of(runs, 'peak_rss_mb', 0)} |"
         )
-    return "\n".join(lines)
+        per_seed.append(
+            f"| {algo} | {', '.join('-' if f is None else str(f) for f in frames)} | "
+            f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} |"
+        )
+    return "\n".join(lines) + "\n\n" + "\n".join(per_seed)
 
 
 # Fields that differ between seeds of one config, not between configs.
