@@ -1,0 +1,145 @@
+"""Exact resume under repeated SIGKILLs at random moments, some aimed inside a checkpoint write.
+
+A run on a preemptible machine is killed without warning, again and again, and resumed each
+time from its newest complete checkpoint. Whatever the moments, the resumed run must end with
+exactly the uninterrupted run's evaluations: the frames and return of every evaluation, and
+the frames to solve (on worker processes, whose envs a checkpoint does not hold, the frames of
+every evaluation). Each life of the run completes one checkpoint of its own first (so the
+run moves on), then is killed: half of the kills at a random moment after it, the other half
+aimed: the test watches the checkpoint folder and kills the run as soon as a training state
+is being staged (``torchrl.checkpoint.Checkpoint`` writes into ``.<name>.stage-<uuid>`` and
+renames it into place), and checks the staged folder was left half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from trl_cartpole.run.training import train
+
+from .conftest import SCRIPTS
+
+KILLS = 6  # three at random moments, three inside a checkpoint write
+RUN = [
+    "collector.total_frames=20000",
+    "collector.init_random_frames=64",
+    "buffer.batch_size=32",
+    "eval.interval_frames=1000",
+    "eval.episodes=3",
+    "eval.final_episodes=4",
+    "eval.stop_when_solved=false",
+    "checkpoint.interval_frames=256",
+    "checkpoint.keep_last=2",
+    "logger.progress_bar=false",
+    "logger.live_plot=false",
+    "logger.plots=false",
+    "seed=5",
+]
+VARIANTS = {
+    "default": [],
+    "prioritized": ["algo=prioritized"],
+    "two-workers": ["collector.workers=2", "env.num_envs=16"],
+}
+# Worker processes' envs are not in the checkpoints: a resume starts them on new episodes
+# (docs/scaling.md), so on workers the evaluations fall at the same frames with other returns.
+RETURNS_EXACT = {"default": True, "prioritized": True, "two-workers": False}
+
+
+def _start(python: str, args: list[str]) -> subprocess.Popen:
+    """``scripts/train.py args`` in a session of its own (a kill takes its workers too)."""
+    return subprocess.Popen(
+        [python, str(SCRIPTS / "train.py"), *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+
+
+def _stages(run_dir: Path) -> set[str]:
+    """The checkpoint folders being staged right now (their temporary names)."""
+    folder = run_dir / "checkpoints" / "periodic"
+    try:
+        return {entry.name for entry in os.scandir(folder) if ".stage-" in entry.name}
+    except FileNotFoundError:
+        return set()
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    """SIGKILL the run and every process of its session (its collector workers)."""
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=60)
+
+
+def _complete(run_dir: Path) -> set[Path]:
+    """The complete periodic checkpoints (an ``integrity.json`` is their last file)."""
+    return {path.parent for path in (run_dir / "checkpoints" / "periodic").glob("*/integrity.json")}
+
+
+def _wait_for_a_new_checkpoint(proc: subprocess.Popen, run_dir: Path, timeout: float = 180):
+    """Wait until this process has completed a checkpoint of its own (the run moved on)."""
+    known = _complete(run_dir)
+    deadline = time.monotonic() + timeout
+    while proc.poll() is None and not (_complete(run_dir) - known):
+        assert time.monotonic() < deadline, "no checkpoint was written"
+        time.sleep(0.01)
+
+
+def _kill_inside_a_write(proc: subprocess.Popen, run_dir: Path, timeout: float = 180) -> bool:
+    """SIGKILL the run as soon as a new checkpoint is being staged; True if one was caught
+    half-written (its staging folder is left behind), False if the run ended first."""
+    before = _stages(run_dir)  # stagings an earlier kill left behind
+    deadline = time.monotonic() + timeout
+    while proc.poll() is None:
+        staging = _stages(run_dir) - before
+        if staging:
+            _kill(proc)
+            return bool(_stages(run_dir) & staging)
+        assert time.monotonic() < deadline, "no checkpoint was written"
+        time.sleep(0.0005)
+    return False
+
+
+@pytest.mark.slow  # about 7 training processes per variant
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_random_sigkills_then_resumes_end_as_the_uninterrupted_run(
+    compose, python, tmp_path, variant
+):
+    overrides = [*RUN, *VARIANTS[variant]]
+    run_dir = tmp_path / "killed"
+    rng = random.Random(f"kills-{variant}")
+    inside_a_write = 0
+    args = [*overrides, f"run_dir={run_dir}"]
+    for kill in range(KILLS):
+        proc = _start(python, args)
+        _wait_for_a_new_checkpoint(proc, run_dir)  # each life moves the run on
+        if kill % 2:  # aimed: inside the next checkpoint write
+            inside_a_write += _kill_inside_a_write(proc, run_dir)
+        else:  # a random moment: training, an evaluation or a write
+            time.sleep(rng.uniform(0.0, 2.5))
+            if proc.poll() is None:
+                _kill(proc)
+        stderr = proc.stderr.read()
+        assert proc.returncode == -signal.SIGKILL, f"exit {proc.returncode}: {stderr[-2000:]}"
+        args = [f"resume={run_dir}"]  # from the newest complete checkpoint
+    assert inside_a_write >= 2, f"only {inside_a_write} kills landed inside a write"
+
+    resumed = subprocess.run(
+        [python, str(SCRIPTS / "train.py"), *args], capture_output=True, text=True, timeout=600
+    )
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    got = json.loads((run_dir / "summary.json").read_text())
+    expected = train(compose(*overrides, f"run_dir={tmp_path / 'whole'}"))
+    assert got["eval_curve"]["frames"] == expected["eval_curve"]["frames"]
+    if RETURNS_EXACT[variant]:
+        assert got["eval_curve"]["returns"] == expected["eval_curve"]["returns"]
+        assert got["frames_to_solve"] == expected["frames_to_solve"]
+    assert got["frames"] == expected["frames"] == 20000
