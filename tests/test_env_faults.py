@@ -4,16 +4,23 @@ recorded in summary.json, instead of a NaN TD loss later or a traceback from the
 from __future__ import annotations
 
 import json
+import os
+import re
+import signal
+import subprocess
+import sys
 import textwrap
+import time
 
 import pytest
 import torch
 from tensordict import TensorDict
+from torchrl.envs import GymWrapper, TransformedEnv
 
-from tests.conftest import CONFIG_DIR, SMOKE_OVERRIDES
+from tests.conftest import CONFIG_DIR, SCRIPTS, SMOKE_OVERRIDES
 from trl_cartpole.cli.main import compose_config
 from trl_cartpole.errors import TrainingFailed
-from trl_cartpole.run.env_faults import check_finite_batch
+from trl_cartpole.run.env_faults import check_finite_batch, env_fault, worker_env_fault
 from trl_cartpole.run.training import train
 
 FAULTY_ENVS = textwrap.dedent(
@@ -50,8 +57,38 @@ FAULTY_ENVS = textwrap.dedent(
             if self.steps > 150:
                 raise RuntimeError("the simulator lost its connection")
             return super().step(action)
+
+
+    class WrongShapeCartPole(_AfterSteps):
+        def step(self, action):
+            self.steps += 1
+            obs, reward, terminated, truncated, info = super().step(action)
+            return (obs[:3] if self.steps > 150 else obs), reward, terminated, truncated, info
+
+
+    class TextRewardCartPole(_AfterSteps):
+        def step(self, action):
+            self.steps += 1
+            obs, reward, terminated, truncated, info = super().step(action)
+            return obs, ("one" if self.steps > 150 else reward), terminated, truncated, info
+
+
+    class HangingCartPole(_AfterSteps):
+        def step(self, action):
+            self.steps += 1
+            if self.steps > 150:
+                time.sleep(600)
+            return super().step(action)
+
+
+    class HangingResetCartPole(_AfterSteps):
+        def reset(self, **kwargs):
+            self.steps += 1  # resets here; building the env resets it too (unbounded)
+            if self.steps > 8:
+                time.sleep(600)
+            return super().reset(**kwargs)
     """
-)
+).replace("import numpy as np", "import time\n\nimport numpy as np")
 
 
 @pytest.mark.parametrize(
@@ -60,6 +97,18 @@ FAULTY_ENVS = textwrap.dedent(
         ("NaNCartPole", r"returned a non-finite next\.observation \(nan\) in the batch"),
         ("InfiniteRewardCartPole", r"returned a non-finite next\.reward \(inf\)"),
         ("RaisingCartPole", r"raised RuntimeError in RaisingCartPole\.step\(\) at frame \d+: the"),
+        (
+            "WrongShapeCartPole",
+            r"returned an observation TorchRL cannot read at frame \d+ \(RuntimeError: Shape "
+            r"mismatch: the value has shape torch.Size\(\[3\]\) .*\[4\]",
+        ),
+        ("TextRewardCartPole", r"returned a step\(\) result TorchRL cannot read .*'str'"),
+        (
+            "HangingCartPole",
+            r"HangingCartPole\.step\(\) did not return within 0\.5 s \(env\.step_timeout\), at "
+            r"frame \d+",
+        ),
+        ("HangingResetCartPole", r"HangingResetCartPole\.reset\(\) did not return within 0\.5 s"),
     ],
 )
 def test_a_misbehaving_env_is_named_in_one_line(env_class, expected, tmp_path, monkeypatch):
@@ -72,12 +121,16 @@ def test_a_misbehaving_env_is_named_in_one_line(env_class, expected, tmp_path, m
             *SMOKE_OVERRIDES,
             f"env.id=faulty_envs:{env_class}",
             "env.num_envs=1",
+            "env.step_timeout=0.5",
             f"run_dir={run_dir}",
             "logger.plots=false",
         ],
     )
+    started = time.monotonic()
     with pytest.raises(TrainingFailed, match=expected) as caught:
         train(cfg)
+    assert time.monotonic() - started < 120  # a hang is cut, not waited out
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)  # no alarm left behind
     assert "\n" not in str(caught.value) and f"faulty_envs:{env_class}" in str(caught.value)
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["failed"] and "faulty_envs" in summary["failure"]
@@ -98,3 +151,93 @@ def test_the_finite_check_names_the_entry_the_step_and_the_value():
         TrainingFailed, match=r"next\.reward \(-inf\) .* after frame 100 \(env 1, step 3"
     ):
         check_finite_batch(batch, "Env-v0", 100)
+
+
+def test_a_step_deadline_raises_where_the_env_is_stuck_and_clears_itself():
+    from gymnasium.envs.classic_control import CartPoleEnv
+
+    from trl_cartpole.parts.env import make_env
+    from trl_cartpole.run.env_faults import EnvStepTimeout, StepDeadline
+
+    class SlowCartPole(CartPoleEnv):
+        delay = 0.0
+
+        def step(self, action):
+            time.sleep(self.delay)
+            return super().step(action)
+
+    env = make_env("CartPole-v1").append_transform(StepDeadline(0.2))
+    env.rollout(5)  # fast steps: no alarm fires, none is left set
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
+    slow = TransformedEnv(GymWrapper(SlowCartPole()), StepDeadline(0.2))
+    SlowCartPole.delay = 5.0
+    started = time.monotonic()
+    with pytest.raises(EnvStepTimeout, match=r"did not return within 0\.2 s") as caught:
+        slow.rollout(3)
+    assert time.monotonic() - started < 2.0
+    assert "SlowCartPole.step()" in str(env_fault(caught.value, "Slow-v0", 64))
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
+    assert StepDeadline(None)._inv_call(TensorDict()) is not None  # no limit: nothing set
+
+
+def test_a_worker_log_is_read_into_one_line(tmp_path):
+    log = tmp_path / "worker-123.log"
+    log.write_text(
+        "Process _ProcessNoWarnSpawn-1:\n"
+        "Traceback (most recent call last):\n"
+        '  File "/x/site-packages/torchrl/collectors/_runner.py", line 9, in run\n'
+        '  File "/x/site-packages/gymnasium/wrappers/common.py", line 125, in step\n'
+        '  File "/home/me/my_envs.py", line 31, in step\n'
+        "    raise RuntimeError('lost')\n"
+        "RuntimeError: the simulator lost its connection\n"
+    )
+    failure = worker_env_fault(tmp_path, "my_envs:MyEnv", 288)
+    assert str(failure) == (
+        "env 'my_envs:MyEnv' raised RuntimeError in step() (my_envs.py, line 31) in a collector "
+        f"worker at frame 288: the simulator lost its connection (the worker's traceback: {log})"
+    )
+    log.write_text("nothing went wrong\n")
+    assert worker_env_fault(tmp_path, "my_envs:MyEnv", 288) is None
+
+
+@pytest.mark.slow  # two worker processes per case
+@pytest.mark.parametrize(
+    ("env_class", "expected"),
+    [
+        (
+            "RaisingCartPole",
+            r"raised RuntimeError in step\(\) \(faulty_envs\.py, line \d+\) in a collector worker"
+            r" at frame \d+: the simulator lost its connection \(the worker's traceback: ",
+        ),
+        (
+            "HangingCartPole",
+            r"step\(\) \(faulty_envs\.py, line \d+\) did not return within 1 s "
+            r"\(env\.step_timeout\) in a collector worker",
+        ),
+    ],
+)
+def test_a_fault_in_a_worker_process_is_named_in_one_line(tmp_path, env_class, expected):
+    (tmp_path / "faulty_envs.py").write_text(FAULTY_ENVS)
+    run_dir = tmp_path / "run"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(SCRIPTS / "train.py"),
+            *SMOKE_OVERRIDES,
+            f"env.id=faulty_envs:{env_class}",
+            "env.num_envs=1",
+            "collector.workers=2",
+            "collector.total_frames=3000",
+            "env.step_timeout=1",
+            f"run_dir={run_dir}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHONPATH": str(tmp_path)},
+    )
+    assert proc.returncode == 1, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr  # the workers' tracebacks are in their logs
+    error = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert len(error) == 1 and re.search(expected, error[0]), proc.stderr[-3000:]
+    assert json.loads((run_dir / "summary.json").read_text())["failed"]

@@ -109,7 +109,7 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path, monkeypatch):
     monkeypatch.setattr(
         build,
         "build_env",
-        lambda cfg, seed, n, *rest: sizes.append(n) or build_env(cfg, seed, n, *rest),
+        lambda cfg, seed, n, *rest, **kw: sizes.append(n) or build_env(cfg, seed, n, *rest, **kw),
     )
     result, _ = evaluate_checkpoint(run_dir, episodes=5)
     assert sizes == [2, 2, 1] and len(result.returns) == len(result.lengths) == 5

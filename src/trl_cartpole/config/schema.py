@@ -48,6 +48,9 @@ class EnvConfig:
     imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
     max_episode_steps: int | None = None  # null: Gymnasium's registered TimeLimit
     num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
+    # seconds a training env's step or reset may take before the run stops naming it (null: no
+    # limit); a SIGALRM alarm, so the main thread of the training or worker process only
+    step_timeout: float | None = 60.0
     normalize_observations: bool = False  # TorchRL ObservationNorm, stats from random rollouts
     normalization_frames: int = 10_000  # random-policy frames the stats are estimated from
     # Learning from pixels (docs/environments.md): the rendered frame instead of the state

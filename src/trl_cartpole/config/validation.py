@@ -122,6 +122,10 @@ def validate(cfg: Config) -> Config:
         (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
         (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
         (
+            cfg.env.step_timeout is None or cfg.env.step_timeout > 0,
+            f"env.step_timeout={cfg.env.step_timeout} must be > 0 seconds (or null: no limit)",
+        ),
+        (
             cfg.env.normalization_frames >= 1,
             f"env.normalization_frames={cfg.env.normalization_frames} must be >= 1",
         ),

@@ -163,6 +163,11 @@ def prepare_run_dir(run_dir: str | Path) -> Path:
     return path
 
 
+def worker_log_dir(cfg: Config, run_dir: Path) -> Path | None:
+    """Where local collector worker processes write their output (None on Ray: Ray keeps it)."""
+    return run_dir / "workers" if cfg.collector.backend == "local" else None
+
+
 # --- one part each ----------------------------------------------------------------------------
 
 
@@ -172,8 +177,10 @@ def build_env(
     num_envs: int | None = None,
     observation_norm: dict[str, list[float]] | None = None,
     render_mode: str | None = None,
+    step_timeout: float | None = None,
 ) -> TransformedEnv:
-    """The env of ``cfg.env`` (``num_envs`` overrides its count), seeded ``seed``."""
+    """The env of ``cfg.env`` (``num_envs`` overrides its count), seeded ``seed``; a training
+    env's steps are bounded by ``step_timeout`` (``cfg.env.step_timeout``)."""
     return make_env_from_config(
         cfg.env,
         seed,
@@ -181,6 +188,7 @@ def build_env(
         num_envs,
         observation_norm=observation_norm,
         render_mode=render_mode,
+        step_timeout=step_timeout,
     )
 
 
@@ -204,7 +212,13 @@ def evaluate_episodes(
     at_once = PIXEL_ENVS_AT_ONCE if cfg.env.from_pixels else episodes
     result = EvalResult()
     for start in range(0, episodes, at_once):
-        env = build_env(cfg, seed + start, min(at_once, episodes - start), observation_norm)
+        env = build_env(
+            cfg,
+            seed + start,
+            min(at_once, episodes - start),
+            observation_norm,
+            step_timeout=cfg.env.step_timeout,
+        )
         try:
             turn = evaluate(actor, env, cfg.eval.max_steps, epsilon)
         finally:
@@ -439,8 +453,16 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
             if resume is None
             else read_observation_norm(resume)
         )
-    env = build_env(cfg, cfg.seed, observation_norm=observation_norm)
-    eval_env = build_env(cfg, cfg.seed + cfg.eval.seed_offset, cfg.eval.episodes, observation_norm)
+    env = build_env(
+        cfg, cfg.seed, observation_norm=observation_norm, step_timeout=cfg.env.step_timeout
+    )
+    eval_env = build_env(
+        cfg,
+        cfg.seed + cfg.eval.seed_offset,
+        cfg.eval.episodes,
+        observation_norm,
+        step_timeout=cfg.env.step_timeout,
+    )
     with ExitStack() as on_error:  # an error while building the rest closes what it holds
         on_error.callback(close_env, eval_env)
         on_error.callback(close_env, env)
@@ -499,7 +521,9 @@ def _assemble(
     collector_state_saved = not distributed and not cfg.env.from_pixels
     frames_not_counted = 0 if collector_state_saved else frames_done
     collector = make_collector(
-        worker_env_constructors(cfg, observation_norm) if distributed else env,
+        worker_env_constructors(cfg, observation_norm, worker_log_dir(cfg, run_dir))
+        if distributed
+        else env,
         policy,
         cfg.collector.frames_per_batch,
         cfg.collector.total_frames - frames_not_counted,

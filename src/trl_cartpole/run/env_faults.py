@@ -1,24 +1,120 @@
-"""A misbehaving env named, not propagated: non-finite data and exceptions from its code.
+"""A misbehaving env named, not propagated: bad data, exceptions, steps that never return.
 
 A user's env (``env.id=my_module:MyEnv``) can return an observation or a reward that is NaN or
-infinite, or raise in ``step`` or ``reset``. Left alone, the first surfaces later as
-``TD loss is nan`` (naming neither the env nor the step) and the second as a long traceback
-from inside the collector. :func:`check_finite_batch` looks at each collected batch and
-:func:`env_fault` recognises an exception raised by the env's own code; both become one-line
-:class:`~trl_cartpole.errors.TrainingFailed` errors naming the env, the fault and the frame.
+infinite, one TorchRL cannot read (the wrong shape, a reward that is not a number), raise in
+``step`` or ``reset``, or never return from them. Left alone, the first surfaces later as
+``TD loss is nan`` (naming neither the env nor the step), the others as long tracebacks from
+inside the collector (or its worker processes), the last as a run that hangs.
+:func:`check_finite_batch` looks at each collected batch; :class:`StepDeadline` (a TorchRL
+transform) bounds each step and reset; :func:`env_fault` recognises an exception from the
+env's code or from TorchRL reading its output, and :func:`worker_env_fault` the same in a
+collector worker's log. Each becomes a one-line :class:`~trl_cartpole.errors.TrainingFailed`
+naming the env, the fault and the frame.
 """
 
 from __future__ import annotations
 
+import re
+import signal
+import threading
 import traceback
+from pathlib import Path
 
 import gymnasium as gym
 import torch
 from tensordict import TensorDictBase
+from torchrl.envs import Transform
 
 from trl_cartpole.errors import TrainingFailed
 
-__all__ = ["check_finite_batch", "env_fault"]
+__all__ = [
+    "EnvStepTimeout",
+    "StepAlarm",
+    "StepDeadline",
+    "check_finite_batch",
+    "disarm_step_deadline",
+    "env_fault",
+    "worker_env_fault",
+]
+
+
+class EnvStepTimeout(TimeoutError):
+    """An env's ``step`` or ``reset`` did not return within its :class:`StepDeadline`."""
+
+
+class StepAlarm:
+    """A real-time alarm (``SIGALRM``) around one env call: ``with alarm: env.step(action)``.
+
+    If the call has not returned ``seconds`` later, the handler raises :class:`EnvStepTimeout`
+    where the env's code is stuck, so the traceback names the env's method. It exists only in a
+    process's main thread: elsewhere, and with ``seconds=None``, nothing is bounded.
+    """
+
+    def __init__(self, seconds: float | None) -> None:
+        self.seconds = seconds
+        self.armed = False
+
+    def arm(self) -> None:
+        if not self.seconds or threading.current_thread() is not threading.main_thread():
+            return
+        signal.signal(signal.SIGALRM, self._expired)
+        self.armed = True
+        signal.setitimer(signal.ITIMER_REAL, self.seconds)
+
+    def disarm(self) -> None:
+        if self.armed:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            self.armed = False
+
+    def _expired(self, signum, frame) -> None:
+        if self.armed:
+            self.armed = False
+            raise EnvStepTimeout(f"did not return within {self.seconds:g} s (env.step_timeout)")
+
+    def __enter__(self) -> StepAlarm:
+        self.arm()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.disarm()
+
+
+class StepDeadline(Transform):
+    """A TorchRL transform that bounds each ``step`` and ``reset`` of the env below it.
+
+    Before the base env steps (``_inv_call``, TorchRL's hook before a step) or resets
+    (``_reset_env_preprocess``), its :class:`StepAlarm` is set ``seconds`` ahead; the
+    transform's own step and reset, after the base env's, clear it. Appended last, it bounds the
+    other transforms too.
+    """
+
+    def __init__(self, seconds: float | None) -> None:
+        super().__init__(in_keys=[], out_keys=[])
+        self.seconds = seconds
+        self._alarm = StepAlarm(seconds)
+
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._alarm.arm()  # the base env's step comes next
+        return tensordict
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase):
+        self._alarm.disarm()
+        return next_tensordict
+
+    def _reset_env_preprocess(self, tensordict: TensorDictBase | None):
+        self._alarm.arm()  # the base env's reset comes next
+        return tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase):
+        self._alarm.disarm()
+        return tensordict_reset
+
+
+def disarm_step_deadline() -> None:
+    """Clear a :class:`StepDeadline` alarm an exception left set (the run is ending)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.setitimer(signal.ITIMER_REAL, 0)
+
 
 # Entries of a collected batch that the env did not write itself: the policy's outputs, and the
 # return RewardSum sums from the rewards (a bad reward is named as the reward).
@@ -52,17 +148,108 @@ def check_finite_batch(batch: TensorDictBase, env_id: str, frames: int) -> None:
 
 
 def env_fault(error: BaseException, env_id: str, frames: int) -> TrainingFailed | None:
-    """A one-line :class:`TrainingFailed` if ``error`` was raised inside a Gymnasium env's
-    ``step`` or ``reset`` (the innermost such frame of its traceback), else None."""
-    method = None
+    """A one-line :class:`TrainingFailed` if ``error`` came from the env, else None: raised
+    inside a Gymnasium env's ``step`` or ``reset`` (the innermost such frame of its traceback,
+    a :class:`StepDeadline` timeout included), or raised by TorchRL reading what the env
+    returned (an observation of the wrong shape, a reward that is not a number)."""
+    method, reading = None, None
     for frame, _ in traceback.walk_tb(error.__traceback__):
         owner = frame.f_locals.get("self")
-        if frame.f_code.co_name in ("step", "reset") and isinstance(owner, gym.Env):
-            method = f"{type(owner).__name__}.{frame.f_code.co_name}()"
-    if method is None:
-        return None
+        name = frame.f_code.co_name
+        if name in ("step", "reset") and isinstance(owner, gym.Env):
+            method = f"{type(owner).__name__}.{name}()"
+        elif name in _TORCHRL_READERS and _is_torchrl(frame.f_code.co_filename):
+            reading = _TORCHRL_READERS[name]
     reason = str(error).splitlines()[0] if str(error) else ""
+    if method is not None and isinstance(error, EnvStepTimeout):
+        return TrainingFailed(f"env {env_id!r}: {method} {reason}, at frame {frames}")
+    if method is not None:
+        return _raised(env_id, type(error).__name__, method, frames, reason)
+    if reading is not None:
+        return _unreadable(env_id, reading, frames, f"{type(error).__name__}: {reason}")
+    return None
+
+
+# TorchRL's functions that read what a Gymnasium env returned: what each reads.
+_TORCHRL_READERS = {
+    "read_obs": "an observation",
+    "_read_obs_eager": "an observation",
+    "read_reward": "a reward",
+    "read_done": "a done flag",
+    "_step": "a step() result",
+    "_reset": "a reset() result",
+}
+
+
+def _is_torchrl(filename: str) -> bool:
+    """Whether ``filename`` is TorchRL's code that reads a Gymnasium env's output."""
+    return (
+        Path(filename)
+        .as_posix()
+        .endswith(("/torchrl/envs/gym_like.py", "/torchrl/envs/libs/gym.py"))
+    )
+
+
+def _raised(env_id: str, error_type: str, method: str, frames: int, reason: str):
     return TrainingFailed(
-        f"env {env_id!r} raised {type(error).__name__} in {method} at frame {frames}"
+        f"env {env_id!r} raised {error_type} in {method} at frame {frames}"
         + (f": {reason}" if reason else "")
+    )
+
+
+def _unreadable(env_id: str, what: str, frames: int, reason: str) -> TrainingFailed:
+    return TrainingFailed(
+        f"env {env_id!r} returned {what} TorchRL cannot read at frame {frames} ({reason}); "
+        "check what its step() and reset() return against its observation_space"
+    )
+
+
+# A frame line of a Python traceback: File "<path>", line <n>, in <function>
+_TRACEBACK_FRAME = re.compile(r'^\s*File "(?P<file>[^"]+)", line (?P<line>\d+), in (?P<name>\S+)$')
+
+
+def worker_env_fault(log_dir: Path, env_id: str, frames: int) -> TrainingFailed | None:
+    """:func:`env_fault` for a collector worker process that died: read from the traceback in
+    its log (``log_dir/worker-<pid>.log``, where :class:`WorkerEnvFactory` sends a worker's
+    output). None if no worker log holds a traceback from the env."""
+    for log in sorted(log_dir.glob("worker-*.log"), key=lambda p: p.stat().st_mtime):
+        lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
+        starts = [i for i, line in enumerate(lines) if line.startswith("Traceback")]
+        if not starts:
+            continue
+        block = lines[starts[-1] :]
+        ending = next((line for line in reversed(block) if line and not line[0].isspace()), "")
+        error_type, _, reason = ending.partition(": ")
+        error_type = error_type.rsplit(".", 1)[-1]
+        method, reading = None, None
+        for line in block:
+            match = _TRACEBACK_FRAME.match(line)
+            if match is None:
+                continue
+            name, file = match["name"], match["file"]
+            if name in ("step", "reset") and not _is_library(file):
+                method = f"{name}() ({Path(file).name}, line {match['line']})"
+            elif name in _TORCHRL_READERS and _is_torchrl(file):
+                reading = _TORCHRL_READERS[name]
+        where = f" (the worker's traceback: {log})"
+        if method is not None and error_type == "EnvStepTimeout":
+            return TrainingFailed(
+                f"env {env_id!r}: {method} {reason} in a collector worker, in the batch after "
+                f"frame {frames}{where}"
+            )
+        if method is not None:
+            failure = _raised(env_id, error_type, f"{method} in a collector worker", frames, reason)
+            return TrainingFailed(str(failure) + where)
+        if reading is not None:
+            failure = _unreadable(env_id, reading, frames, f"{error_type}: {reason}")
+            return TrainingFailed(str(failure) + where)
+    return None
+
+
+def _is_library(filename: str) -> bool:
+    """Whether ``filename`` is TorchRL's, TensorDict's or Gymnasium's wrappers' own code."""
+    path = Path(filename).as_posix()
+    return any(
+        part in path
+        for part in ("/torchrl/", "/tensordict/", "/gymnasium/wrappers/", "/gymnasium/vector/")
     )

@@ -8,19 +8,22 @@ config; this module reads the ``env`` section (and the run's seed) and calls the
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 import torch
-from torchrl.envs import EnvBase, ObservationNorm, SerialEnv, TransformedEnv
+from torchrl.envs import Compose, EnvBase, ObservationNorm, SerialEnv, TransformedEnv
 
 from trl_cartpole.config.schema import Config, EnvConfig
 from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
 from trl_cartpole.parts.pixels import pixel_transforms
+from trl_cartpole.run.env_faults import StepDeadline
 
 __all__ = [
     "WorkerEnvFactory",
@@ -38,12 +41,31 @@ def make_env_from_config(
     num_envs: int | None = None,
     observation_norm: Mapping[str, Sequence[float]] | None = None,
     render_mode: str | None = None,
+    step_timeout: float | None = None,
 ) -> TransformedEnv:
     """:func:`make_env` for the ``env`` section of a config (``num_envs`` overrides its own).
 
     ``observation_norm`` must be given when ``env_cfg.normalize_observations`` is on: the
     statistics belong to a run (:func:`estimate_observation_norm`, stored in its checkpoints).
+    ``step_timeout`` bounds each step and reset (:class:`StepDeadline`, appended last): a
+    training env's gets the config's ``env.step_timeout``.
     """
+    env = _env_from_config(env_cfg, seed, device, num_envs, observation_norm, render_mode)
+    if step_timeout is None:
+        return env
+    if isinstance(env, TransformedEnv):
+        return env.append_transform(StepDeadline(step_timeout))
+    return TransformedEnv(env, Compose(StepDeadline(step_timeout)))  # a pixel env's SerialEnv
+
+
+def _env_from_config(
+    env_cfg: EnvConfig,
+    seed: int | None,
+    device: str | torch.device,
+    num_envs: int | None,
+    observation_norm: Mapping[str, Sequence[float]] | None,
+    render_mode: str | None,
+) -> EnvBase:
     if env_cfg.normalize_observations and observation_norm is None:
         raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
     if env_cfg.from_pixels:
@@ -140,20 +162,44 @@ class WorkerEnvFactory:
     device: str
     observation_norm: Mapping[str, Sequence[float]] | None
     parent_pid: int
+    log_dir: str | None = None  # a worker's output goes to log_dir/worker-<pid>.log
 
     def __call__(self) -> EnvBase:
         if os.getpid() != self.parent_pid:  # in the worker
             torch.manual_seed(self.rng_seed)
+            if self.log_dir is not None:
+                _send_output_to_log(Path(self.log_dir))
         return make_env_from_config(
-            self.env_cfg, self.env_seed, self.device, observation_norm=self.observation_norm
+            self.env_cfg,
+            self.env_seed,
+            self.device,
+            observation_norm=self.observation_norm,
+            step_timeout=self.env_cfg.step_timeout,
         )
 
 
-def worker_env_constructors(cfg: Config, observation_norm=None) -> list[WorkerEnvFactory]:
+def _send_output_to_log(log_dir: Path) -> None:
+    """Point this worker process's stdout and stderr (file descriptors 1 and 2) at its log.
+
+    A worker that dies prints its traceback there instead of on the user's console; the
+    training process names the fault in one line from it (:func:`worker_env_fault`).
+    """
+    log_dir.mkdir(parents=True, exist_ok=True)
+    with open(log_dir / f"worker-{os.getpid()}.log", "a", encoding="utf-8") as log:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        os.dup2(log.fileno(), 1)
+        os.dup2(log.fileno(), 2)
+
+
+def worker_env_constructors(
+    cfg: Config, observation_norm=None, log_dir: Path | None = None
+) -> list[WorkerEnvFactory]:
     """One picklable env constructor per collector worker.
 
     Worker ``i`` seeds its ``env.num_envs`` envs from ``seed + i * env.num_envs`` (no two envs
-    of a run share a seed) and its torch RNG from child ``i`` of ``SeedSequence(seed)``.
+    of a run share a seed) and its torch RNG from child ``i`` of ``SeedSequence(seed)``; with
+    ``log_dir``, a worker process's output goes to a log there.
     """
     workers = cfg.collector.workers
     rng_seeds = np.random.SeedSequence(cfg.seed).spawn(workers)
@@ -165,6 +211,7 @@ def worker_env_constructors(cfg: Config, observation_norm=None) -> list[WorkerEn
             cfg.device,
             observation_norm,
             os.getpid(),
+            None if log_dir is None else str(log_dir),
         )
         for worker in range(workers)
     ]

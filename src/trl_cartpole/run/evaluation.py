@@ -37,6 +37,7 @@ from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActo
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import OBSERVATION_KEY
 from trl_cartpole.parts.models import expected_action_values
+from trl_cartpole.run.env_faults import StepAlarm, StepDeadline
 from trl_cartpole.run.progress import Progress, resident_mb
 
 __all__ = [
@@ -108,6 +109,7 @@ _KNOWN_TRANSFORMS = (
     DoubleToFloat,  # casts to float32: done here
     DTypeCastTransform,
     ObservationNorm,  # applied here, as the TorchRL transform it is
+    StepDeadline,  # each Gymnasium step bounded here by its StepAlarm
 )
 
 
@@ -173,11 +175,14 @@ def evaluate_on_vector_env(
     action_values = _action_values(
         actor, [t for t in env.transform if isinstance(t, ObservationNorm)]
     )
+    # the env's StepDeadline, if any, bounds the Gymnasium steps played here
+    deadline = next((t.seconds for t in env.transform if isinstance(t, StepDeadline)), None)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         return play_greedy_episodes(
             vector_env,
             lambda observation: expected_action_values(actor, action_values(observation)),
             max_steps,
+            step_timeout=deadline,
         )
 
 
@@ -187,25 +192,30 @@ def play_greedy_episodes(
     q_values: Callable[[torch.Tensor], torch.Tensor],
     max_steps: int,
     seed: int | None = None,
+    step_timeout: float | None = None,
 ) -> EvalResult:
     """Each env's first episode, greedy on ``q_values`` (obs ``[E, obs_dim]`` -> ``[E, A]``).
 
     The evaluation protocol of a run and of the benchmark's peers alike: the Gymnasium vector
     env is reset (with ``seed`` if given, else continuing its seeded random streams), stepped
     until every env has ended one episode or ``max_steps``, and only each env's first episode
-    counts (Gymnasium's same-step autoreset starts the next one at once).
+    counts (Gymnasium's same-step autoreset starts the next one at once). ``step_timeout``
+    bounds each reset and step (:class:`~trl_cartpole.run.env_faults.StepAlarm`).
     """
+    alarm = StepAlarm(step_timeout)
     num_envs = vector_env.num_envs
     returns = np.zeros(num_envs)  # [E]
     lengths = np.zeros(num_envs, dtype=np.int64)  # [E]
     running = np.ones(num_envs, dtype=bool)  # [E] still in its first episode
     initial_q = None
-    obs, _ = vector_env.reset(seed=seed)  # obs: [E, obs_dim]
+    with alarm:
+        obs, _ = vector_env.reset(seed=seed)  # obs: [E, obs_dim]
     for _ in range(max_steps):
         q = q_values(torch.as_tensor(obs, dtype=torch.float32))  # [E, num_actions]
         if initial_q is None:
             initial_q = q
-        obs, reward, terminated, truncated, _ = vector_env.step(q.argmax(-1).numpy())
+        with alarm:
+            obs, reward, terminated, truncated, _ = vector_env.step(q.argmax(-1).numpy())
         returns += reward * running
         lengths += running
         running &= ~(terminated | truncated)

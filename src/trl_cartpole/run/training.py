@@ -25,8 +25,13 @@ from trl_cartpole.parts.collectors import lost_worker
 from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.parts.replay import extend_with_batch
 from trl_cartpole.report.console import quiet_libraries
-from trl_cartpole.run.build import Components, build_components
-from trl_cartpole.run.env_faults import check_finite_batch, env_fault
+from trl_cartpole.run.build import Components, build_components, worker_log_dir
+from trl_cartpole.run.env_faults import (
+    check_finite_batch,
+    disarm_step_deadline,
+    env_fault,
+    worker_env_fault,
+)
 from trl_cartpole.run.evaluation import Evaluation
 from trl_cartpole.run.signals import StopRequest
 from trl_cartpole.run.summary import finish, record_failure
@@ -97,7 +102,11 @@ def train(
         except TrainingFailed as failure:
             raise record_failure(run, failure) from None
         except Exception as error:
+            disarm_step_deadline()  # a step that raised left its alarm set
             fault = env_fault(error, run.env_id, progress.frames)  # the env's own code raised
+            log_dir = worker_log_dir(run.cfg, run.run_dir)
+            if fault is None and log_dir is not None and log_dir.is_dir():  # a worker's env
+                fault = worker_env_fault(log_dir, run.env_id, progress.frames)
             if fault is not None:
                 raise record_failure(run, fault) from None
             lost = lost_worker(error, run.collector)  # a Ray actor died: checkpoint, then stop
