@@ -32,6 +32,7 @@ Stand-ins for TorchRL parts:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -50,9 +51,12 @@ __all__ = [
     "autoreset_state",
     "carrier_of",
     "close_weight_sync_schemes",
+    "greedy_action_rule",
+    "greedy_value_rule",
     "gym_env",
     "held_steps",
     "install_segment_trees_if_missing",
+    "loss_mask_keys",
     "n_step_transform",
     "n_step_window",
     "replay_transform",
@@ -165,6 +169,26 @@ def soft_update_pairs(updater: Any) -> tuple[list[torch.Tensor], list[torch.Tens
     sources = [p.data for p in updater._sources.values(True, True)]
     targets = [p.data for p in updater._targets.values(True, True)]
     return sources, targets
+
+
+# --- what DQNLoss reads: its loss masks, the greedy value rule -------------------------------
+
+
+def loss_mask_keys(loss: nn.Module) -> list[Any]:
+    """The sample entries TorchRL's losses read as masks of the positions to reduce over."""
+    return list(loss._loss_mask_keys())
+
+
+def greedy_action_rule(q_value: nn.Module) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``QValueModule``'s ``values -> greedy action`` for its action space."""
+    return q_value.action_func_mapping[q_value.action_space]
+
+
+def greedy_value_rule(q_value: nn.Module) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """``QValueModule``'s ``(values, action) -> chosen value`` for its action space."""
+    return q_value.action_value_func_mapping.get(
+        q_value.action_space, q_value._default_action_value
+    )
 
 
 # --- the greedy tie-break --------------------------------------------------------------------

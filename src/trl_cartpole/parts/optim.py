@@ -57,7 +57,7 @@ def make_optimizer(
 
 
 def make_update(
-    loss_module: nn.Module,
+    loss_module: Callable[[TensorDictBase], TensorDictBase],
     optimizer: torch.optim.Optimizer,
     grad_clip: str = defaults.GRAD_CLIP,
     max_grad: float = defaults.MAX_GRAD,
@@ -82,8 +82,9 @@ def make_update(
         >>> sorted(update(buffer.sample()).keys())
         ['grad_norm', 'loss']
 
-    :param loss_module: the loss (:func:`~trl_cartpole.parts.losses.make_dqn_loss`), whose
-        output's ``"loss"`` is differentiated.
+    :param loss_module: the loss (:func:`~trl_cartpole.parts.losses.make_dqn_loss`), or a
+        function of it (:func:`~trl_cartpole.parts.fused_loss.fuse_dqn_loss`), whose output's
+        ``"loss"`` is differentiated.
     :param optimizer: the optimizer stepped after each backward pass; the gradients clipped are
         those of its parameter groups.
     :param grad_clip: ``"value"`` clamps each gradient element to ``[-max_grad, max_grad]``

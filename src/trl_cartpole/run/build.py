@@ -48,6 +48,7 @@ from trl_cartpole.parts.collectors import (
     whole_batches,
 )
 from trl_cartpole.parts.exploration import make_exploration
+from trl_cartpole.parts.fused_loss import fuse_dqn_loss
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
@@ -356,8 +357,9 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
     optimizer = make_optimizer(
         actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad, cfg.optim.weight_decay
     )
+    fused = fuse_dqn_loss(loss) if loss_cfg.fused else None  # None: C51, noisy layers
     update = make_update(
-        loss,
+        loss if fused is None else fused,
         optimizer,
         cfg.optim.grad_clip,
         cfg.optim.max_grad,
