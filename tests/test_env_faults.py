@@ -241,3 +241,28 @@ def test_a_fault_in_a_worker_process_is_named_in_one_line(tmp_path, env_class, e
     error = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert len(error) == 1 and re.search(expected, error[0]), proc.stderr[-3000:]
     assert json.loads((run_dir / "summary.json").read_text())["failed"]
+
+
+def test_a_step_alarm_is_a_good_guest_of_the_process():
+    from trl_cartpole.run.env_faults import StepAlarm
+
+    fired = []
+    previous = signal.signal(signal.SIGALRM, lambda *_: fired.append(True))
+    try:
+        with StepAlarm(5.0):  # set while no other timer runs, its handler in place
+            assert signal.getitimer(signal.ITIMER_REAL)[0] > 0
+        assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
+        signal.raise_signal(signal.SIGALRM)  # the host's handler is back
+        assert fired == [True]
+        signal.setitimer(signal.ITIMER_REAL, 30.0)  # the host's own timer is left alone
+        with StepAlarm(0.1):
+            time.sleep(0.3)
+        assert signal.getitimer(signal.ITIMER_REAL)[0] > 20
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        stale = StepAlarm(0.1)
+        stale.arm()  # left set by a step that raised: it fires outside any env call
+        time.sleep(0.3)  # and raises nothing here
+        assert not stale.armed and signal.getsignal(signal.SIGALRM) is not stale._expired
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)

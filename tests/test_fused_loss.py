@@ -91,3 +91,16 @@ def test_losses_it_does_not_cover_are_left_to_the_loss_module():
     support = torch.linspace(0, 10, 11)
     c51 = make_q_actor(env.observation_spec, env.action_spec, support=support)
     assert fuse_dqn_loss(make_dqn_loss(c51, gamma=0.9)) is None
+
+
+def test_the_loss_modules_pre_hooks_run_first_so_its_checks_still_hold():
+    # make_dqn_loss without replay_buffer checks the first batch's n-step discount
+    env, buffer = _sample(n_steps=3)  # the buffer discounts with 0.9
+    actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[16])
+    loss = make_dqn_loss(actor, gamma=0.99)
+    fused = fuse_dqn_loss(make_dqn_loss(actor, gamma=0.99))  # the check runs once per loss
+    with pytest.raises(ValueError) as theirs:
+        loss(buffer.sample())
+    with pytest.raises(ValueError) as ours:
+        fused(buffer.sample())
+    assert str(ours.value) == str(theirs.value)

@@ -5,10 +5,11 @@ time from its newest complete checkpoint. Whatever the moments, the resumed run 
 exactly the uninterrupted run's evaluations: the frames and return of every evaluation, and
 the frames to solve (on worker processes, whose envs a checkpoint does not hold, the frames of
 every evaluation). Each life of the run completes one checkpoint of its own first (so the
-run moves on), then is killed: half of the kills at a random moment after it, the other half
-aimed: the test watches the checkpoint folder and kills the run as soon as a training state
-is being staged (``torchrl.checkpoint.Checkpoint`` writes into ``.<name>.stage-<uuid>`` and
-renames it into place), and checks the staged folder was left half-written.
+run moves on), then is killed: three kills at a random moment after it, three aimed (at least
+two must land inside the write): the test watches the checkpoint folder and kills the run as
+soon as a training state is being staged (``torchrl.checkpoint.Checkpoint`` writes into
+``.<name>.stage-<uuid>`` and renames it into place), and checks the staged folder was left
+half-written.
 """
 
 from __future__ import annotations
@@ -53,15 +54,16 @@ VARIANTS = {
 RETURNS_EXACT = {"default": True, "prioritized": True, "two-workers": False}
 
 
-def _start(python: str, args: list[str]) -> subprocess.Popen:
-    """``scripts/train.py args`` in a session of its own (a kill takes its workers too)."""
-    return subprocess.Popen(
-        [python, str(SCRIPTS / "train.py"), *args],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+def _start(python: str, args: list[str], log: Path) -> subprocess.Popen:
+    """``scripts/train.py args`` in a session of its own (a kill takes its workers too), its
+    output to ``log`` (a file: a pipe no one reads could fill and stall the run)."""
+    with log.open("w") as output:
+        return subprocess.Popen(
+            [python, str(SCRIPTS / "train.py"), *args],
+            stdout=output,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
 
 
 def _stages(run_dir: Path) -> set[str]:
@@ -119,7 +121,8 @@ def test_random_sigkills_then_resumes_end_as_the_uninterrupted_run(
     inside_a_write = 0
     args = [*overrides, f"run_dir={run_dir}"]
     for kill in range(KILLS):
-        proc = _start(python, args)
+        log = tmp_path / f"life-{kill}.log"
+        proc = _start(python, args, log)
         _wait_for_a_new_checkpoint(proc, run_dir)  # each life moves the run on
         if kill % 2:  # aimed: inside the next checkpoint write
             inside_a_write += _kill_inside_a_write(proc, run_dir)
@@ -127,8 +130,8 @@ def test_random_sigkills_then_resumes_end_as_the_uninterrupted_run(
             time.sleep(rng.uniform(0.0, 2.5))
             if proc.poll() is None:
                 _kill(proc)
-        stderr = proc.stderr.read()
-        assert proc.returncode == -signal.SIGKILL, f"exit {proc.returncode}: {stderr[-2000:]}"
+        output = log.read_text()
+        assert proc.returncode == -signal.SIGKILL, f"exit {proc.returncode}: {output[-2000:]}"
         args = [f"resume={run_dir}"]  # from the newest complete checkpoint
     assert inside_a_write >= 2, f"only {inside_a_write} kills landed inside a write"
 

@@ -123,7 +123,7 @@ class LossConfig:
     # gradient updates between hard copies
     hard_update_interval: int = defaults.HARD_UPDATE_INTERVAL
     # DQNLoss's arithmetic on plain tensors (trl_cartpole.parts.fused_loss): bitwise the same
-    # loss, about a third less time per update; false calls DQNLoss itself. C51 and noisy
+    # loss, about a fifth less time per update; false calls DQNLoss itself. C51 and noisy
     # layers always call the loss module
     fused: bool = True
 

@@ -254,7 +254,8 @@ def discounted_return_reference(
     """The initial-state value a policy's episodes earn, averaged over them.
 
     Each episode's return ``R`` over ``T`` steps is spread as an equal reward ``r = R / T`` per
-    step (exact when every step earns the same, as on CartPole, Acrobot and MountainCar) and
+    step (exact when every step earns the same, as on CartPole and MountainCar; near it on Acrobot,
+    whose last step earns 0) and
     discounted: ``r (1 - gamma^T) / (1 - gamma)`` for an episode that ended, and
     ``r / (1 - gamma)`` for one cut by the ``time_limit``, since DQN's target bootstraps
     through a truncation (TorchRL stops it only at ``terminated``): 200 on CartPole at

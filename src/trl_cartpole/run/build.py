@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -167,6 +168,14 @@ def prepare_run_dir(run_dir: str | Path) -> Path:
 def worker_log_dir(cfg: Config, run_dir: Path) -> Path | None:
     """Where local collector worker processes write their output (None on Ray: Ray keeps it)."""
     return run_dir / "workers" if cfg.collector.backend == "local" else None
+
+
+def fresh_worker_log_dir(cfg: Config, run_dir: Path) -> Path | None:
+    """:func:`worker_log_dir`, emptied of an earlier session's logs (a resume, a rerun)."""
+    log_dir = worker_log_dir(cfg, run_dir)
+    if log_dir is not None:
+        shutil.rmtree(log_dir, ignore_errors=True)
+    return log_dir
 
 
 # --- one part each ----------------------------------------------------------------------------
@@ -523,7 +532,7 @@ def _assemble(
     collector_state_saved = not distributed and not cfg.env.from_pixels
     frames_not_counted = 0 if collector_state_saved else frames_done
     collector = make_collector(
-        worker_env_constructors(cfg, observation_norm, worker_log_dir(cfg, run_dir))
+        worker_env_constructors(cfg, observation_norm, fresh_worker_log_dir(cfg, run_dir))
         if distributed
         else env,
         policy,

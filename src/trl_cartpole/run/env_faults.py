@@ -47,28 +47,42 @@ class StepAlarm:
 
     If the call has not returned ``seconds`` later, the handler raises :class:`EnvStepTimeout`
     where the env's code is stuck, so the traceback names the env's method. It exists only in a
-    process's main thread: elsewhere, and with ``seconds=None``, nothing is bounded.
+    process's main thread, and only while no other real-time timer runs (a host's own alarm,
+    pytest-timeout's, is left alone): elsewhere, and with ``seconds=None``, nothing is bounded.
+    The handler it replaces is put back when it is cleared. An alarm a failed call left set
+    raises nothing if it fires outside a Gymnasium env's ``step`` or ``reset``.
     """
 
     def __init__(self, seconds: float | None) -> None:
         self.seconds = seconds
         self.armed = False
+        self._previous_handler = None
 
     def arm(self) -> None:
+        global _ARMED
+        if self.armed:  # a step that ended without clearing it (TorchRL skipped the hook)
+            self.disarm()
         if not self.seconds or threading.current_thread() is not threading.main_thread():
             return
-        signal.signal(signal.SIGALRM, self._expired)
-        self.armed = True
+        if signal.getitimer(signal.ITIMER_REAL)[0] > 0:  # someone else's timer is running
+            return
+        self._previous_handler = signal.signal(signal.SIGALRM, self._expired)
+        self.armed, _ARMED = True, self
         signal.setitimer(signal.ITIMER_REAL, self.seconds)
 
     def disarm(self) -> None:
-        if self.armed:
-            signal.setitimer(signal.ITIMER_REAL, 0)
-            self.armed = False
+        global _ARMED
+        if not self.armed:
+            return
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, self._previous_handler or signal.SIG_DFL)
+        self.armed, _ARMED = False, None
 
     def _expired(self, signum, frame) -> None:
-        if self.armed:
-            self.armed = False
+        if not self.armed:
+            return
+        self.disarm()
+        if _inside_a_gymnasium_call(frame):
             raise EnvStepTimeout(f"did not return within {self.seconds:g} s (env.step_timeout)")
 
     def __enter__(self) -> StepAlarm:
@@ -77,6 +91,21 @@ class StepAlarm:
 
     def __exit__(self, *exc_info) -> None:
         self.disarm()
+
+
+_ARMED: StepAlarm | None = None  # the alarm set now, if any (one timer per process)
+
+
+def _inside_a_gymnasium_call(frame) -> bool:
+    """Whether ``frame`` or a caller of it is a Gymnasium env's ``step`` or ``reset``."""
+    while frame is not None:
+        owner = frame.f_locals.get("self")
+        if frame.f_code.co_name in ("step", "reset") and isinstance(
+            owner, (gym.Env, gym.vector.VectorEnv)
+        ):
+            return True
+        frame = frame.f_back
+    return False
 
 
 class StepDeadline(Transform):
@@ -111,9 +140,9 @@ class StepDeadline(Transform):
 
 
 def disarm_step_deadline() -> None:
-    """Clear a :class:`StepDeadline` alarm an exception left set (the run is ending)."""
-    if threading.current_thread() is threading.main_thread():
-        signal.setitimer(signal.ITIMER_REAL, 0)
+    """Clear the :class:`StepAlarm` an exception left set, if any (the run is ending)."""
+    if _ARMED is not None:
+        _ARMED.disarm()
 
 
 # Entries of a collected batch that the env did not write itself: the policy's outputs, and the
@@ -211,8 +240,12 @@ _TRACEBACK_FRAME = re.compile(r'^\s*File "(?P<file>[^"]+)", line (?P<line>\d+), 
 def worker_env_fault(log_dir: Path, env_id: str, frames: int) -> TrainingFailed | None:
     """:func:`env_fault` for a collector worker process that died: read from the traceback in
     its log (``log_dir/worker-<pid>.log``, where :class:`WorkerEnvFactory` sends a worker's
-    output). None if no worker log holds a traceback from the env."""
-    for log in sorted(log_dir.glob("worker-*.log"), key=lambda p: p.stat().st_mtime):
+    output; the run clears the folder when it starts its workers), the newest log first. None
+    if no worker log holds a traceback from the env."""
+    if not log_dir.is_dir():
+        return None
+    newest_first = sorted(log_dir.glob("worker-*.log"), key=lambda p: -p.stat().st_mtime)
+    for log in newest_first:
         lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
         starts = [i for i, line in enumerate(lines) if line.startswith("Traceback")]
         if not starts:

@@ -20,7 +20,7 @@ from tensordict import TensorDictBase
 
 from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.config.validation import validate
-from trl_cartpole.errors import TrainingFailed
+from trl_cartpole.errors import DiskFull, TrainingFailed, TrainingInterrupted, WorkerLost
 from trl_cartpole.parts.collectors import lost_worker
 from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.parts.replay import extend_with_batch
@@ -105,8 +105,8 @@ def train(
             disarm_step_deadline()  # a step that raised left its alarm set
             fault = env_fault(error, run.env_id, progress.frames)  # the env's own code raised
             log_dir = worker_log_dir(run.cfg, run.run_dir)
-            if fault is None and log_dir is not None and log_dir.is_dir():  # a worker's env
-                fault = worker_env_fault(log_dir, run.env_id, progress.frames)
+            if fault is None and log_dir is not None and not isinstance(error, _OUR_STOPS):
+                fault = worker_env_fault(log_dir, run.env_id, progress.frames)  # a worker died
             if fault is not None:
                 raise record_failure(run, fault) from None
             lost = lost_worker(error, run.collector)  # a Ray actor died: checkpoint, then stop
@@ -114,6 +114,10 @@ def train(
                 raise
             raise run.checkpointer.stop_for_lost_worker(progress, lost) from None
         return finish(run)
+
+
+# the loop's own ways to stop: never read as a worker's env fault
+_OUR_STOPS = (TrainingInterrupted, DiskFull, WorkerLost)
 
 
 def _report_batch(run: Components, batch: TensorDictBase, updates_before: int) -> None:
