@@ -395,6 +395,12 @@ BAD_INPUTS = [
     ("a negative eval seed", ["eval.seed_offset=-1000001"], "eval.seed_offset=-1000001 must be"),
     # found by the fuzz test once buffer.storage was a field: Gymnasium's TimeLimit traceback
     ("episodes of no step", ["env.max_episode_steps=0"], "env.max_episode_steps=0 must be >= 1"),
+    (
+        "a step deadline beyond any timer",
+        ["env.step_timeout=9223376706.0"],
+        "env.step_timeout=9223376706.0 must be > 0 and at most 604800 seconds",
+    ),
+    ("a step deadline of no time", ["env.step_timeout=0"], "env.step_timeout=0.0 must be > 0"),
     ("a seed beyond 64 bits", ["seed=1180591620717411303424"], "integer settings stop at 2**62"),
     ("envs by the billion", ["eval.final_episodes=1000000000"], "at most 4096"),
     ("missing checkpoint", ["resume=/nonexistent/run"], "does not exist"),

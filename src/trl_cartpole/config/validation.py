@@ -54,6 +54,9 @@ _CHOICES = {
 # The largest integer setting: torch and numpy take 64-bit integers, and seeds and frame counts
 # are added together (seed + 2 * eval.seed_offset + env index), so there is room for sums.
 MAX_INTEGER = 2**62
+# The longest env.step_timeout: a week (the real-time timer takes no more on every platform).
+MAX_STEP_TIMEOUT = 604_800
+
 # The most envs built at once in one vector env (env.num_envs per worker, one per evaluation
 # episode); far above any use here, and below the memory and time a bad value would take.
 MAX_ENVS_AT_ONCE = 4096
@@ -122,8 +125,9 @@ def validate(cfg: Config) -> Config:
         (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
         (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
         (
-            cfg.env.step_timeout is None or cfg.env.step_timeout > 0,
-            f"env.step_timeout={cfg.env.step_timeout} must be > 0 seconds (or null: no limit)",
+            cfg.env.step_timeout is None or 0 < cfg.env.step_timeout <= MAX_STEP_TIMEOUT,
+            f"env.step_timeout={cfg.env.step_timeout} must be > 0 and at most "
+            f"{MAX_STEP_TIMEOUT} seconds, a week (or null: no limit)",
         ),
         (
             cfg.env.normalization_frames >= 1,
