@@ -10,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -219,20 +220,28 @@ def test_two_worker_processes_solve_cartpole(compose, tmp_path):
     assert summary["final_eval_return_mean"] >= 400.0
 
 
-@pytest.mark.slow  # worker processes, twice
-def test_a_run_with_workers_resumes_with_fresh_worker_episodes(compose, tmp_path):
+@pytest.mark.slow  # worker processes, twice per case
+@pytest.mark.parametrize(("sync", "continued"), [("true", True), ("false", False)])
+def test_a_run_with_workers_resumes_their_episodes_when_synchronous(
+    compose, tmp_path, sync, continued
+):
     overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("collector.total_frames")]
     cfg = compose(
         *overrides,
         "collector.workers=2",
+        f"collector.sync={sync}",
         "env.num_envs=2",
+        "buffer.n_steps=1",
         "collector.total_frames=200",
         f"run_dir={tmp_path}",
     )
     assert train(cfg)["frames"] == 200
     last = tmp_path / "checkpoints" / "last"
-    with pytest.warns(UserWarning, match="whose envs are not saved"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         resumed = train(resume_config(last, ["collector.total_frames=400"]), resume=last)
+    fresh = [w for w in caught if "workers start new episodes" in str(w.message)]
+    assert bool(fresh) is not continued  # asynchronous workers collect ahead: not saved
     assert resumed["frames"] == 400  # the workers collected only the 200 frames still due
     assert resumed["updates"] > 0
 

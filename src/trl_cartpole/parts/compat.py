@@ -7,7 +7,9 @@ on a TorchRL version where it moved. Written against torchrl 0.14.1.
 Private names read (each through one function below):
 
 - ``Collector._carrier``: the in-process collector's last observation and running counters
-  (the env's mid-episode step), saved for an exact resume;
+  (the env's mid-episode step), saved for an exact resume; a multi-process collector's
+  workers' carriers are read and written by that name through its ``get_distant_attr`` and
+  ``map_fn``;
 - ``VecGymEnvTransform._memo``: the last step of a Gymnasium vector env's same-step autoreset,
   which decides what the next ``reset()`` returns;
 - ``ReplayBuffer._transform`` and ``MultiStepTransform._buffer``: the n-step window the
@@ -63,8 +65,10 @@ __all__ = [
     "set_autoreset_state",
     "set_gym_env",
     "set_n_step_window",
+    "set_worker_carriers",
     "soft_update_pairs",
     "use_first_greedy_action",
+    "worker_carriers",
 ]
 
 
@@ -74,6 +78,17 @@ __all__ = [
 def carrier_of(collector: BaseCollector) -> TensorDictBase:
     """The tensordict a single-process ``Collector`` steps from next (updated in place)."""
     return collector._carrier
+
+
+def worker_carriers(collector: BaseCollector) -> list[TensorDictBase]:
+    """Each worker's carrier of a multi-process collector, copied through its pipe (the
+    collector's ``get_distant_attr``, read while the workers wait between batches)."""
+    return collector.get_distant_attr("_carrier")
+
+
+def set_worker_carriers(collector: BaseCollector, carriers: list[TensorDictBase]) -> None:
+    """Update each worker's carrier in place from ``carriers`` (the collector's ``map_fn``)."""
+    collector.map_fn("_carrier.update", [(carrier,) for carrier in carriers])
 
 
 # --- Gymnasium envs behind TorchRL's GymWrapper ----------------------------------------------

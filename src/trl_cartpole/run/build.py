@@ -77,7 +77,7 @@ from trl_cartpole.run.memory_needs import (
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.schedules import Schedules
 from trl_cartpole.store.checkpoint import read_observation_norm
-from trl_cartpole.store.env_state import EnvState
+from trl_cartpole.store.collection_state import EnvState
 from trl_cartpole.store.files import free_bytes, write_text_atomic
 from trl_cartpole.store.run_lock import RunLock
 

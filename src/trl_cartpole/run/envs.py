@@ -24,6 +24,7 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
 from trl_cartpole.parts.pixels import pixel_transforms
 from trl_cartpole.run.env_faults import StepDeadline
+from trl_cartpole.store.worker_state import WorkerSnapshot
 
 __all__ = [
     "WorkerEnvFactory",
@@ -151,6 +152,9 @@ def estimate_observation_norm(env_cfg: EnvConfig, seed: int) -> dict[str, list[f
 class WorkerEnvFactory:
     """Builds one worker's envs and seeds that worker's torch RNG (its epsilon-greedy draws).
 
+    The env ends with :class:`WorkerSnapshot`, through which a checkpoint saves and restores
+    the worker's envs, carrier and RNG (:mod:`trl_cartpole.store.worker_state`).
+
     A fresh worker process (spawned, or a Ray actor) otherwise starts from a random torch seed,
     so its exploration could not be repeated. The training process itself keeps its RNG:
     TorchRL builds the first worker's envs there once to read their specs.
@@ -169,13 +173,16 @@ class WorkerEnvFactory:
             torch.manual_seed(self.rng_seed)
             if self.log_dir is not None:
                 _send_output_to_log(Path(self.log_dir))
-        return make_env_from_config(
+        env = make_env_from_config(
             self.env_cfg,
             self.env_seed,
             self.device,
             observation_norm=self.observation_norm,
             step_timeout=self.env_cfg.step_timeout,
         )
+        if not isinstance(env, TransformedEnv):  # a pixel env's SerialEnv
+            env = TransformedEnv(env)
+        return env.append_transform(WorkerSnapshot())  # last: a checkpoint reaches it there
 
 
 def _send_output_to_log(log_dir: Path) -> None:

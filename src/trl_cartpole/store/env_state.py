@@ -1,27 +1,23 @@
-"""The state a run keeps inside its envs, its collector and its n-step window, as a component.
+"""The state inside a run's TorchRL and Gymnasium envs, as data a checkpoint stores.
 
-``torchrl.checkpoint.Checkpoint`` saves every component through ``state_dict()`` /
-``load_state_dict()``. The networks, optimizer, exploration module, replay buffer, collector
-counters, global RNGs and the loop's own objects (progress, learner, evaluator, history) have
-their own; :class:`EnvState` gathers what lives inside TorchRL and Gymnasium objects, so that a
-run resumed from a checkpoint continues exactly as if never stopped:
+:class:`trl_cartpole.store.collection_state.EnvState` saves these (and the collector's carrier
+and the n-step window) so that a run resumed from a checkpoint continues exactly as if never
+stopped:
 
 - the Gymnasium envs' internal state, as arrays and numbers, never pickled: for classic-control
   envs (CartPole, Acrobot, MountainCar...) every plain-data attribute of the env and of each
   wrapper around it (the physics ``state``, ``steps_beyond_terminated``, the time limit's
   ``_elapsed_steps``, the order and checker flags), its RNG's ``bit_generator.state``, and for a
   vector env its own arrays (``_autoreset_envs``, the last observations, rewards and flags);
-- TorchRL's autoreset memo of the last vector-env step, which the next reset reads;
-- the collector's carrier (the last observation and the running step count and return);
-- the n-step window the replay buffer's ``MultiStepTransform`` holds back.
+- TorchRL's autoreset memo of the last vector-env step, which the next reset reads.
 
 Other envs (Box2D's LunarLander, MuJoCo, a user's own) do not expose their state as data: the
 resumed run resets them and says so. ``checkpoint.trust_pickled_envs=true`` stores such envs
 pickled instead and loads them back; unpickling runs any code the checkpoint holds, so the
 setting is read from the command that loads, never from the checkpoint. Gymnasium's
 ``EzPickle`` envs (LunarLander, MuJoCo) pickle as their constructor arguments, i.e. as a fresh
-env never reset, so they are reset even then. The training envs of worker processes or Ray
-actors (``env=None``) are not saved: the resumed workers start new episodes.
+env never reset, so they are reset even then. Collector worker processes snapshot their own
+envs with the same functions (:mod:`trl_cartpole.store.worker_state`).
 
 The private TorchRL names these live under are read through :mod:`trl_cartpole.parts.compat`.
 """
@@ -29,7 +25,6 @@ The private TorchRL names these live under are read through :mod:`trl_cartpole.p
 from __future__ import annotations
 
 import pickle
-import warnings
 from typing import Any
 
 import numpy as np
@@ -40,15 +35,17 @@ from torchrl.envs import EnvBase, GymWrapper, TransformedEnv
 
 from trl_cartpole.parts.compat import (
     autoreset_state,
-    carrier_of,
     gym_env,
-    n_step_window,
     set_autoreset_state,
     set_gym_env,
-    set_n_step_window,
 )
 
-__all__ = ["EnvState", "env_snapshot", "restore_env_snapshot"]
+__all__ = [
+    "autoreset_snapshot",
+    "env_snapshot",
+    "restore_autoreset",
+    "restore_env_snapshot",
+]
 
 DATA_STATE_MODULE = "gymnasium.envs.classic_control"  # envs whose whole state is plain data
 
@@ -161,7 +158,7 @@ def restore_env_snapshot(
     return True
 
 
-def _autoreset_snapshot(env: EnvBase) -> dict[str, Any] | None:
+def autoreset_snapshot(env: EnvBase) -> dict[str, Any] | None:
     """TorchRL's autoreset memo (``done``: Tensor, ``saved_next``: TensorDict or None) as data."""
     if not _stores_its_state(env):
         return None
@@ -176,7 +173,7 @@ def _autoreset_snapshot(env: EnvBase) -> dict[str, Any] | None:
     }
 
 
-def _restore_autoreset(env: EnvBase, snapshot: dict[str, Any]) -> None:
+def restore_autoreset(env: EnvBase, snapshot: dict[str, Any]) -> None:
     memo = {
         key: TensorDict(value["tensordict"], batch_size=value["batch_size"])
         if isinstance(value, dict)
@@ -184,74 +181,3 @@ def _restore_autoreset(env: EnvBase, snapshot: dict[str, Any]) -> None:
         for key, value in snapshot.items()
     }
     set_autoreset_state(env, memo)
-
-
-class EnvState:
-    """``state_dict`` / ``load_state_dict`` over the envs' and collector's state (module doc).
-
-    ``trust_pickle`` (``checkpoint.trust_pickled_envs``) saves and loads envs that are not
-    plain data with pickle.
-    """
-
-    def __init__(
-        self, env: EnvBase | None, eval_env: EnvBase, collector, buffer, trust_pickle: bool = False
-    ) -> None:
-        self.env, self.eval_env = env, eval_env  # env: None when workers hold the training envs
-        self.collector, self.buffer = collector, buffer
-        self.trust_pickle = trust_pickle
-
-    def state_dict(self) -> dict[str, Any]:
-        window = n_step_window(self.buffer)
-        in_process = self.env is not None  # else the training envs live in the workers
-        return {
-            "env": env_snapshot(self.env, self.trust_pickle) if in_process else None,
-            "eval_env": env_snapshot(self.eval_env, self.trust_pickle),
-            "env_autoreset": _autoreset_snapshot(self.env) if in_process else None,
-            "eval_env_autoreset": _autoreset_snapshot(self.eval_env),
-            "carrier": carrier_of(self.collector).to_dict() if in_process else None,
-            "n_step_window": None if window is None else window.to_dict(),
-            "n_step_window_size": None if window is None else list(window.batch_size),
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if self.env is None:
-            warnings.warn(
-                "collection runs in worker processes or Ray actors, whose envs are not saved: "
-                "the resumed run's workers start new episodes (not an exact continuation)",
-                stacklevel=2,
-            )
-        restored = {"env": False}
-        for env, key in ((self.env, "env"), (self.eval_env, "eval_env")):
-            if env is None:
-                continue
-            restored[key] = restore_env_snapshot(env, state[key], self.trust_pickle)
-            if not restored[key]:  # a fresh env: new episodes, and a fresh autoreset memo
-                warnings.warn(self._not_restored(key, state[key]), stacklevel=2)
-                if key == "env":  # start a new episode from the restored RNG
-                    carrier_of(self.collector).update(env.reset())
-                continue
-            memo = state[f"{key}_autoreset"]
-            if memo is not None:
-                _restore_autoreset(env, memo)
-        # The carrier and the n-step window continue the training env's episodes: only with it.
-        if restored["env"]:
-            carrier = carrier_of(self.collector)
-            carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
-            if state["n_step_window"] is not None:
-                window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
-                set_n_step_window(self.buffer, window)
-
-    def _not_restored(self, key: str, snapshot: Any) -> str:
-        name = key.replace("_", " ")
-        pickled = "pickle" in (snapshot or {})
-        if pickled and not self.trust_pickle:
-            return (
-                f"the {name}'s state was stored pickled, and unpickling runs any code the "
-                "checkpoint holds, so it was not loaded: the resumed run starts new episodes (not "
-                "an exact continuation); pass checkpoint.trust_pickled_envs=true to load it if you "
-                "wrote this checkpoint"
-            )
-        return (
-            f"the {name}'s state is not stored as data (only classic-control envs are), so the "
-            "resumed run starts new episodes (not an exact continuation)"
-        )
