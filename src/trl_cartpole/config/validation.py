@@ -46,6 +46,7 @@ _CHOICES = {
     "collector.backend": defaults.COLLECTOR_BACKENDS,
     "buffer.storage": ("memory", "memmap"),
     "network.torso": ("mlp", "cnn"),
+    "env.pixels_renderer": ("gymnasium", "drawn"),
 }
 
 
@@ -196,6 +197,13 @@ def validate(cfg: Config) -> Config:
             f"env.from_pixels={cfg.env.from_pixels} with network.torso={cfg.network.torso}: "
             "pixels need the cnn torso and the cnn torso needs pixels (env=cartpole_pixels sets "
             "both)",
+        ),
+        (
+            cfg.env.pixels_renderer != "drawn"
+            or (cfg.env.from_pixels and str(cfg.env.id).startswith("CartPole-")),
+            f"env.pixels_renderer=drawn draws CartPole from pixels only (env={cfg.env.id}, "
+            f"from_pixels={cfg.env.from_pixels}): use env=cartpole_pixels, or "
+            "env.pixels_renderer=gymnasium",
         ),
         (
             not (cfg.env.from_pixels and cfg.env.normalize_observations),

@@ -15,6 +15,10 @@ The pixels stay uint8 to the replay buffer (a quarter of float32) and become flo
 ``Crop`` call torchvision, whose CPU build this project cannot install beside torch's CPU
 wheel from PyPI (PyPI's torchvision is built for CUDA torch and fails to load its operators);
 :class:`CropFrame` slices and :class:`PoolImage` uses ``torch.nn.functional.avg_pool2d``.
+
+For CartPole the same pooled frame can be drawn from a batch of states at once instead
+(:func:`drawn_pixel_transforms`, :mod:`trl_cartpole.parts.cartpole_drawing`): no pygame, one
+call for every env of a Gymnasium vector env.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from torch import nn
 from torchrl.data.tensor_specs import Bounded, TensorSpec
 from torchrl.envs.transforms import (
     CatFrames,
+    ExcludeTransform,
     GrayScale,
     ObservationTransform,
     ToTensorImage,
@@ -33,7 +38,16 @@ from torchrl.envs.transforms import (
 )
 from torchrl.envs.transforms.utils import _set_missing_tolerance
 
-__all__ = ["PIXELS_KEY", "CropFrame", "PoolImage", "ScaleImage", "pixel_transforms"]
+from trl_cartpole.parts.cartpole_drawing import DrawCartPole
+
+__all__ = [
+    "PIXELS_KEY",
+    "CropFrame",
+    "PoolImage",
+    "ScaleImage",
+    "drawn_pixel_transforms",
+    "pixel_transforms",
+]
 
 PIXELS_KEY = "pixels"
 
@@ -108,4 +122,21 @@ def pixel_transforms(
     ]
     if frames > 1:
         transforms.append(CatFrames(N=frames, dim=-3, in_keys=[PIXELS_KEY]))  # [frames, h, w]
+    return transforms
+
+
+def drawn_pixel_transforms(
+    crop: Sequence[int | None] = (None, None, None, None),
+    pool: int = 1,
+    frames: int = 1,
+    length: float = 0.5,
+    x_threshold: float = 2.4,
+) -> list[Transform]:
+    """TorchRL transforms from a CartPole state env to the same ``[frames, h, w]`` uint8 input
+    :func:`pixel_transforms` gives from ``render()``: :class:`DrawCartPole`, ``CatFrames``, and
+    ``ExcludeTransform`` of the state, so the policy sees pixels only."""
+    transforms: list[Transform] = [DrawCartPole(crop, pool, length, x_threshold)]  # [1, h, w]
+    if frames > 1:
+        transforms.append(CatFrames(N=frames, dim=-3, in_keys=[PIXELS_KEY]))  # [frames, h, w]
+    transforms.append(ExcludeTransform("observation"))
     return transforms

@@ -20,7 +20,7 @@ import random
 import shutil
 import time
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -217,9 +217,12 @@ def evaluate_episodes(
     epsilon: float = 0.0,
 ) -> EvalResult:
     """``episodes`` episodes of ``actor`` (:func:`trl_cartpole.run.evaluation.evaluate`), one per
-    env of ``cfg.env`` seeded ``seed`` onward; envs from pixels are built and played
+    env of ``cfg.env`` seeded ``seed`` onward; envs from pixels play on Gymnasium's own
+    ``render()`` frames whatever ``env.pixels_renderer`` trained on, built and played
     ``PIXEL_ENVS_AT_ONCE`` at a time, the turn starting at episode ``i`` seeded ``seed + i``."""
     at_once = PIXEL_ENVS_AT_ONCE if cfg.env.from_pixels else episodes
+    if cfg.env.from_pixels:
+        cfg = replace(cfg, env=replace(cfg.env, pixels_renderer="gymnasium"))
     result = EvalResult()
     for start in range(0, episodes, at_once):
         env = build_env(

@@ -21,8 +21,9 @@ from torchrl.envs import Compose, EnvBase, ObservationNorm, SerialEnv, Transform
 from trl_cartpole.config.schema import Config, EnvConfig
 from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
-from trl_cartpole.parts.pixels import pixel_transforms
+from trl_cartpole.parts.pixels import drawn_pixel_transforms, pixel_transforms
 from trl_cartpole.run.env_faults import StepDeadline
 from trl_cartpole.store.worker_state import WorkerSnapshot
 
@@ -95,17 +96,46 @@ def make_pixel_env(
 ) -> EnvBase:
     """The env of ``env_cfg`` seen through its rendered frames only (``trl_cartpole.parts.pixels``).
 
-    One env is ``make_env(..., from_pixels=True, pixels_only=True)`` plus the pixel transforms:
-    its only observation is ``"pixels"`` ``[frames, h, w]`` uint8. Gymnasium renders one env
+    With ``env.pixels_renderer=drawn`` (CartPole), the frames are drawn from a vector env's
+    states in one call (:func:`_drawn_pixel_env`). Otherwise Gymnasium renders them: one env is
+    ``make_env(..., from_pixels=True, pixels_only=True)`` plus the pixel transforms: its only
+    observation is ``"pixels"`` ``[frames, h, w]`` uint8. Gymnasium renders one env
     at a time, so ``num_envs > 1`` is TorchRL's ``SerialEnv`` of such envs, seeded ``seed``,
     ``seed + 1``, ... (batch ``[num_envs]``).
     """
-    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
     count = env_cfg.num_envs if num_envs is None else num_envs
+    if env_cfg.pixels_renderer == "drawn":
+        return _drawn_pixel_env(env_cfg, seed, device, count)
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
     build = partial(_one_pixel_env, env_cfg, device)
     env = build() if count == 1 else SerialEnv(count, build, device=device)
     if seed is not None:
         env.set_seed(seed)
+    return env
+
+
+def _drawn_pixel_env(
+    env_cfg: EnvConfig, seed: int | None, device: str | torch.device, count: int
+) -> TransformedEnv:
+    """CartPole's state env (a Gymnasium ``SyncVectorEnv`` for ``count > 1``) drawn into the
+    pixel preset's frames for the whole batch at once (:func:`drawn_pixel_transforms`)."""
+    env = make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        device,
+        seed=seed,
+        max_episode_steps=env_cfg.max_episode_steps,
+        num_envs=count,
+    )
+    cartpole = gym_env(env)
+    cartpole = (cartpole.envs[0] if hasattr(cartpole, "envs") else cartpole).unwrapped
+    for transform in drawn_pixel_transforms(
+        env_cfg.pixels_crop,
+        env_cfg.pixels_pool,
+        env_cfg.pixels_frames,
+        length=cartpole.length,
+        x_threshold=cartpole.x_threshold,
+    ):
+        env = env.append_transform(transform)
     return env
 
 

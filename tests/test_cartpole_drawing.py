@@ -1,0 +1,141 @@
+"""CartPole drawn from its states (env.pixels_renderer=drawn) against Gymnasium's render().
+
+The drawn frame must be the frame the pixel preset makes from ``render()``: crop, TorchRL's
+``GrayScale``, a ``pool x pool`` mean rounded to uint8. It differs only on the antialiased
+edges pygame draws: over 150 random states the mean absolute error stays under 0.13 gray
+levels (0.077-0.086 measured at 20x60, 40x120 and 60x130) and no pooled pixel is off by more
+than 48 (17, 38 and 45 measured, single pixels on an edge).
+"""
+
+from __future__ import annotations
+
+import os
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from torchrl.envs.transforms.functional import rgb_to_grayscale
+
+from trl_cartpole.config.schema import to_config
+from trl_cartpole.config.validation import validate
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole
+from trl_cartpole.run import envs
+from trl_cartpole.run.build import build_actor, evaluate_episodes
+from trl_cartpole.run.envs import make_pixel_env
+
+CROP = (120, 320, None, None)  # the preset's band of rows
+
+
+def _rendered(states: np.ndarray, crop, pool: int, **attributes) -> torch.Tensor:
+    """render() -> crop -> gray -> pool -> uint8, ``[N, 1, h, w]``: the pixel preset's path
+    (``attributes`` set on the env: its pole ``length``, its ``x_threshold``)."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    env = gym.make("CartPole-v1", render_mode="rgb_array").unwrapped
+    env.reset(seed=0)
+    for name, value in attributes.items():
+        setattr(env, name, value)
+    frames = []
+    for state in states:
+        env.state = state.copy()
+        frames.append(env.render())
+    env.close()
+    top, bottom, left, right = crop
+    rgb = torch.from_numpy(np.stack(frames))[:, top:bottom, left:right]  # [N, h0, w0, 3]
+    gray = rgb_to_grayscale(rgb.permute(0, 3, 1, 2).double())  # [N, 1, h0, w0]
+    pooled = torch.nn.functional.avg_pool2d(gray, pool)
+    return pooled.round().clamp(0, 255).to(torch.uint8)
+
+
+def _random_states(count: int, seed: int, angle: float = 0.25) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.stack(
+        [
+            rng.uniform(-2.4, 2.4, count),  # the cart anywhere on the track
+            rng.normal(0, 1, count),
+            rng.uniform(-angle, angle, count),  # beyond the 0.21 rad an episode ends at
+            rng.normal(0, 1, count),
+        ],
+        axis=1,
+    )
+
+
+@pytest.mark.parametrize(("crop", "pool"), [(CROP, 10), (CROP, 5), ((100, 340, 40, 560), 4)])
+def test_drawn_frames_match_gymnasiums_render_on_random_states(crop, pool):
+    states = _random_states(150, seed=pool)
+    expected = _rendered(states, crop, pool)
+    drawn = draw_cartpole(torch.tensor(states), crop, pool)
+    assert drawn.dtype == torch.uint8 and drawn.shape == expected.shape
+    error = (drawn.int() - expected.int()).abs().float()
+    assert error.mean() < 0.13, error.mean()
+    assert error.max() <= 48, error.max()
+    assert error.mean((1, 2, 3)).max() < 0.3  # no frame is off as a whole
+    assert (expected < 200).any((1, 2, 3)).all()  # every frame shows the cart
+
+
+def test_a_longer_pole_on_a_wider_track_is_drawn_as_gymnasium_draws_it():
+    states = _random_states(40, seed=1, angle=0.6)
+    states[:, 0] *= 3.0 / 2.4
+    expected = _rendered(states, CROP, 10, length=0.8, x_threshold=3.0)
+    drawn = draw_cartpole(torch.tensor(states), CROP, 10, length=0.8, x_threshold=3.0)
+    assert (drawn.int() - expected.int()).abs().float().mean() < 0.13
+
+
+def test_the_transform_draws_any_batch_shape_and_declares_its_spec():
+    transform = DrawCartPole(CROP, 10)
+    states = torch.tensor(_random_states(6, seed=2), dtype=torch.float32).reshape(2, 3, 4)
+    pixels = transform._apply_transform(states)
+    assert pixels.shape == (2, 3, 1, 20, 60)
+    torch.testing.assert_close(pixels[1, 2], draw_cartpole(states[1, 2], CROP, 10))
+
+
+def test_the_drawn_env_plays_the_rendered_envs_episode_frame_for_frame(compose):
+    rendered_cfg = validate(to_config(compose("env=cartpole_pixels")))
+    drawn_cfg = validate(to_config(compose("env=cartpole_pixels", "env.pixels_renderer=drawn")))
+    rendered = make_pixel_env(rendered_cfg.env, seed=7, num_envs=1)
+    drawn = make_pixel_env(drawn_cfg.env, seed=7, num_envs=1)
+    assert rendered.observation_spec == drawn.observation_spec  # pixels [2, 20, 60] uint8 only
+    torch.manual_seed(0)
+    expected = rendered.rollout(60, break_when_any_done=False)
+    torch.manual_seed(0)
+    got = drawn.rollout(60, break_when_any_done=False)
+    assert torch.equal(got["action"], expected["action"])
+    assert torch.equal(got["next", "done"], expected["next", "done"])
+    assert torch.equal(got["next", "reward"], expected["next", "reward"])
+    error = (got["next", "pixels"].int() - expected["next", "pixels"].int()).abs().float()
+    assert error.mean() < 0.13 and error.max() <= 48
+
+
+def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_frames(
+    compose, monkeypatch
+):
+    cfg = validate(to_config(compose("env=cartpole_pixels", "env.pixels_renderer=drawn")))
+    env = make_pixel_env(cfg.env, seed=0, num_envs=8)
+    assert env.batch_size == (8,)
+    assert "observation" not in env.observation_spec.keys()  # noqa: SIM118 (a spec)
+    frames = env.reset()["pixels"]  # [8, 2, 20, 60]
+    assert frames.shape == (8, 2, 20, 60) and frames.float().std() > 0
+    built = []
+
+    def spy(env_cfg, *args, **kwargs):
+        built.append(env_cfg.pixels_renderer)
+        return make_pixel_env(env_cfg, *args, **kwargs)
+
+    monkeypatch.setattr(envs, "make_pixel_env", spy)
+    result = evaluate_episodes(cfg, build_actor(cfg, env), seed=3, episodes=2)
+    assert built == ["gymnasium"] and len(result.returns) == 2
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["env=acrobot", "env.pixels_renderer=drawn"], "draws CartPole from pixels only"),
+        (["env.pixels_renderer=drawn"], "draws CartPole from pixels only"),
+        (["env=cartpole_pixels", "env.pixels_renderer=pygame"], "env.pixels_renderer"),
+    ],
+)
+def test_a_renderer_that_cannot_draw_the_env_is_refused_in_one_line(compose, overrides, message):
+    with pytest.raises(ConfigError, match=message) as raised:
+        validate(to_config(compose(*overrides)))
+    assert "\n" not in str(raised.value)
