@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import pytest
 import torch
@@ -146,3 +147,36 @@ def test_render_and_export_take_the_agents_frames(tmp_path):
     assert torch.allclose(torch.from_numpy(values), expected, atol=1e-5)
     assert greedy_q_network(run_dir).input_shape == (2, 20, 60)
     trained.env.close()
+
+
+def test_a_budget_that_ends_before_the_first_update_is_warned_in_one_line(compose):
+    cfg = validate(to_config(compose("env=cartpole_pixels", "collector.total_frames=3000")))
+    with pytest.warns(
+        UserWarning,
+        match=r"total_frames=3000 ends before the first update at "
+        r"frame 5000",
+    ) as caught:
+        build.warn_if_no_update(cfg)
+    assert "\n" not in str(caught[0].message)
+    long_enough = validate(to_config(compose("env=cartpole_pixels")))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        build.warn_if_no_update(long_enough)  # 220 000 frames: no warning
+
+
+def test_the_final_evaluation_of_pixels_says_how_many_episodes_it_played(compose, monkeypatch):
+    monkeypatch.setattr(build, "PIXEL_ENVS_AT_ONCE", 2)  # turns of 2 envs: 2, 4, 5 episodes
+    cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "eval.max_steps=5")))
+    actor = build_actor(cfg, build_env(cfg, seed=0))
+    played = []
+    result = build.evaluate_episodes(cfg, actor, seed=0, episodes=5, on_turn=played.append)
+    assert played == [2, 4, 5] and len(result.returns) == 5
+
+
+def test_a_pixel_runs_directory_and_plots_say_it_learns_from_pixels(compose):
+    pixels = to_config(compose("env=cartpole_pixels", "seed=4"))
+    state = to_config(compose("seed=4"))
+    assert pixels.run_dir.startswith("runs/CartPole-v1-pixels-dqn-seed4-")
+    assert state.run_dir.startswith("runs/CartPole-v1-dqn-seed4-")
+    assert build.run_title(pixels) == "CartPole-v1 from pixels dqn seed 4"
+    assert build.run_title(state) == "CartPole-v1 dqn seed 4"

@@ -202,7 +202,8 @@ class CheckpointConfig:
 class Config:
     seed: int = 0  # seeds torch, the envs and the exploration (same seed, same run)
     # where the run writes; the default name also lists the overrides that differ from presets
-    run_dir: str = "runs/${env.id}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
+    # (run_env: the env id, and "-pixels" for a pixel run: runs/CartPole-v1-pixels-dqn-seed0-...)
+    run_dir: str = "runs/${run_env:}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
     device: str = "cpu"  # cpu | cuda | cuda:N (networks, losses and the replay buffer)
     num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
     compile: bool = False  # torch.compile the gradient step (about 10 s once, then ~2x faster)
@@ -223,6 +224,16 @@ if not OmegaConf.has_resolver("now"):
     OmegaConf.register_new_resolver(
         "now", lambda pattern: datetime.now().strftime(pattern), use_cache=True
     )
+
+
+def _run_env(_root_: Any) -> str:
+    """``${run_env:}``: the env id a run directory is named after, ``-pixels`` added for a
+    pixel run."""
+    return f"{_root_.env.id}{'-pixels' if _root_.env.from_pixels else ''}"
+
+
+if not OmegaConf.has_resolver("run_env"):
+    OmegaConf.register_new_resolver("run_env", _run_env)
 
 
 def register_configs() -> None:

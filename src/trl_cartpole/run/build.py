@@ -19,6 +19,8 @@ import os
 import random
 import shutil
 import time
+import warnings
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -127,8 +129,9 @@ def seed_everything(seed: int) -> None:
 
 
 def run_title(cfg: Config) -> str:
-    """``CartPole-v1 dqn seed 0``: the title of a run's plots."""
-    return f"{cfg.env.id} {cfg.algo.name} seed {cfg.seed}"
+    """``CartPole-v1 dqn seed 0`` (``CartPole-v1 from pixels dqn seed 0``): a run's plot title."""
+    pixels = " from pixels" if cfg.env.from_pixels else ""
+    return f"{cfg.env.id}{pixels} {cfg.algo.name} seed {cfg.seed}"
 
 
 def point_latest(run_dir: Path) -> None:
@@ -208,6 +211,26 @@ def build_env(
 PIXEL_ENVS_AT_ONCE = 20
 
 
+def first_update_frame(cfg: Config) -> int:
+    """The frames collected before the first gradient update: the random warm-up, the
+    ``learning_starts`` floor and one batch of samples."""
+    collector = cfg.collector
+    return max(cfg.buffer.batch_size, collector.learning_starts, collector.init_random_frames)
+
+
+def warn_if_no_update(cfg: Config) -> None:
+    """Warn in one line when the run ends before its first update: it could not learn."""
+    first = first_update_frame(cfg)
+    if cfg.collector.total_frames <= first:
+        warnings.warn(
+            f"collector.total_frames={cfg.collector.total_frames} ends before the first update "
+            f"at frame {first} (the largest of collector.init_random_frames, "
+            "collector.learning_starts and buffer.batch_size): this run collects and evaluates "
+            "but does not learn; raise collector.total_frames or lower those",
+            stacklevel=2,
+        )
+
+
 def evaluate_episodes(
     cfg: Config,
     actor: TensorDictModuleBase,
@@ -215,11 +238,13 @@ def evaluate_episodes(
     episodes: int,
     observation_norm: dict[str, list[float]] | None = None,
     epsilon: float = 0.0,
+    on_turn: Callable[[int], None] | None = None,
 ) -> EvalResult:
     """``episodes`` episodes of ``actor`` (:func:`trl_cartpole.run.evaluation.evaluate`), one per
     env of ``cfg.env`` seeded ``seed`` onward; envs from pixels play on Gymnasium's own
     ``render()`` frames whatever ``env.pixels_renderer`` trained on, built and played
-    ``PIXEL_ENVS_AT_ONCE`` at a time, the turn starting at episode ``i`` seeded ``seed + i``."""
+    ``PIXEL_ENVS_AT_ONCE`` at a time, the turn starting at episode ``i`` seeded ``seed + i``;
+    ``on_turn`` is called with the episodes played after each turn."""
     at_once = PIXEL_ENVS_AT_ONCE if cfg.env.from_pixels else episodes
     if cfg.env.from_pixels:
         cfg = replace(cfg, env=replace(cfg.env, pixels_renderer="gymnasium"))
@@ -239,6 +264,8 @@ def evaluate_episodes(
         result.returns += turn.returns
         result.lengths += turn.lengths
         result.initial_values += turn.initial_values
+        if on_turn is not None:
+            on_turn(len(result.returns))  # the episodes played so far
     return result
 
 
@@ -456,6 +483,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     component is loaded from it and ``cfg`` must be its stored config.
     """
     wall_start = time.perf_counter()
+    warn_if_no_update(cfg)
     torch.set_num_threads(cfg.num_threads)
     seed_everything(cfg.seed)
     # Observation statistics are estimated once per run (a resumed run reads them back) and
@@ -627,9 +655,7 @@ def _assemble(
         checkpointer,
         lock,
         threshold,
-        learning_starts=max(
-            cfg.buffer.batch_size, cfg.collector.learning_starts, cfg.collector.init_random_frames
-        ),
+        learning_starts=first_update_frame(cfg),
         updates_per_batch=cfg.collector.updates_per_batch,
         env_id=cfg.env.id,
         schedules=Schedules(

@@ -54,15 +54,21 @@ def finish(run: Components) -> dict[str, Any]:
     if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
         run.live_plot.flush()
     evaluator.load_best()
-    run.progress_bar.status(
-        f"final evaluation: the best policy over {cfg.eval.final_episodes} new episodes"
-    )
+    episodes = cfg.eval.final_episodes
+    say = f"final evaluation: the best policy over {episodes} new episodes"
+    run.progress_bar.status(say)
+
+    def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
+        if played < episodes:
+            run.progress_bar.status(f"{say} ({played} played)")
+
     final = evaluate_episodes(
         cfg,
         run.actor,
         cfg.seed + 2 * cfg.eval.seed_offset,
-        cfg.eval.final_episodes,
+        episodes,
         run.observation_norm,
+        on_turn=show_played,
     )
     run.metrics.log({"eval/final_return_mean": final.mean}, progress.frames)
     run.metrics.close()
