@@ -13,7 +13,7 @@ from tests.conftest import run_script_in_process
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.pixels import CropFrame, PoolImage
+from trl_cartpole.parts.pixels import CropFrame, PoolImage, RandomShift
 from trl_cartpole.policy.load import evaluate_checkpoint
 from trl_cartpole.run import build
 from trl_cartpole.run.build import build_actor, build_env, run_memory_need
@@ -180,3 +180,61 @@ def test_a_pixel_runs_directory_and_plots_say_it_learns_from_pixels(compose):
     assert state.run_dir.startswith("runs/CartPole-v1-dqn-seed4-")
     assert build.run_title(pixels) == "CartPole-v1 from pixels dqn seed 4"
     assert build.run_title(state) == "CartPole-v1 dqn seed 4"
+
+
+def _shifted(image: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:
+    """``image`` [C, H, W] moved by (dy, dx) with its edge repeated: what RandomShift crops."""
+    padded = torch.nn.functional.pad(image[None].float(), (pad,) * 4, mode="replicate")[0]
+    height, width = image.shape[-2:]
+    return padded[:, pad + dy : pad + dy + height, pad + dx : pad + dx + width].to(image.dtype)
+
+
+def test_random_shift_moves_each_frame_by_at_most_pad_pixels_independently():
+    torch.manual_seed(0)
+    frames = torch.randint(0, 256, (64, 2, 20, 60), dtype=torch.uint8)  # [B, frames, h, w]
+    batch = TensorDict({"pixels": frames, ("next", "pixels"): frames.clone()}, [64])
+    out = RandomShift(pad=2)(batch.clone())
+    moves = {"pixels": [], ("next", "pixels"): []}
+    for key, found in moves.items():
+        assert out[key].shape == frames.shape and out[key].dtype == torch.uint8
+        for image, original in zip(out[key], frames, strict=True):
+            matches = [
+                (dy, dx)
+                for dy in range(-2, 3)
+                for dx in range(-2, 3)
+                if torch.equal(image, _shifted(original, dy, dx, pad=2))
+            ]
+            assert matches, "not a shift of the original by at most 2 pixels"
+            found.append(matches[0])
+    assert len(set(moves["pixels"])) > 10  # all 25 moves are drawn, ...
+    assert moves["pixels"] != moves["next", "pixels"]  # ... independently for now and next
+
+
+def test_a_shifting_buffer_stores_the_frames_as_collected(compose):
+    cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "buffer.pixels_shift=1", "buffer.n_steps=1")))
+    buffer = build.build_replay_buffer(cfg)
+    frames = torch.randint(0, 256, (40, 2, 20, 60), dtype=torch.uint8)
+    data = TensorDict(
+        {
+            "pixels": frames,
+            "action": torch.zeros(40, 2),
+            ("next", "pixels"): frames,
+            ("next", "reward"): torch.ones(40, 1),
+            ("next", "done"): torch.zeros(40, 1, dtype=torch.bool),
+            ("next", "terminated"): torch.zeros(40, 1, dtype=torch.bool),
+            ("next", "truncated"): torch.zeros(40, 1, dtype=torch.bool),
+        },
+        [40],
+    )
+    buffer.extend(data)
+    sample = buffer.sample(16)
+    assert sample["pixels"].shape == (16, 2, 20, 60)
+    stored = buffer.storage.get(torch.arange(40))  # the storage itself: no transform
+    assert torch.equal(stored["pixels"], frames)
+    index = sample["index"]
+    assert not torch.equal(sample["pixels"], stored["pixels"][index])  # the sample is shifted
+
+
+def test_a_shift_without_pixels_is_refused(compose):
+    with pytest.raises(ConfigError, match=r"buffer\.pixels_shift=1 shifts frames"):
+        validate(to_config(compose("buffer.pixels_shift=1")))

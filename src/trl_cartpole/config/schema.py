@@ -115,6 +115,8 @@ class BufferConfig:
     priority_eps: float = defaults.PRIORITY_EPS
     # n-step returns (Sutton 1988) through MultiStepTransform when > 1
     n_steps: int = defaults.N_STEPS
+    # pixels only: DrQ's random shift of each sampled frame by up to this many pixels (0: none)
+    pixels_shift: int = 0
 
 
 @dataclass

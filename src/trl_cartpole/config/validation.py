@@ -206,6 +206,15 @@ def validate(cfg: Config) -> Config:
             "env.pixels_renderer=gymnasium",
         ),
         (
+            cfg.buffer.pixels_shift >= 0,
+            f"buffer.pixels_shift={cfg.buffer.pixels_shift} must be >= 0 (0: no shift)",
+        ),
+        (
+            cfg.buffer.pixels_shift == 0 or cfg.env.from_pixels,
+            f"buffer.pixels_shift={cfg.buffer.pixels_shift} shifts frames, and this run has "
+            "none (env.from_pixels=false): set it to 0, or use env=cartpole_pixels",
+        ),
+        (
             not (cfg.env.from_pixels and cfg.env.normalize_observations),
             "env.normalize_observations=true normalises a state vector; pixels have none",
         ),

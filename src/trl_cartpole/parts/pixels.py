@@ -44,6 +44,7 @@ __all__ = [
     "PIXELS_KEY",
     "CropFrame",
     "PoolImage",
+    "RandomShift",
     "ScaleImage",
     "drawn_pixel_transforms",
     "pixel_transforms",
@@ -99,6 +100,32 @@ class PoolImage(_ImageTransform):
         if self.pool > 1:
             flat = nn.functional.avg_pool2d(flat, self.pool)  # [N, C, H // pool, W // pool]
         return flat.round().clamp(0, 255).to(torch.uint8).reshape(*lead, *flat.shape[-3:])
+
+
+class RandomShift(Transform):
+    """DrQ's augmentation (Kostrikov, Yarats and Fergus 2020, "Image Augmentation Is All You
+    Need"): each ``[C, H, W]`` image of a sampled batch is padded by ``pad`` pixels (its edge
+    repeated) and cropped back to ``H x W`` at a random offset, i.e. shifted by up to ``pad``
+    pixels each way. A replay buffer's transform: it runs on samples, never on what is stored;
+    the frames now and next are shifted independently, as in DrQ."""
+
+    def __init__(
+        self, pad: int = 1, in_keys: Sequence = (PIXELS_KEY, ("next", PIXELS_KEY))
+    ) -> None:
+        super().__init__(in_keys=list(in_keys), out_keys=list(in_keys))
+        self.pad = pad
+
+    def _apply_transform(self, pixels: torch.Tensor) -> torch.Tensor:
+        images = pixels.reshape(-1, *pixels.shape[-3:])  # [N, C, H, W]
+        count, channels, height, width = images.shape
+        padded = nn.functional.pad(images.float(), (self.pad,) * 4, mode="replicate")
+        offsets = torch.randint(0, 2 * self.pad + 1, (2, count), device=pixels.device)
+        rows = (offsets[0, :, None] + torch.arange(height, device=pixels.device))[:, None, :, None]
+        cols = (offsets[1, :, None] + torch.arange(width, device=pixels.device))[:, None, None, :]
+        batch = torch.arange(count, device=pixels.device)[:, None, None, None]
+        channel = torch.arange(channels, device=pixels.device)[None, :, None, None]
+        shifted = padded[batch, channel, rows, cols]  # [N, C, H, W]
+        return shifted.to(pixels.dtype).reshape(pixels.shape)
 
 
 class ScaleImage(nn.Module):

@@ -55,7 +55,7 @@ from trl_cartpole.parts.fused_loss import fuse_dqn_loss
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
-from trl_cartpole.parts.pixels import PIXELS_KEY
+from trl_cartpole.parts.pixels import PIXELS_KEY, RandomShift
 from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.report.loggers import MetricsLog, make_logger, truncate_csv_metrics
 from trl_cartpole.report.plotting import LiveDurationPlot
@@ -361,6 +361,7 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         ),
         n_steps=buffer.n_steps,
         **({"gamma": cfg.loss.gamma} if buffer.n_steps > 1 else {}),
+        transform=RandomShift(buffer.pixels_shift) if buffer.pixels_shift else None,
     )
 
 
