@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -10,7 +11,8 @@ from tensordict import TensorDict
 from torchrl.data import LazyMemmapStorage
 
 from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script_in_process
-from trl_cartpole.config.schema import Config
+from trl_cartpole.config.schema import Config, to_config
+from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.run.build import REPLAY_FILES, build_replay_buffer
 from trl_cartpole.run.memory_needs import (
@@ -90,3 +92,47 @@ def test_a_memmap_buffer_larger_than_the_disk_is_refused_before_the_run(tmp_path
     line = proc.stderr.strip()
     assert line.startswith("error: buffer.storage=memmap needs") and "\n" not in line
     assert not run_dir.exists()
+
+
+def _transitions(count: int, start: int = 0) -> TensorDict:
+    value = torch.arange(start, start + count, dtype=torch.float32)[:, None]  # [count, 1]
+    return TensorDict(
+        {
+            "observation": value.expand(count, 4).clone(),
+            "action": torch.zeros(count, 2),
+            ("next", "observation"): value.expand(count, 4) + 1,
+            ("next", "reward"): torch.ones(count, 1),
+            ("next", "done"): torch.zeros(count, 1, dtype=torch.bool),
+            ("next", "terminated"): torch.zeros(count, 1, dtype=torch.bool),
+        },
+        [count],
+    )
+
+
+def _bytes_under(path: Path) -> int:
+    return sum(file.stat().st_size for file in path.rglob("*") if file.is_file())
+
+
+@pytest.mark.parametrize("loaded_into", ["a fresh buffer", "a filled buffer"])
+def test_a_buffers_checkpoint_holds_its_transitions_not_its_capacity(
+    compose, tmp_path, loaded_into
+):
+    cfg = validate(to_config(compose("buffer.size=20000", "buffer.n_steps=1")))
+    buffer = build_replay_buffer(cfg)
+    buffer.extend(_transitions(100))
+    buffer.dumps(tmp_path / "saved")
+    row = 4 * 4 * 2 + 2 * 4 + 4 + 2  # bytes of one transition: observations, action, flags
+    assert _bytes_under(tmp_path / "saved") < 100 * row + 200_000  # not 20 000 rows (~1 MB)
+
+    resumed = build_replay_buffer(cfg)
+    if loaded_into == "a filled buffer":  # its storage allocated: loaded in place
+        resumed.extend(_transitions(300, start=1000))
+    resumed.loads(tmp_path / "saved")
+    assert len(resumed) == 100 and resumed.storage.max_size == 20000
+    stored = resumed.storage.get(torch.arange(100))
+    assert torch.equal(stored["observation"][:, 0], torch.arange(100.0))
+    resumed.extend(_transitions(5, start=500))  # the writer goes on at row 100
+    assert len(resumed) == 105
+    assert torch.equal(
+        resumed.storage.get(torch.arange(100, 105))["observation"][:, 0], torch.arange(500.0, 505.0)
+    )

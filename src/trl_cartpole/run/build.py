@@ -78,6 +78,7 @@ from trl_cartpole.run.memory_needs import (
 )
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.schedules import Schedules
+from trl_cartpole.store.buffer_checkpoint import save_filled_part
 from trl_cartpole.store.checkpoint import read_observation_norm
 from trl_cartpole.store.collection_state import EnvState
 from trl_cartpole.store.files import free_bytes, write_text_atomic
@@ -344,7 +345,7 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         storage = LazyMemmapStorage(
             buffer.size, scratch_dir=scratch_dir, device=cfg.device, existsok=True
         )
-    return make_replay_buffer(
+    replay_buffer = make_replay_buffer(
         storage=storage,
         max_size=buffer.size,
         batch_size=buffer.batch_size,
@@ -363,6 +364,8 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         **({"gamma": cfg.loss.gamma} if buffer.n_steps > 1 else {}),
         transform=RandomShift(buffer.pixels_shift) if buffer.pixels_shift else None,
     )
+    save_filled_part(replay_buffer.storage)  # a checkpoint holds the transitions, not capacity
+    return replay_buffer
 
 
 def torchrl_priority_exponent(alpha: float, distributional: bool) -> float:
