@@ -91,7 +91,9 @@ def test_the_transform_draws_any_batch_shape_and_declares_its_spec():
 
 
 def test_the_drawn_env_plays_the_rendered_envs_episode_frame_for_frame(compose):
-    rendered_cfg = validate(to_config(compose("env=cartpole_pixels")))
+    rendered_cfg = validate(
+        to_config(compose("env=cartpole_pixels", "env.pixels_renderer=gymnasium"))
+    )
     drawn_cfg = validate(to_config(compose("env=cartpole_pixels", "env.pixels_renderer=drawn")))
     rendered = make_pixel_env(rendered_cfg.env, seed=7, num_envs=1)
     drawn = make_pixel_env(drawn_cfg.env, seed=7, num_envs=1)
@@ -139,3 +141,18 @@ def test_a_renderer_that_cannot_draw_the_env_is_refused_in_one_line(compose, ove
     with pytest.raises(ConfigError, match=message) as raised:
         validate(to_config(compose(*overrides)))
     assert "\n" not in str(raised.value)
+
+
+def test_a_crop_is_read_as_python_slices_like_the_rendered_path():
+    states = torch.tensor(_random_states(4, seed=3))
+    negative = draw_cartpole(states, (120, -80, None, None), 10)  # rows 120-320, as CropFrame
+    torch.testing.assert_close(negative, draw_cartpole(states, CROP, 10))
+    beyond = draw_cartpole(states, (120, 900, None, None), 10)  # to the frame's edge
+    assert beyond.shape == (4, 1, 28, 60)
+    with pytest.raises(ValueError, match="keeps less than one 10x10 block"):
+        draw_cartpole(states, (120, 125, None, None), 10)
+
+
+def test_a_drawn_crop_smaller_than_a_block_is_refused_in_one_line(compose):
+    with pytest.raises(ConfigError, match=r"keeps less than one 10x10 block"):
+        validate(to_config(compose("env=cartpole_pixels", "env.pixels_crop=[120,125,null,null]")))

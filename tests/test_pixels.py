@@ -47,8 +47,13 @@ def test_crop_keeps_the_band_and_pool_averages_blocks_to_uint8():
     assert pooled.dtype == torch.uint8 and pooled.tolist() == [[[3, 10]]]
 
 
-def test_the_preset_shows_the_network_pixels_only(compose):
-    cfg = validate(to_config(compose("env=cartpole_pixels", "env.num_envs=2")))
+@pytest.mark.parametrize("renderer", ["drawn", "gymnasium"])
+def test_the_preset_shows_the_network_pixels_only(compose, renderer):
+    cfg = validate(
+        to_config(
+            compose("env=cartpole_pixels", "env.num_envs=2", f"env.pixels_renderer={renderer}")
+        )
+    )
     env = build_env(cfg, seed=0)
     spec = env.observation_spec
     assert "observation" not in spec.keys()  # noqa: SIM118 (a spec): the state is not there
@@ -100,8 +105,9 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path, monkeypatch):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["frames"] == 200 and summary["updates"] > 0
     assert len(summary["final_eval_returns"]) == 2
-    # A resume starts new episodes (stacked frames are not stored) and adds the frames asked.
-    more = run_script_in_process("train.py", f"resume={run_dir}", "collector.total_frames=296")
+    # A resume starts new episodes (stacked frames are not stored), says so, and adds the frames.
+    with pytest.warns(UserWarning, match="starts new episodes"):
+        more = run_script_in_process("train.py", f"resume={run_dir}", "collector.total_frames=296")
     assert more.returncode == 0, more.stderr[-2000:]
     assert json.loads((run_dir / "summary.json").read_text())["frames"] == 296
     # More episodes than pixel envs built at once are played in turns (each env a renderer).
@@ -161,7 +167,7 @@ def test_a_budget_that_ends_before_the_first_update_is_warned_in_one_line(compos
     long_enough = validate(to_config(compose("env=cartpole_pixels")))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        build.warn_if_no_update(long_enough)  # 220 000 frames: no warning
+        build.warn_if_no_update(long_enough)  # the preset's whole budget: no warning
 
 
 def test_the_final_evaluation_of_pixels_says_how_many_episodes_it_played(compose, monkeypatch):

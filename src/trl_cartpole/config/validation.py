@@ -206,6 +206,12 @@ def validate(cfg: Config) -> Config:
             "env.pixels_renderer=gymnasium",
         ),
         (
+            cfg.env.pixels_renderer != "drawn" or _drawn_crop_fits(cfg.env),
+            f"env.pixels_crop={list(cfg.env.pixels_crop)} keeps less than one "
+            f"{cfg.env.pixels_pool}x{cfg.env.pixels_pool} block (env.pixels_pool) of CartPole's "
+            "400x600 frame: keep more rows and columns, or a smaller pool",
+        ),
+        (
             cfg.buffer.pixels_shift >= 0,
             f"buffer.pixels_shift={cfg.buffer.pixels_shift} must be >= 0 (0: no shift)",
         ),
@@ -241,6 +247,16 @@ def validate(cfg: Config) -> Config:
     check_network_choices(cfg.network.head, cfg.network.activation)
     check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
     return cfg
+
+
+def _drawn_crop_fits(env: Any) -> bool:
+    """Whether ``env.pixels_crop`` keeps at least one pool block of CartPole's 400x600 frame."""
+    if len(env.pixels_crop) != 4 or env.pixels_pool < 1:
+        return True  # refused by their own checks
+    top, bottom, left, right = env.pixels_crop
+    rows = range(400)[slice(top, bottom)]
+    columns = range(600)[slice(left, right)]
+    return min(len(rows), len(columns)) >= env.pixels_pool
 
 
 def check_integer_size(key: str, value: Any) -> None:

@@ -12,7 +12,9 @@ shape (the pole's from its four edge inequalities), the painter's order is kept 
 inclusion-exclusion of those intervals, and each pooled pixel is the exact mean of its block
 of rows and columns. Pygame's antialiased outlines are modelled as half a pixel on each side
 of a filled row and its float vertices as truncated, so edges differ by a few gray levels
-(measured against ``render()`` in ``tests/test_cartpole_drawing.py``; docs/environments.md).
+(measured against ``render()`` in ``tests/test_cartpole_drawing.py``; docs/environments.md,
+"The picture drawn from the states"). The crop is read as Python slices, as ``CropFrame``
+reads it.
 :class:`DrawCartPole` is the TorchRL transform that draws a state env's observation.
 """
 
@@ -78,10 +80,10 @@ def draw_cartpole(
     :param x_threshold: the env's ``x_threshold`` (the screen spans twice it).
     :returns: ``[*B, 1, h // pool, w // pool]`` uint8 gray pixels.
     """
-    top, bottom, left, right = crop
-    top, left = top or 0, left or 0
-    bottom = SCREEN_HEIGHT if bottom is None else bottom
-    right = SCREEN_WIDTH if right is None else right
+    top, bottom, _ = slice(crop[0], crop[1]).indices(SCREEN_HEIGHT)  # as CropFrame slices
+    left, right, _ = slice(crop[2], crop[3]).indices(SCREEN_WIDTH)
+    if min(bottom - top, right - left) < pool:
+        raise ValueError(f"crop {list(crop)} keeps less than one {pool}x{pool} block")
     height, width = (bottom - top) // pool, (right - left) // pool
     lead = state.shape[:-1]
     dtype = torch.float32

@@ -9,7 +9,7 @@ Private names read (each through one function below):
 - ``Collector._carrier``: the in-process collector's last observation and running counters
   (the env's mid-episode step), saved for an exact resume; a multi-process collector's
   workers' carriers are read and written by that name through its ``get_distant_attr`` and
-  ``map_fn``;
+  ``map_fn`` (tested with worker processes in tests/test_worker_state.py);
 - ``VecGymEnvTransform._memo``: the last step of a Gymnasium vector env's same-step autoreset,
   which decides what the next ``reset()`` returns;
 - ``ReplayBuffer._transform`` and ``MultiStepTransform._buffer``: the n-step window the

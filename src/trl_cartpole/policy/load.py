@@ -72,6 +72,7 @@ def load_trained_policy(
 
     ``seed`` defaults to the training seed plus twice the eval seed offset (the seeds of the
     run's final evaluation); ``num_envs`` envs are stepped together (``render_mode`` needs 1).
+    A pixel policy plays on Gymnasium's ``render()`` frames, whichever renderer it trained on.
     Raises a one-line ``ConfigError`` for a path that is not a checkpoint of this project.
     """
     path = policy_checkpoint(checkpoint)
@@ -80,6 +81,7 @@ def load_trained_policy(
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
     cfg.device = "cpu"  # a policy trained on a GPU is loaded for this machine's CPU
+    cfg.env.pixels_renderer = "gymnasium"  # a trained policy plays on Gymnasium's own frames
     with quiet_libraries():  # no TorchRL INFO lines (spec checks) from a library call
         env = build_env(cfg, seed, num_envs, read_observation_norm(path), render_mode)
     actor = load_policy(path, build_actor(cfg, env))

@@ -222,7 +222,7 @@ def first_update_frame(cfg: Config) -> int:
 def warn_if_no_update(cfg: Config) -> None:
     """Warn in one line when the run ends before its first update: it could not learn."""
     first = first_update_frame(cfg)
-    if cfg.collector.total_frames <= first:
+    if cfg.collector.total_frames < first:
         warnings.warn(
             f"collector.total_frames={cfg.collector.total_frames} ends before the first update "
             f"at frame {first} (the largest of collector.init_random_frames, "

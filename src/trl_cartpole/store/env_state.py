@@ -31,8 +31,9 @@ import numpy as np
 from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase, GymWrapper, TransformedEnv
+from torchrl.envs import CatFrames, EnvBase, GymWrapper, TransformedEnv
 
+from trl_cartpole.parts.cartpole_drawing import DrawCartPole
 from trl_cartpole.parts.compat import (
     autoreset_state,
     gym_env,
@@ -99,9 +100,14 @@ def _envs_of(gymnasium_env: Any) -> list[Any]:
 
 def _stores_its_state(env: EnvBase) -> bool:
     """Whether ``env`` is a Gymnasium env (or vector env) in a ``GymWrapper`` seen through its
-    state. Pixel envs are not: the frames stacked by their transforms are not stored (and
-    several of them are a ``SerialEnv``); a resumed pixel run starts new episodes."""
+    state. Pixel envs are not, rendered or drawn (``DrawCartPole``): the frames stacked by
+    their ``CatFrames`` are not stored (and several rendered envs are a ``SerialEnv``); a
+    resumed pixel run starts new episodes."""
     base = env.base_env if isinstance(env, TransformedEnv) else env
+    if isinstance(env, TransformedEnv) and any(
+        isinstance(transform, (CatFrames, DrawCartPole)) for transform in env.transform
+    ):
+        return False
     return isinstance(base, GymWrapper) and not base.from_pixels
 
 
