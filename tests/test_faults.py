@@ -643,8 +643,11 @@ def test_a_run_on_a_real_small_filesystem_stops_in_one_line(python, tmp_path, me
     copy = tmp_path / "copy"
     proc = _in_a_small_filesystem(
         tmp_path / "mount",
-        megabytes,  # a default training state is about 6 MB (50 000 transitions)
+        # a training state here is about 6 MB: a 512x512 network, its target copy and AdamW's
+        # moments (the replay buffer's checkpoint holds only its 1 000-3 000 transitions)
+        megabytes,
         '"$2" "$3" run_dir="$1/run" collector.total_frames=3000 checkpoint.interval_frames=1000 '
+        "network.hidden_sizes=[512,512] "
         "eval.interval_frames=1000 eval.episodes=3 eval.final_episodes=4 "
         'logger.progress_bar=false; status=$?; cp -a "$1/run" "$4"; exit $status',
         python,

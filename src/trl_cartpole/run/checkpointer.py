@@ -35,6 +35,16 @@ from trl_cartpole.store.files import free_bytes, megabytes, tree_bytes
 __all__ = ["Checkpointer"]
 
 
+def _saved_bytes(name: str, component: Any) -> int:
+    """The bytes a checkpoint stores of ``component``: its state dict's tensors, of a replay
+    buffer only the filled share of its storage (the capacity is allocated at once)."""
+    size = state_bytes(component.state_dict())
+    if name != "replay_buffer":
+        return size
+    capacity = max(component.storage.max_size, 1)
+    return size * min(len(component), capacity) // capacity
+
+
 class Checkpointer:
     """Saves the training state: periodically, on a stop signal, and at the end of the run.
 
@@ -80,10 +90,10 @@ class Checkpointer:
             for name, component in self.components.items()
             if name != "replay_buffer" or len(buffer) > 0
         }
-        # The replay buffer's storage is allocated whole with its first batch, so a training
-        # state is about as large as the one before it; the first is estimated from its tensors.
+        # A training state is about as large as the one before it; the first is estimated from
+        # its tensors, the replay buffer's for its filled rows (store/buffer_checkpoint.py).
         expected = self.state_size or sum(
-            state_bytes(component.state_dict()) for component in components.values()
+            _saved_bytes(name, component) for name, component in components.items()
         )
         saved = self._write_or_stop(
             path,
