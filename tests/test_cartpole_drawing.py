@@ -121,12 +121,12 @@ def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_
     built = []
 
     def spy(env_cfg, *args, **kwargs):
-        built.append(env_cfg.pixels_renderer)
+        built.append((env_cfg.pixels_renderer, env_cfg.pixels_rendered_share))
         return make_pixel_env(env_cfg, *args, **kwargs)
 
     monkeypatch.setattr(envs, "make_pixel_env", spy)
     result = evaluate_episodes(cfg, build_actor(cfg, env), seed=3, episodes=2)
-    assert built == ["gymnasium"] and len(result.returns) == 2
+    assert built == [("drawn", 1.0)] and len(result.returns) == 2  # every frame rendered
 
 
 @pytest.mark.parametrize(

@@ -63,6 +63,10 @@ class EnvConfig:
     # at a time) or "drawn" (CartPole only: the same pooled frame drawn from a batch of states,
     # parts/cartpole_drawing.py); the final evaluation always plays on Gymnasium's render()
     pixels_renderer: str = "gymnasium"
+    # drawn only: this share of each drawn batch's envs (its first round(share * num_envs))
+    # shows Gymnasium's render() frames instead (about 1 ms a frame), so the network also
+    # learns the exact frames it is judged on; 1.0: every frame exact, none drawn
+    pixels_rendered_share: float = 0.0
 
 
 @dataclass

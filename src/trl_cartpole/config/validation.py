@@ -212,6 +212,17 @@ def validate(cfg: Config) -> Config:
             "400x600 frame: keep more rows and columns, or a smaller pool",
         ),
         (
+            0.0 <= cfg.env.pixels_rendered_share <= 1.0,
+            f"env.pixels_rendered_share={cfg.env.pixels_rendered_share} must be between 0 and 1 "
+            "(the share of the drawn envs whose frames Gymnasium renders)",
+        ),
+        (
+            cfg.env.pixels_rendered_share == 0 or cfg.env.pixels_renderer == "drawn",
+            f"env.pixels_rendered_share={cfg.env.pixels_rendered_share} mixes Gymnasium's "
+            f"frames into drawn ones, and this run has env.pixels_renderer="
+            f"{cfg.env.pixels_renderer}: set it to 0, or env.pixels_renderer=drawn",
+        ),
+        (
             cfg.buffer.pixels_shift >= 0,
             f"buffer.pixels_shift={cfg.buffer.pixels_shift} must be >= 0 (0: no shift)",
         ),

@@ -14,20 +14,26 @@ of rows and columns. Pygame's antialiased outlines are modelled as half a pixel 
 of a filled row and its float vertices as truncated, so edges differ by a few gray levels
 (measured against ``render()`` in ``tests/test_cartpole_drawing.py``; docs/environments.md,
 "The picture drawn from the states"). The crop is read as Python slices, as ``CropFrame``
-reads it.
-:class:`DrawCartPole` is the TorchRL transform that draws a state env's observation.
+reads it. :func:`render_cartpole` gives the exact frame, from Gymnasium's own ``render()``
+(about 1 ms a frame).
+:class:`DrawCartPole` is the TorchRL transform that draws a state env's observation; its
+``rendered`` first envs are rendered by Gymnasium instead, so a network trained on it also
+sees the frames it is judged on.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 
+import gymnasium as gym
+import numpy as np
 import torch
 from torchrl.data.tensor_specs import Bounded, TensorSpec
 from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.functional import rgb_to_grayscale
 
-__all__ = ["SCREEN_HEIGHT", "SCREEN_WIDTH", "DrawCartPole", "draw_cartpole"]
+__all__ = ["SCREEN_HEIGHT", "SCREEN_WIDTH", "DrawCartPole", "draw_cartpole", "render_cartpole"]
 
 SCREEN_WIDTH, SCREEN_HEIGHT = 600, 400  # CartPoleEnv.render()'s frame
 CART_WIDTH, CART_HEIGHT, POLE_WIDTH = 50.0, 30.0, 10.0  # px
@@ -80,8 +86,7 @@ def draw_cartpole(
     :param x_threshold: the env's ``x_threshold`` (the screen spans twice it).
     :returns: ``[*B, 1, h // pool, w // pool]`` uint8 gray pixels.
     """
-    top, bottom, _ = slice(crop[0], crop[1]).indices(SCREEN_HEIGHT)  # as CropFrame slices
-    left, right, _ = slice(crop[2], crop[3]).indices(SCREEN_WIDTH)
+    top, bottom, left, right = _crop_bounds(crop)
     if min(bottom - top, right - left) < pool:
         raise ValueError(f"crop {list(crop)} keeps less than one {pool}x{pool} block")
     height, width = (bottom - top) // pool, (right - left) // pool
@@ -158,6 +163,43 @@ def draw_cartpole(
     return pixels.reshape(*lead, 1, height, width)
 
 
+def _crop_bounds(crop: Sequence[int | None]) -> tuple[int, int, int, int]:
+    """``crop`` read as Python slices of the 400x600 frame, as ``CropFrame`` reads it."""
+    top, bottom, _ = slice(crop[0], crop[1]).indices(SCREEN_HEIGHT)
+    left, right, _ = slice(crop[2], crop[3]).indices(SCREEN_WIDTH)
+    return top, bottom, left, right
+
+
+def render_cartpole(
+    state: torch.Tensor,
+    crop: Sequence[int | None] = (None, None, None, None),
+    pool: int = 1,
+    length: float = 0.5,
+    x_threshold: float = 2.4,
+    env: gym.Env | None = None,
+) -> torch.Tensor:
+    """What :func:`draw_cartpole` approximates, exactly: Gymnasium's ``CartPoleEnv.render()``
+    of each state -> crop -> TorchRL's gray -> ``pool x pool`` mean -> uint8 (the pixel
+    preset's path). ``env``: a ``CartPoleEnv(render_mode="rgb_array")`` to reuse (its pygame
+    surface); one is made otherwise. ``[*B, 4]`` -> ``[*B, 1, h // pool, w // pool]``."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
+    cartpole = env if env is not None else gym.make("CartPole-v1", render_mode="rgb_array")
+    cartpole = cartpole.unwrapped
+    cartpole.length, cartpole.x_threshold = length, x_threshold
+    top, bottom, left, right = _crop_bounds(crop)
+    lead = state.shape[:-1]
+    frames = []
+    for row in state.reshape(-1, 4).double().numpy():
+        cartpole.state = np.array(row)
+        frames.append(cartpole.render()[top:bottom, left:right])  # [h0, w0, 3] uint8
+    if env is None:
+        cartpole.close()
+    rgb = torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).float()  # [N, 3, h0, w0]
+    gray = torch.nn.functional.avg_pool2d(rgb_to_grayscale(rgb), pool)  # [N, 1, h, w]
+    pixels = gray.round().clamp(0, 255).to(torch.uint8)
+    return pixels.reshape(*lead, *pixels.shape[-3:])
+
+
 class DrawCartPole(Transform):
     """Draw a CartPole env's ``observation`` (its state) into ``pixels``: ``[*B, 1, h, w]`` uint8,
     the frame ``render()`` -> crop -> gray -> pool gives (:func:`draw_cartpole`).
@@ -165,6 +207,8 @@ class DrawCartPole(Transform):
     Append it to a state env (``make_env("CartPole-v1", num_envs=64)``): one call draws the
     whole batch. Follow it with ``CatFrames`` and ``ExcludeTransform("observation")`` for a
     policy that sees pixels only (:func:`trl_cartpole.parts.pixels.drawn_pixel_transforms`).
+    ``rendered``: the first that many envs of the batch (in its flattened order) are rendered
+    by Gymnasium instead (:func:`render_cartpole`, about 1 ms a frame), the exact frames.
     """
 
     def __init__(
@@ -175,13 +219,32 @@ class DrawCartPole(Transform):
         x_threshold: float = 2.4,
         in_keys: Sequence[str] = ("observation",),
         out_keys: Sequence[str] = ("pixels",),
+        rendered: int = 0,
     ) -> None:
         super().__init__(in_keys=list(in_keys), out_keys=list(out_keys))
         self.crop, self.pool = tuple(crop), pool
         self.length, self.x_threshold = length, x_threshold
+        self.rendered = rendered
+        self._renderer: gym.Env | None = None  # made on the first rendered frame
 
     def _apply_transform(self, state: torch.Tensor) -> torch.Tensor:
-        return draw_cartpole(state, self.crop, self.pool, self.length, self.x_threshold)
+        shape = (self.crop, self.pool, self.length, self.x_threshold)
+        pixels = draw_cartpole(state, *shape)  # [*B, 1, h, w]
+        rendered = min(self.rendered, state[..., 0].numel())
+        if rendered:
+            if self._renderer is None:
+                os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+                self._renderer = gym.make("CartPole-v1", render_mode="rgb_array")
+            flat = pixels.reshape(-1, *pixels.shape[-3:])  # [N, 1, h, w], a view
+            flat[:rendered] = render_cartpole(
+                state.reshape(-1, 4)[:rendered], *shape, self._renderer
+            )
+        return pixels
+
+    def __getstate__(self) -> dict:  # sent to worker processes without its pygame surface
+        state = super().__getstate__()
+        state["_renderer"] = None
+        return state
 
     def _reset(self, tensordict, tensordict_reset):
         return self._call(tensordict_reset)

@@ -158,11 +158,14 @@ def drawn_pixel_transforms(
     frames: int = 1,
     length: float = 0.5,
     x_threshold: float = 2.4,
+    rendered: int = 0,
 ) -> list[Transform]:
     """TorchRL transforms from a CartPole state env to the same ``[frames, h, w]`` uint8 input
-    :func:`pixel_transforms` gives from ``render()``: :class:`DrawCartPole`, ``CatFrames``, and
-    ``ExcludeTransform`` of the state, so the policy sees pixels only."""
-    transforms: list[Transform] = [DrawCartPole(crop, pool, length, x_threshold)]  # [1, h, w]
+    :func:`pixel_transforms` gives from ``render()``: :class:`DrawCartPole` (its first
+    ``rendered`` envs rendered by Gymnasium), ``CatFrames``, and ``ExcludeTransform`` of the
+    state, so the policy sees pixels only."""
+    draw = DrawCartPole(crop, pool, length, x_threshold, rendered=rendered)
+    transforms: list[Transform] = [draw]  # [1, h, w]
     if frames > 1:
         transforms.append(CatFrames(N=frames, dim=-3, in_keys=[PIXELS_KEY]))  # [frames, h, w]
     transforms.append(ExcludeTransform("observation"))

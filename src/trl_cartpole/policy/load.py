@@ -19,6 +19,7 @@ from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.report.console import quiet_libraries
 from trl_cartpole.run.build import build_actor, build_env, evaluate_episodes
+from trl_cartpole.run.envs import on_gymnasium_frames
 from trl_cartpole.run.evaluation import EvalResult
 from trl_cartpole.store.checkpoint import (
     load_policy,
@@ -81,7 +82,10 @@ def load_trained_policy(
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
     cfg.device = "cpu"  # a policy trained on a GPU is loaded for this machine's CPU
-    cfg.env.pixels_renderer = "gymnasium"  # a trained policy plays on Gymnasium's own frames
+    # a trained policy plays on Gymnasium's own frames; a video records a Gymnasium env's own
+    cfg.env = on_gymnasium_frames(cfg.env) if render_mode is None else cfg.env
+    if render_mode is not None:
+        cfg.env.pixels_renderer = "gymnasium"
     with quiet_libraries():  # no TorchRL INFO lines (spec checks) from a library call
         env = build_env(cfg, seed, num_envs, read_observation_norm(path), render_mode)
     actor = load_policy(path, build_actor(cfg, env))

@@ -64,6 +64,7 @@ from trl_cartpole.run.checkpointer import Checkpointer
 from trl_cartpole.run.envs import (
     estimate_observation_norm,
     make_env_from_config,
+    on_gymnasium_frames,
     worker_env_constructors,
 )
 from trl_cartpole.run.evaluation import EvalResult, Evaluator, evaluate
@@ -248,7 +249,7 @@ def evaluate_episodes(
     ``on_turn`` is called with the episodes played after each turn."""
     at_once = PIXEL_ENVS_AT_ONCE if cfg.env.from_pixels else episodes
     if cfg.env.from_pixels:
-        cfg = replace(cfg, env=replace(cfg.env, pixels_renderer="gymnasium"))
+        cfg = replace(cfg, env=on_gymnasium_frames(cfg.env))
     result = EvalResult()
     for start in range(0, episodes, at_once):
         env = build_env(

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 
@@ -114,11 +114,21 @@ def make_pixel_env(
     return env
 
 
+def on_gymnasium_frames(env_cfg: EnvConfig) -> EnvConfig:
+    """``env_cfg`` playing on Gymnasium's own ``render()`` frames, as a pixel policy is judged:
+    a drawn pixel env with every frame rendered (``pixels_rendered_share=1``: the same vector
+    env, one renderer for the batch); any other env as it is."""
+    if env_cfg.from_pixels and env_cfg.pixels_renderer == "drawn":
+        return replace(env_cfg, pixels_rendered_share=1.0)
+    return env_cfg
+
+
 def _drawn_pixel_env(
     env_cfg: EnvConfig, seed: int | None, device: str | torch.device, count: int
 ) -> TransformedEnv:
     """CartPole's state env (a Gymnasium ``SyncVectorEnv`` for ``count > 1``) drawn into the
-    pixel preset's frames for the whole batch at once (:func:`drawn_pixel_transforms`)."""
+    pixel preset's frames for the whole batch at once (:func:`drawn_pixel_transforms`), its
+    first ``round(env.pixels_rendered_share * count)`` envs rendered by Gymnasium."""
     env = make_env(
         resolve_env_id(env_cfg.id, env_cfg.imports),
         device,
@@ -134,6 +144,7 @@ def _drawn_pixel_env(
         env_cfg.pixels_frames,
         length=cartpole.length,
         x_threshold=cartpole.x_threshold,
+        rendered=round(env_cfg.pixels_rendered_share * count),
     ):
         env = env.append_transform(transform)
     return env
