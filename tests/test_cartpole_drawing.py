@@ -10,6 +10,7 @@ than 48 (17, 38 and 45 measured, single pixels on an edge).
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -20,7 +21,7 @@ from torchrl.envs.transforms.functional import rgb_to_grayscale
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole
+from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
 from trl_cartpole.run import envs
 from trl_cartpole.run.build import build_actor, evaluate_episodes
 from trl_cartpole.run.envs import make_pixel_env
@@ -43,7 +44,7 @@ def _rendered(states: np.ndarray, crop, pool: int, **attributes) -> torch.Tensor
     env.close()
     top, bottom, left, right = crop
     rgb = torch.from_numpy(np.stack(frames))[:, top:bottom, left:right]  # [N, h0, w0, 3]
-    gray = rgb_to_grayscale(rgb.permute(0, 3, 1, 2).double())  # [N, 1, h0, w0]
+    gray = rgb_to_grayscale(rgb.permute(0, 3, 1, 2).float())  # [N, 1, h0, w0], as ToTensorImage
     pooled = torch.nn.functional.avg_pool2d(gray, pool)
     return pooled.round().clamp(0, 255).to(torch.uint8)
 
@@ -92,21 +93,43 @@ def test_the_transform_draws_any_batch_shape_and_declares_its_spec():
 
 def test_the_drawn_env_plays_the_rendered_envs_episode_frame_for_frame(compose):
     rendered_cfg = validate(
-        to_config(compose("env=cartpole_pixels", "env.pixels_renderer=gymnasium"))
+        to_config(
+            compose(
+                "env=cartpole_pixels",
+                "env.pixels_renderer=gymnasium",
+                "env.pixels_rendered_share=0",
+            )
+        )
     )
-    drawn_cfg = validate(to_config(compose("env=cartpole_pixels", "env.pixels_renderer=drawn")))
+    drawn_cfg = validate(to_config(compose("env=cartpole_pixels", "env.pixels_rendered_share=0")))
     rendered = make_pixel_env(rendered_cfg.env, seed=7, num_envs=1)
     drawn = make_pixel_env(drawn_cfg.env, seed=7, num_envs=1)
+    exact = make_pixel_env(replace(drawn_cfg.env, pixels_rendered_share=1.0), seed=7, num_envs=1)
     assert rendered.observation_spec == drawn.observation_spec  # pixels [2, 20, 60] uint8 only
     torch.manual_seed(0)
     expected = rendered.rollout(60, break_when_any_done=False)
-    torch.manual_seed(0)
-    got = drawn.rollout(60, break_when_any_done=False)
-    assert torch.equal(got["action"], expected["action"])
-    assert torch.equal(got["next", "done"], expected["next", "done"])
-    assert torch.equal(got["next", "reward"], expected["next", "reward"])
-    error = (got["next", "pixels"].int() - expected["next", "pixels"].int()).abs().float()
-    assert error.mean() < 0.13 and error.max() <= 48
+    for env in (drawn, exact):
+        torch.manual_seed(0)
+        got = env.rollout(60, break_when_any_done=False)
+        assert torch.equal(got["action"], expected["action"])
+        assert torch.equal(got["next", "done"], expected["next", "done"])
+        assert torch.equal(got["next", "reward"], expected["next", "reward"])
+        error = (got["next", "pixels"].int() - expected["next", "pixels"].int()).abs().float()
+        assert error.mean() < 0.13 and error.max() <= 48
+    assert error.max() == 0  # every frame rendered: Gymnasium's own, pixel for pixel
+
+
+def test_the_rendered_share_of_a_drawn_batch_is_gymnasiums_own_frames():
+    states = torch.tensor(_random_states(12, seed=5)).float().reshape(3, 4, 4)  # batch [3, 4]
+    expected = _rendered(states.reshape(12, 4).double().numpy(), CROP, 10)  # [12, 1, 20, 60]
+    drawn = draw_cartpole(states, CROP, 10).reshape(12, 1, 20, 60)
+    assert not torch.equal(drawn, expected)  # the drawing alone differs on a few edge pixels
+    frames = DrawCartPole(CROP, 10, rendered=5)._apply_transform(states)
+    assert frames.shape == (3, 4, 1, 20, 60)
+    frames = frames.reshape(12, 1, 20, 60)  # the batch's flattened order
+    assert torch.equal(frames[:5], expected[:5])  # the first 5 envs rendered by Gymnasium
+    assert torch.equal(frames[5:], drawn[5:])  # the rest drawn
+    assert torch.equal(render_cartpole(states, CROP, 10).reshape(12, 1, 20, 60), expected)
 
 
 def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_frames(
@@ -135,6 +158,11 @@ def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_
         (["env=acrobot", "env.pixels_renderer=drawn"], "draws CartPole from pixels only"),
         (["env.pixels_renderer=drawn"], "draws CartPole from pixels only"),
         (["env=cartpole_pixels", "env.pixels_renderer=pygame"], "env.pixels_renderer"),
+        (["env=cartpole_pixels", "env.pixels_rendered_share=1.5"], "between 0 and 1"),
+        (
+            ["env=cartpole_pixels", "env.pixels_renderer=gymnasium"],
+            "mixes Gymnasium's frames into drawn ones",
+        ),
     ],
 )
 def test_a_renderer_that_cannot_draw_the_env_is_refused_in_one_line(compose, overrides, message):

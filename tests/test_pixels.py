@@ -47,13 +47,10 @@ def test_crop_keeps_the_band_and_pool_averages_blocks_to_uint8():
     assert pooled.dtype == torch.uint8 and pooled.tolist() == [[[3, 10]]]
 
 
-@pytest.mark.parametrize("renderer", ["drawn", "gymnasium"])
-def test_the_preset_shows_the_network_pixels_only(compose, renderer):
-    cfg = validate(
-        to_config(
-            compose("env=cartpole_pixels", "env.num_envs=2", f"env.pixels_renderer={renderer}")
-        )
-    )
+@pytest.mark.parametrize(("renderer", "share"), [("drawn", 1.0), ("drawn", 0.5), ("gymnasium", 0)])
+def test_the_preset_shows_the_network_pixels_only(compose, renderer, share):
+    overrides = [f"env.pixels_renderer={renderer}", f"env.pixels_rendered_share={share}"]
+    cfg = validate(to_config(compose("env=cartpole_pixels", "env.num_envs=2", *overrides)))
     env = build_env(cfg, seed=0)
     spec = env.observation_spec
     assert "observation" not in spec.keys()  # noqa: SIM118 (a spec): the state is not there
