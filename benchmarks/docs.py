@@ -123,14 +123,15 @@ def _yaml_value(value: object) -> str:
     return str(value)
 
 
-def performance_tables() -> str:
+def performance_tables(path: Path = PERFORMANCE) -> str:
     """The headline tables of docs/performance.md: per evaluation interval, every preset and
     peer over the seeds, with the ratios, from ``docs/results/performance.json`` (``python -m
-    benchmarks run ... --record docs/results/performance.json`` writes it)."""
+    benchmarks run ... --record docs/results/performance.json`` writes it), or another env's
+    race from its own results file (``path``)."""
     from benchmarks.harness import PEERS
     from benchmarks.run import protocol_text
 
-    record = json.loads(PERFORMANCE.read_text())
+    record = json.loads(path.read_text())
     parts = [_fenced(record["command"], "bash"), provenance_line(record)]
     for interval, results in record["protocols"].items():
         names = list(results)

@@ -9,6 +9,14 @@ docs/performance.md's 20-seed table, both protocols, on seeds no preset was tune
     python -m benchmarks run --algos dqn --peers sb3_dqn --eval-interval 1000 2500
         --seeds $(seq 100 119) --out runs/perf20 --record docs/results/performance.json
 
+The other env presets against Stable-Baselines3 with rl-zoo3's settings for that env
+(``--env``: our side trains ``env=<preset>`` and stops once solved, the peer plays
+``--env-id`` of the preset; both sides get the same frame cap, ``--peer-frames``):
+
+    python -m benchmarks run --env acrobot --peers sb3_dqn --eval-interval 2500
+        --peer-frames 150000 --seeds $(seq 100 109) --out runs/race-acrobot
+        --record docs/results/race_acrobot.json
+
 Each (preset, seed) is one ``scripts/train.py`` run, each (peer, seed) one
 ``python -m benchmarks.peers.<peer>`` run, in their own processes (``--jobs`` at a time;
 1, the default, keeps the machine's noise the same for all). Every run evaluates greedily over
@@ -43,6 +51,12 @@ from benchmarks.harness import (
 from trl_cartpole.tools.comparison import iqm_to_solve
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/benchmark"
+# env presets raced with --env: preset -> the Gymnasium id the peers play
+RACE_ENVS = {
+    "acrobot": "Acrobot-v1",
+    "mountaincar": "MountainCar-v0",
+    "lunarlander": "LunarLander-v3",
+}
 
 
 def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
@@ -117,6 +131,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--eval-episodes", type=int, default=20)
     parser.add_argument(
+        "--env",
+        choices=sorted(RACE_ENVS),
+        help="race on this env preset instead of CartPole (stop once solved, at its threshold)",
+    )
+    parser.add_argument(
         "--record", type=Path, help="also write every summary to this results file (docs/results)"
     )
 
@@ -148,6 +167,9 @@ def _protocol_results(args: argparse.Namespace, interval: int, out: Path) -> dic
         f"--eval-interval={interval}",
         f"--eval-episodes={args.eval_episodes}",
     ]
+    if args.env is not None:  # the preset's env, to the first evaluation at its threshold
+        protocol += [f"env={args.env}", "eval.stop_when_solved=true"]
+        peer_args.append(f"--env-id={RACE_ENVS[args.env]}")
     results = run_presets(
         args.algos,
         args.seeds,

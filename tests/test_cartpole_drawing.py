@@ -119,6 +119,22 @@ def test_the_drawn_env_plays_the_rendered_envs_episode_frame_for_frame(compose):
     assert error.max() == 0  # every frame rendered: Gymnasium's own, pixel for pixel
 
 
+@pytest.mark.parametrize(
+    ("crop", "pool", "attributes"),
+    [
+        ((120, 325, None, None), 10, {}),  # rows beyond the last whole block dropped, as pooled
+        ((100, 340, 40, 560), 4, {}),
+        (CROP, 1, {"length": 0.8, "x_threshold": 3.0}),
+    ],
+)
+def test_the_canvas_paints_gymnasiums_own_frames_pixel_for_pixel(crop, pool, attributes):
+    states = _random_states(60, seed=11, angle=0.6)
+    states[:, 0] *= attributes.get("x_threshold", 2.4) / 2.4
+    expected = _rendered(states, crop, pool, **attributes)
+    got = render_cartpole(torch.tensor(states), crop, pool, **attributes)
+    assert got.shape == expected.shape and torch.equal(got, expected)
+
+
 def test_the_rendered_share_of_a_drawn_batch_is_gymnasiums_own_frames():
     states = torch.tensor(_random_states(12, seed=5)).float().reshape(3, 4, 4)  # batch [3, 4]
     expected = _rendered(states.reshape(12, 4).double().numpy(), CROP, 10)  # [12, 1, 20, 60]

@@ -1,15 +1,18 @@
-"""Stable-Baselines3 DQN with rl-zoo3's tuned CartPole-v1 settings, under the benchmark protocol.
+"""Stable-Baselines3 DQN with rl-zoo3's tuned settings for the env, under the benchmark protocol.
 
     pip install -e ".[bench]"
     python -m benchmarks.peers.sb3_dqn --seed 0 --run-dir runs/peers/sb3_dqn-seed0
+        [--env-id Acrobot-v1]
 
-rl-zoo3's ``hyperparams/dqn.yml`` for CartPole-v1: lr 2.3e-3, batch 64, buffer 100 000,
-learning_starts 1 000, gamma 0.99, target_update_interval 10 (env steps), train_freq 256,
-gradient_steps 128, exploration_fraction 0.16, exploration_final_eps 0.04, net_arch [256, 256],
-over n_timesteps 50 000. SB3 scales the epsilon schedule to the ``learn()`` budget, so with a
-longer budget the fraction is rescaled to keep zoo's decay over 0.16 * 50 000 = 8 000 steps.
-A callback runs the protocol's greedy evaluation every ``--eval-interval`` steps (training
-clock stopped) and stops the run once solved.
+The settings are those rl-zoo3 2.9.2's ``hyperparams/dqn.yml`` gives ``--env-id``
+(:mod:`benchmarks.peers.zoo_settings` reads them from its wheel); for CartPole-v1: lr 2.3e-3,
+batch 64, buffer 100 000, learning_starts 1 000, gamma 0.99, target_update_interval 10 (env
+steps), train_freq 256, gradient_steps 128, exploration_fraction 0.16, exploration_final_eps
+0.04, net_arch [256, 256], over n_timesteps 50 000. SB3 scales the epsilon schedule to the
+``learn()`` budget, so with another budget the fraction is rescaled to keep zoo's decay over
+``exploration_fraction * n_timesteps`` steps (8 000 for CartPole). A callback runs the
+protocol's greedy evaluation every ``--eval-interval`` steps (training clock stopped) and stops
+the run once solved.
 """
 
 from __future__ import annotations
@@ -17,21 +20,7 @@ from __future__ import annotations
 import torch
 
 from benchmarks.peers.protocol import PeerRun, parse_peer_args
-
-ZOO_TIMESTEPS = 50_000
-ZOO_SETTINGS = {
-    "learning_rate": 2.3e-3,
-    "batch_size": 64,
-    "buffer_size": 100_000,
-    "learning_starts": 1000,
-    "gamma": 0.99,
-    "target_update_interval": 10,
-    "train_freq": 256,
-    "gradient_steps": 128,
-    "exploration_final_eps": 0.04,
-    "policy_kwargs": {"net_arch": [256, 256]},
-}
-ZOO_EXPLORATION_FRACTION = 0.16
+from benchmarks.peers.zoo_settings import zoo_dqn_settings
 
 
 def main() -> None:
@@ -45,16 +34,9 @@ def main() -> None:
         ) from None
     torch.set_num_threads(1)
     run = PeerRun("sb3_dqn", args)
-    fraction = ZOO_EXPLORATION_FRACTION * ZOO_TIMESTEPS / args.total_frames
-    model = DQN(
-        "MlpPolicy",
-        args.env_id,
-        exploration_fraction=fraction,
-        seed=args.seed,
-        device="cpu",
-        verbose=0,
-        **ZOO_SETTINGS,
-    )
+    settings, timesteps = zoo_dqn_settings(args.env_id)
+    settings["exploration_fraction"] *= timesteps / args.total_frames  # zoo's decay, in steps
+    model = DQN("MlpPolicy", args.env_id, seed=args.seed, device="cpu", verbose=0, **settings)
 
     run.watch(model.q_net)
 

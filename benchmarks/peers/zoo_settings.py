@@ -1,0 +1,58 @@
+"""rl-zoo3's tuned DQN settings for an env, read from the ``hyperparams/dqn.yml`` its wheel ships.
+
+rl-zoo3 cannot be installed beside this project's lock (``constraints.txt``: its
+``pytablewriter`` -> ``typepy[datetime]`` needs ``python-dateutil<3``, the lock has 4), so its
+wheel is downloaded once, without dependencies, into ``runs/peer-venvs/rl_zoo3-<version>``
+(``pip download rl_zoo3==<version> --no-deps``) and the file read from it: the settings are the
+package's own, never a hand copy. ``policy_kwargs`` (a Python expression in the file, such as
+``"dict(net_arch=[256, 256])"``) is read as literals only.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["ZOO_VERSION", "zoo_dqn_settings"]
+
+ZOO_VERSION = "2.9.2"
+ZOO_DIR = Path(__file__).resolve().parents[2] / "runs" / "peer-venvs" / f"rl_zoo3-{ZOO_VERSION}"
+NOT_SETTINGS = ("n_timesteps", "policy", "env_wrapper", "frame_stack", "normalize")
+
+
+def _wheel() -> Path:
+    """The rl-zoo3 wheel, downloaded on first use."""
+    found = sorted(ZOO_DIR.glob("rl_zoo3-*.whl"))
+    if not found:
+        command = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "-d", str(ZOO_DIR)]
+        subprocess.run([*command, f"rl_zoo3=={ZOO_VERSION}"], check=True)
+        found = sorted(ZOO_DIR.glob("rl_zoo3-*.whl"))
+    return found[0]
+
+
+def _policy_kwargs(text: str) -> dict[str, Any]:
+    """``"dict(net_arch=[256, 256])"`` -> ``{"net_arch": [256, 256]}`` (literals only)."""
+    call = ast.parse(text, mode="eval").body
+    if not (isinstance(call, ast.Call) and getattr(call.func, "id", None) == "dict"):
+        raise ValueError(f"policy_kwargs {text!r} is not dict(...) of literals")
+    return {keyword.arg: ast.literal_eval(keyword.value) for keyword in call.keywords}
+
+
+def zoo_dqn_settings(env_id: str) -> tuple[dict[str, Any], int]:
+    """``(DQN keyword arguments, n_timesteps)`` rl-zoo3 tunes for ``env_id``."""
+    with zipfile.ZipFile(_wheel()) as wheel:
+        table = yaml.safe_load(wheel.read("rl_zoo3/hyperparams/dqn.yml"))
+    if env_id not in table:
+        raise SystemExit(f"error: rl-zoo3 {ZOO_VERSION} has no DQN settings for {env_id}")
+    entry = dict(table[env_id])
+    timesteps = int(entry["n_timesteps"])
+    settings = {key: value for key, value in entry.items() if key not in NOT_SETTINGS}
+    if "policy_kwargs" in settings:
+        settings["policy_kwargs"] = _policy_kwargs(settings["policy_kwargs"])
+    return settings, timesteps
