@@ -120,6 +120,25 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path, monkeypatch):
     assert all(1 <= length <= 50 for length in result.lengths)  # eval.max_steps=50
 
 
+def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_path, monkeypatch):
+    built, build_env = [], build.build_env
+
+    def spy(cfg, seed, num_envs=None, *rest, **kwargs):
+        built.append((num_envs, cfg.env.pixels_renderer, cfg.env.pixels_rendered_share))
+        return build_env(cfg, seed, num_envs, *rest, **kwargs)
+
+    monkeypatch.setattr(build, "build_env", spy)
+    overrides = ["env.num_envs=4", "env.pixels_rendered_share=0.5", "eval.interval_frames=100"]
+    proc = run_script_in_process(
+        "train.py", *TINY_PIXEL_RUN, *overrides, f"run_dir={tmp_path / 'run'}"
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    training, *evaluations = built
+    assert training == (None, "drawn", 0.5)  # 2 of its 4 envs painted by Gymnasium's calls
+    # the periodic evaluations (which choose the best policy) and the final one: every frame
+    assert evaluations and all(share == 1.0 for _, _, share in evaluations)
+
+
 @pytest.mark.slow  # a pixel run, then its video and its exported policy
 def test_render_and_export_take_the_agents_frames(tmp_path):
     onnxruntime = pytest.importorskip("onnxruntime")

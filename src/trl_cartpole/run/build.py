@@ -503,8 +503,8 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     env = build_env(
         cfg, cfg.seed, observation_norm=observation_norm, step_timeout=cfg.env.step_timeout
     )
-    eval_env = build_env(
-        cfg,
+    eval_env = build_env(  # a pixel policy is chosen on the frames it is judged on
+        replace(cfg, env=on_gymnasium_frames(cfg.env)),
         cfg.seed + cfg.eval.seed_offset,
         cfg.eval.episodes,
         observation_norm,
