@@ -59,9 +59,9 @@ class EnvConfig:
     pixels_crop: list[int | None] = field(default_factory=lambda: [None, None, None, None])
     pixels_pool: int = 1  # average the kept patch over pool x pool blocks (a smaller image)
     pixels_frames: int = 1  # the last N patches stacked (CatFrames): the motion
-    # who draws the training and periodic evaluation frames: "gymnasium" (its render(), one env
-    # at a time) or "drawn" (CartPole only: the same pooled frame drawn from a batch of states,
-    # parts/cartpole_drawing.py); the final evaluation always plays on Gymnasium's render()
+    # who draws the training frames: "gymnasium" (its render(), one env at a time) or "drawn"
+    # (CartPole only: the same pooled frame drawn from a batch of states,
+    # parts/cartpole_drawing.py); the evaluations always play on Gymnasium's own picture
     pixels_renderer: str = "gymnasium"
     # drawn only: this share of each drawn batch's envs (its first round(share * num_envs))
     # shows Gymnasium's render() frames instead (about 1 ms a frame), so the network also
