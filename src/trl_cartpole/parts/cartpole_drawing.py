@@ -210,11 +210,8 @@ class CartPoleCanvas:
         scale = SCREEN_WIDTH / (2 * x_threshold)
         pole_length = scale * 2 * length
         surface.fill(WHITE)
-        cart_x, cart_y, axle_offset = (
-            state[0] * scale + SCREEN_WIDTH / 2.0,
-            CART_TOP,
-            CART_HEIGHT / 4,
-        )
+        cart_x = state[0] * scale + SCREEN_WIDTH / 2.0  # the cart's middle
+        cart_y, axle_offset = CART_TOP, CART_HEIGHT / 4  # its top; the axle below it
         left, right = -CART_WIDTH / 2, CART_WIDTH / 2
         top, bottom = CART_HEIGHT / 2, -CART_HEIGHT / 2
         cart = [
