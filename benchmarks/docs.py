@@ -13,6 +13,8 @@ wrote, never from a hand copy:
 - ``train-listing`` (docs/architecture.md): ``train()`` as the code has it;
 - ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
   ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
+- ``race-<env>`` (docs/performance.md): each other env preset against Stable-Baselines3, from
+  ``docs/results/race_<env>.json`` (``python -m benchmarks run --env <env> ... --record``);
 - ``pixel-seeds`` (docs/environments.md): ``env=cartpole_pixels`` seed by seed, from
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
 - ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
@@ -29,6 +31,7 @@ import json
 import re
 import sys
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 from benchmarks.harness import provenance_line
@@ -38,6 +41,8 @@ PACKAGE = ROOT / "src" / "trl_cartpole"
 RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
+# the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
+RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in ("acrobot",)}
 SEEDS = [0]
 OUT = Path("runs/bench/docs")
 
@@ -226,6 +231,10 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
     "pixel-seeds": ("docs/environments.md", pixel_seeds),
+    **{
+        f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
+        for env, path in RACES.items()
+    },
     "factory-defaults": ("docs/reference/factories.md", factory_defaults),
 }
 
