@@ -168,7 +168,11 @@ def _protocol_results(args: argparse.Namespace, interval: int, out: Path) -> dic
         f"--eval-episodes={args.eval_episodes}",
     ]
     if args.env is not None:  # the preset's env, to the first evaluation at its threshold
-        protocol += [f"env={args.env}", "eval.stop_when_solved=true"]
+        protocol += [
+            f"env={args.env}",
+            "eval.stop_when_solved=true",
+            f"collector.total_frames={args.peer_frames}",  # the same cap for both sides
+        ]
         peer_args.append(f"--env-id={RACE_ENVS[args.env]}")
     results = run_presets(
         args.algos,

@@ -9,7 +9,9 @@ than 48 (17, 38 and 45 measured, single pixels on an edge).
 
 from __future__ import annotations
 
+import copy
 import os
+import pickle
 from dataclasses import replace
 
 import gymnasium as gym
@@ -24,7 +26,7 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
 from trl_cartpole.run import envs
 from trl_cartpole.run.build import build_actor, evaluate_episodes
-from trl_cartpole.run.envs import make_pixel_env
+from trl_cartpole.run.envs import make_pixel_env, rendered_envs
 
 CROP = (120, 320, None, None)  # the preset's band of rows
 
@@ -135,6 +137,22 @@ def test_the_canvas_paints_gymnasiums_own_frames_pixel_for_pixel(crop, pool, att
     assert got.shape == expected.shape and torch.equal(got, expected)
 
 
+def test_a_share_paints_its_envs_rounded_up():
+    assert [rendered_envs(0.25, n) for n in (1, 2, 4, 5, 8)] == [1, 1, 1, 2, 2]
+    assert rendered_envs(0.3, 10) == 3 and rendered_envs(0.0, 8) == 0  # no float overshoot
+    assert rendered_envs(1.0, 20) == 20
+
+
+def test_a_drawn_transform_that_has_painted_copies_and_pickles_without_its_surface():
+    draw = DrawCartPole(CROP, 10, rendered=1)
+    states = torch.tensor(_random_states(2, seed=2)).float()
+    frames = draw._apply_transform(states)
+    assert draw._canvas is not None  # a pygame surface, which cannot be pickled
+    for twin in (copy.deepcopy(draw), pickle.loads(pickle.dumps(draw))):
+        assert twin._canvas is None and twin.rendered == 1
+        assert torch.equal(twin._apply_transform(states), frames)
+
+
 def test_the_rendered_share_of_a_drawn_batch_is_gymnasiums_own_frames():
     states = torch.tensor(_random_states(12, seed=5)).float().reshape(3, 4, 4)  # batch [3, 4]
     expected = _rendered(states.reshape(12, 4).double().numpy(), CROP, 10)  # [12, 1, 20, 60]
@@ -175,6 +193,7 @@ def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_
         (["env.pixels_renderer=drawn"], "draws CartPole from pixels only"),
         (["env=cartpole_pixels", "env.pixels_renderer=pygame"], "env.pixels_renderer"),
         (["env=cartpole_pixels", "env.pixels_rendered_share=1.5"], "between 0 and 1"),
+        (["env.pixels_rendered_share=0.5"], "or use env=cartpole_pixels"),
         (
             ["env=cartpole_pixels", "env.pixels_renderer=gymnasium"],
             "mixes Gymnasium's frames into drawn ones",

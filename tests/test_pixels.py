@@ -13,15 +13,18 @@ from tests.conftest import run_script_in_process
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.cartpole_drawing import DrawCartPole
 from trl_cartpole.parts.pixels import CropFrame, PoolImage, RandomShift
 from trl_cartpole.policy.load import evaluate_checkpoint
 from trl_cartpole.run import build
 from trl_cartpole.run.build import build_actor, build_env, run_memory_need
 
-# A pixel run small enough for the default tier: 2 envs, 200 frames, evaluations of 2 episodes.
+# A pixel run small enough for the default tier: 2 envs (one painted by Gymnasium's calls),
+# 200 frames, evaluations of 2 episodes.
 TINY_PIXEL_RUN = [
     "env=cartpole_pixels",
     "env.num_envs=2",
+    "env.pixels_rendered_share=0.5",
     "collector.total_frames=200",
     "collector.init_random_frames=64",
     "collector.frames_per_batch=8",
@@ -47,7 +50,9 @@ def test_crop_keeps_the_band_and_pool_averages_blocks_to_uint8():
     assert pooled.dtype == torch.uint8 and pooled.tolist() == [[[3, 10]]]
 
 
-@pytest.mark.parametrize(("renderer", "share"), [("drawn", 1.0), ("drawn", 0.5), ("gymnasium", 0)])
+@pytest.mark.parametrize(
+    ("renderer", "share"), [("drawn", 1.0), ("drawn", 0.5), ("drawn", 0), ("gymnasium", 0)]
+)
 def test_the_preset_shows_the_network_pixels_only(compose, renderer, share):
     overrides = [f"env.pixels_renderer={renderer}", f"env.pixels_rendered_share={share}"]
     cfg = validate(to_config(compose("env=cartpole_pixels", "env.num_envs=2", *overrides)))
@@ -124,19 +129,21 @@ def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_
     built, build_env = [], build.build_env
 
     def spy(cfg, seed, num_envs=None, *rest, **kwargs):
-        built.append((num_envs, cfg.env.pixels_renderer, cfg.env.pixels_rendered_share))
-        return build_env(cfg, seed, num_envs, *rest, **kwargs)
+        env = build_env(cfg, seed, num_envs, *rest, **kwargs)
+        (draw,) = [t for t in env.transform if isinstance(t, DrawCartPole)]
+        built.append((env.batch_size.numel(), draw.rendered))
+        return env
 
     monkeypatch.setattr(build, "build_env", spy)
-    overrides = ["env.num_envs=4", "env.pixels_rendered_share=0.5", "eval.interval_frames=100"]
+    overrides = ["env.num_envs=4", "env.pixels_rendered_share=0.5", "eval.episodes=3"]
     proc = run_script_in_process(
         "train.py", *TINY_PIXEL_RUN, *overrides, f"run_dir={tmp_path / 'run'}"
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    training, *evaluations = built
-    assert training == (None, "drawn", 0.5)  # 2 of its 4 envs painted by Gymnasium's calls
+    training, periodic, *final = built
+    assert training == (4, 2)  # 2 of its 4 envs painted by Gymnasium's calls
     # the periodic evaluations (which choose the best policy) and the final one: every frame
-    assert evaluations and all(share == 1.0 for _, _, share in evaluations)
+    assert periodic == (3, 3) and final == [(2, 2)]
 
 
 @pytest.mark.slow  # a pixel run, then its video and its exported policy

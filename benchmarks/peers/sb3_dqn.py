@@ -35,7 +35,8 @@ def main() -> None:
     torch.set_num_threads(1)
     run = PeerRun("sb3_dqn", args)
     settings, timesteps = zoo_dqn_settings(args.env_id)
-    settings["exploration_fraction"] *= timesteps / args.total_frames  # zoo's decay, in steps
+    fraction = settings.get("exploration_fraction", 0.1)  # SB3's default where zoo sets none
+    settings["exploration_fraction"] = fraction * timesteps / args.total_frames  # zoo's, in steps
     model = DQN("MlpPolicy", args.env_id, seed=args.seed, device="cpu", verbose=0, **settings)
 
     run.watch(model.q_net)

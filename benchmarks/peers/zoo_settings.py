@@ -23,7 +23,9 @@ __all__ = ["ZOO_VERSION", "zoo_dqn_settings"]
 
 ZOO_VERSION = "2.9.2"
 ZOO_DIR = Path(__file__).resolve().parents[2] / "runs" / "peer-venvs" / f"rl_zoo3-{ZOO_VERSION}"
-NOT_SETTINGS = ("n_timesteps", "policy", "env_wrapper", "frame_stack", "normalize")
+NOT_SETTINGS = ("n_timesteps", "policy")  # the budget, and MlpPolicy (the peer's own)
+# entries that change the env (wrappers, stacking, normalisation): not an MLP peer's race
+ENV_CHANGES = ("env_wrapper", "frame_stack", "normalize")
 
 
 def _wheel() -> Path:
@@ -31,7 +33,12 @@ def _wheel() -> Path:
     found = sorted(ZOO_DIR.glob("rl_zoo3-*.whl"))
     if not found:
         command = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "-d", str(ZOO_DIR)]
-        subprocess.run([*command, f"rl_zoo3=={ZOO_VERSION}"], check=True)
+        done = subprocess.run([*command, f"rl_zoo3=={ZOO_VERSION}"], check=False)
+        if done.returncode != 0:
+            raise SystemExit(
+                f"error: could not download rl_zoo3=={ZOO_VERSION} (its settings are read from "
+                f"the wheel): put the wheel in {ZOO_DIR}, or run where PyPI is reachable"
+            )
         found = sorted(ZOO_DIR.glob("rl_zoo3-*.whl"))
     return found[0]
 
@@ -49,8 +56,17 @@ def zoo_dqn_settings(env_id: str) -> tuple[dict[str, Any], int]:
     with zipfile.ZipFile(_wheel()) as wheel:
         table = yaml.safe_load(wheel.read("rl_zoo3/hyperparams/dqn.yml"))
     if env_id not in table:
-        raise SystemExit(f"error: rl-zoo3 {ZOO_VERSION} has no DQN settings for {env_id}")
+        known = ", ".join(key for key in table if "-v" in key)
+        raise SystemExit(
+            f"error: rl-zoo3 {ZOO_VERSION} has no DQN settings for {env_id}; it has: {known}"
+        )
     entry = dict(table[env_id])
+    changes = [key for key in ENV_CHANGES if key in entry]
+    if changes:
+        raise SystemExit(
+            f"error: rl-zoo3's DQN entry for {env_id} changes the env ({', '.join(changes)}), "
+            "which this peer does not reproduce: race another env"
+        )
     timesteps = int(entry["n_timesteps"])
     settings = {key: value for key, value in entry.items() if key not in NOT_SETTINGS}
     if "policy_kwargs" in settings:

@@ -63,9 +63,9 @@ class EnvConfig:
     # (CartPole only: the same pooled frame drawn from a batch of states,
     # parts/cartpole_drawing.py); the evaluations always play on Gymnasium's own picture
     pixels_renderer: str = "gymnasium"
-    # drawn only: this share of each drawn batch's envs (its first round(share * num_envs))
-    # shows Gymnasium's render() frames instead (about 1 ms a frame), so the network also
-    # learns the exact frames it is judged on; 1.0: every frame exact, none drawn
+    # drawn only: this share of each drawn batch's envs (its first share * num_envs, rounded
+    # up) shows Gymnasium's own picture instead (its pygame calls, about 0.4 ms a frame), so
+    # the network also learns the frames it is judged on; 1.0: every frame Gymnasium's
     pixels_rendered_share: float = 0.0
 
 

@@ -203,7 +203,7 @@ def validate(cfg: Config) -> Config:
             or (cfg.env.from_pixels and str(cfg.env.id).startswith("CartPole-")),
             f"env.pixels_renderer=drawn draws CartPole from pixels only (env={cfg.env.id}, "
             f"from_pixels={cfg.env.from_pixels}): use env=cartpole_pixels, or "
-            "env.pixels_renderer=gymnasium",
+            "env.pixels_renderer=gymnasium env.pixels_rendered_share=0",
         ),
         (
             cfg.env.pixels_renderer != "drawn" or _drawn_crop_fits(cfg.env),
@@ -214,13 +214,14 @@ def validate(cfg: Config) -> Config:
         (
             0.0 <= cfg.env.pixels_rendered_share <= 1.0,
             f"env.pixels_rendered_share={cfg.env.pixels_rendered_share} must be between 0 and 1 "
-            "(the share of the drawn envs whose frames Gymnasium renders)",
+            "(the share of the drawn envs Gymnasium's picture is painted for): set, e.g., 0.25",
         ),
         (
             cfg.env.pixels_rendered_share == 0 or cfg.env.pixels_renderer == "drawn",
             f"env.pixels_rendered_share={cfg.env.pixels_rendered_share} mixes Gymnasium's "
             f"frames into drawn ones, and this run has env.pixels_renderer="
-            f"{cfg.env.pixels_renderer}: set it to 0, or env.pixels_renderer=drawn",
+            f"{cfg.env.pixels_renderer}: set env.pixels_rendered_share=0, or use "
+            "env=cartpole_pixels",
         ),
         (
             cfg.buffer.pixels_shift >= 0,

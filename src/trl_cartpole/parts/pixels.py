@@ -17,8 +17,9 @@ wheel from PyPI (PyPI's torchvision is built for CUDA torch and fails to load it
 :class:`CropFrame` slices and :class:`PoolImage` uses ``torch.nn.functional.avg_pool2d``.
 
 For CartPole the same pooled frame can be drawn from a batch of states at once instead
-(:func:`drawn_pixel_transforms`, :mod:`trl_cartpole.parts.cartpole_drawing`): no pygame, one
-call for every env of a Gymnasium vector env.
+(:func:`drawn_pixel_transforms`, :mod:`trl_cartpole.parts.cartpole_drawing`): one call for
+every env of a Gymnasium vector env, no pygame, except for a share of the envs painted with
+Gymnasium's own pygame calls.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ run's observation statistics and loads the weights.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from omegaconf import OmegaConf
@@ -73,7 +73,9 @@ def load_trained_policy(
 
     ``seed`` defaults to the training seed plus twice the eval seed offset (the seeds of the
     run's final evaluation); ``num_envs`` envs are stepped together (``render_mode`` needs 1).
-    A pixel policy plays on Gymnasium's ``render()`` frames, whichever renderer it trained on.
+    A pixel policy plays on Gymnasium's own picture, whichever renderer it trained on: a drawn
+    run's vector env with every frame painted by Gymnasium's calls, or with ``render_mode`` (a
+    video) Gymnasium's ``render()``.
     Raises a one-line ``ConfigError`` for a path that is not a checkpoint of this project.
     """
     path = policy_checkpoint(checkpoint)
@@ -82,10 +84,10 @@ def load_trained_policy(
     if seed is None:
         seed = cfg.seed + 2 * cfg.eval.seed_offset
     cfg.device = "cpu"  # a policy trained on a GPU is loaded for this machine's CPU
-    # a trained policy plays on Gymnasium's own frames; a video records a Gymnasium env's own
-    cfg.env = on_gymnasium_frames(cfg.env) if render_mode is None else cfg.env
-    if render_mode is not None:
-        cfg.env.pixels_renderer = "gymnasium"
+    if render_mode is None:  # a trained policy plays on Gymnasium's own picture
+        cfg.env = on_gymnasium_frames(cfg.env)
+    else:  # a video records a Gymnasium env's own render()
+        cfg.env = replace(cfg.env, pixels_renderer="gymnasium", pixels_rendered_share=0.0)
     with quiet_libraries():  # no TorchRL INFO lines (spec checks) from a library call
         env = build_env(cfg, seed, num_envs, read_observation_norm(path), render_mode)
     actor = load_policy(path, build_actor(cfg, env))

@@ -207,9 +207,9 @@ def build_env(
     )
 
 
-# Pixel envs built at once by one evaluation: each holds its own renderer and frames (about
-# 30 MiB here: 100 at once took the final evaluation to 3.1 GiB), so more episodes are played
-# in turns of this many.
+# Pixel envs built at once by one evaluation: Gymnasium's rendered envs each hold their own
+# renderer and frames (about 30 MiB here: 100 at once took the final evaluation to 3.1 GiB),
+# so more episodes are played in turns of this many (a drawn env's batch shares one canvas).
 PIXEL_ENVS_AT_ONCE = 20
 
 
@@ -244,7 +244,7 @@ def evaluate_episodes(
 ) -> EvalResult:
     """``episodes`` episodes of ``actor`` (:func:`trl_cartpole.run.evaluation.evaluate`), one per
     env of ``cfg.env`` seeded ``seed`` onward; envs from pixels play on Gymnasium's own
-    ``render()`` frames whatever ``env.pixels_renderer`` trained on, built and played
+    picture whatever they trained on (``on_gymnasium_frames``), built and played
     ``PIXEL_ENVS_AT_ONCE`` at a time, the turn starting at episode ``i`` seeded ``seed + i``;
     ``on_turn`` is called with the episodes played after each turn."""
     at_once = PIXEL_ENVS_AT_ONCE if cfg.env.from_pixels else episodes

@@ -7,6 +7,7 @@ config; this module reads the ``env`` section (and the run's seed) and calls the
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from collections.abc import Mapping, Sequence
@@ -32,6 +33,8 @@ __all__ = [
     "estimate_observation_norm",
     "make_env_from_config",
     "make_pixel_env",
+    "on_gymnasium_frames",
+    "rendered_envs",
     "worker_env_constructors",
 ]
 
@@ -114,6 +117,12 @@ def make_pixel_env(
     return env
 
 
+def rendered_envs(share: float, count: int) -> int:
+    """How many of ``count`` drawn envs ``env.pixels_rendered_share=share`` paints with
+    Gymnasium's calls: ``share * count`` rounded up (at least one for a share above 0)."""
+    return math.ceil(share * count - 1e-9)  # 0.3 * 10 is 3.0000000000000004 in floats
+
+
 def on_gymnasium_frames(env_cfg: EnvConfig) -> EnvConfig:
     """``env_cfg`` playing on Gymnasium's own ``render()`` frames, as a pixel policy is judged:
     a drawn pixel env with every frame rendered (``pixels_rendered_share=1``: the same vector
@@ -128,7 +137,7 @@ def _drawn_pixel_env(
 ) -> TransformedEnv:
     """CartPole's state env (a Gymnasium ``SyncVectorEnv`` for ``count > 1``) drawn into the
     pixel preset's frames for the whole batch at once (:func:`drawn_pixel_transforms`), its
-    first ``round(env.pixels_rendered_share * count)`` envs rendered by Gymnasium."""
+    first :func:`rendered_envs` envs painted by Gymnasium's own calls."""
     env = make_env(
         resolve_env_id(env_cfg.id, env_cfg.imports),
         device,
@@ -144,7 +153,7 @@ def _drawn_pixel_env(
         env_cfg.pixels_frames,
         length=cartpole.length,
         x_threshold=cartpole.x_threshold,
-        rendered=round(env_cfg.pixels_rendered_share * count),
+        rendered=rendered_envs(env_cfg.pixels_rendered_share, count),
     ):
         env = env.append_transform(transform)
     return env
