@@ -68,8 +68,10 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         pytest.param(["algo=rainbow"], marks=pytest.mark.slow),  # every Rainbow part: 17 s
         # The resumed run reads the observation statistics back from the checkpoint.
         ["env.normalize_observations=true", "env.normalization_frames=300"],
+        # The learning rate's taper goes on from the frames, its value read back with Adam's.
+        ["optim.lr_end=0.0002", "optim.lr_decay_frames=500"],
     ],
-    ids=["dqn", "rainbow", "observation-norm"],
+    ids=["dqn", "rainbow", "observation-norm", "lr-taper"],
 )
 def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     whole = tmp_path / "whole"
@@ -401,6 +403,12 @@ BAD_INPUTS = [
         "env.step_timeout=9223376706.0 must be > 0 and at most 604800 seconds",
     ),
     ("a step deadline of no time", ["env.step_timeout=0"], "env.step_timeout=0.0 must be > 0"),
+    ("a taper to nothing", ["optim.lr_end=0"], "optim.lr_end=0.0 must be > 0 (null: no taper)"),
+    (
+        "a taper a compiled update cannot follow",
+        ["optim.lr_end=0.0001", "compile=true"],
+        "a compiled update holds fixed: pass compile=false, or optim.lr_end=null",
+    ),
     ("a seed beyond 64 bits", ["seed=1180591620717411303424"], "integer settings stop at 2**62"),
     ("envs by the billion", ["eval.final_episodes=1000000000"], "at most 4096"),
     ("missing checkpoint", ["resume=/nonexistent/run"], "does not exist"),

@@ -88,3 +88,45 @@ def test_update_compiles_whole_and_matches_eager():
     (eager_losses, eager_params), (compiled_losses, compiled_params) = results
     assert compiled_losses == pytest.approx(eager_losses, rel=1e-4)
     assert torch.allclose(eager_params, compiled_params, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("frames", "expected"), [(0, 1e-3), (2_500, 7.75e-4), (10_000, 1e-4), (30_000, 1e-4)]
+)
+def test_the_learning_rate_tapers_linearly_then_holds(frames, expected):
+    from trl_cartpole.parts.optim import tapered_lr
+
+    # 1e-3 + (1e-4 - 1e-3) * 2500 / 10000 = 1e-3 - 2.25e-4
+    assert tapered_lr(1e-3, 1e-4, frames, decay_frames=10_000) == pytest.approx(expected)
+
+
+@pytest.mark.parametrize("lr_end", [None, 2e-4])
+def test_a_run_updates_at_the_learning_rate_of_the_frames_collected(compose, tmp_path, lr_end):
+    """Each update uses the lr set after the batch before it: 1e-3 until the first batch's
+    schedules have run, then 1e-3 + (lr_end - 1e-3) * frames / 400 (none: 1e-3 throughout)."""
+    from tests.conftest import SMOKE_OVERRIDES
+    from trl_cartpole.run.build import build_components
+    from trl_cartpole.run.training import train
+
+    seen: list[tuple[int, float]] = []  # (frames collected, lr) at each update
+
+    def build_with_a_spy(cfg, resume=None):
+        components = build_components(cfg, resume)
+        update, optimizer = components.learner.update, components.learner.optimizer
+
+        def recording_update(batch):
+            seen.append((components.progress.frames, optimizer.param_groups[0]["lr"]))
+            return update(batch)
+
+        components.learner.update = recording_update
+        return components
+
+    taper = [] if lr_end is None else [f"optim.lr_end={lr_end}", "optim.lr_decay_frames=400"]
+    overrides = [*SMOKE_OVERRIDES, "optim.lr=0.001", *taper, f"run_dir={tmp_path / 'run'}"]
+    train(compose(*overrides), build=build_with_a_spy)
+    assert len(seen) > 100 and seen[-1][0] >= 296  # updates through the 300 frames
+    previous_batch = 4  # collector.frames_per_batch: the schedules ran on the frames before
+    for frames, lr in seen:
+        end = 1e-3 if lr_end is None else lr_end
+        expected = 1e-3 + (end - 1e-3) * min(1.0, (frames - previous_batch) / 400)
+        assert lr == pytest.approx(expected, rel=1e-9), (frames, lr)

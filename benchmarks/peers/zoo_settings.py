@@ -33,8 +33,11 @@ def _wheel() -> Path:
     found = sorted(ZOO_DIR.glob("rl_zoo3-*.whl"))
     if not found:
         command = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "-d", str(ZOO_DIR)]
-        done = subprocess.run([*command, f"rl_zoo3=={ZOO_VERSION}"], check=False)
-        if done.returncode != 0:
+        done = subprocess.run(
+            [*command, f"rl_zoo3=={ZOO_VERSION}"], check=False, capture_output=True, text=True
+        )
+        if done.returncode != 0:  # pip's own words only when it failed: the console stays quiet
+            sys.stderr.write(done.stderr)
             raise SystemExit(
                 f"error: could not download rl_zoo3=={ZOO_VERSION} (its settings are read from "
                 f"the wheel): put the wheel in {ZOO_DIR}, or run where PyPI is reachable"

@@ -120,6 +120,20 @@ def validate(cfg: Config) -> Config:
         (cfg.optim.weight_decay >= 0, "optim.weight_decay must be >= 0"),
         (cfg.optim.max_grad > 0, f"optim.max_grad={cfg.optim.max_grad} must be > 0"),
         (
+            cfg.optim.lr_end is None or cfg.optim.lr_end > 0,
+            f"optim.lr_end={cfg.optim.lr_end} must be > 0 (null: no taper)",
+        ),
+        (
+            cfg.optim.lr_decay_frames is None or cfg.optim.lr_decay_frames >= 1,
+            f"optim.lr_decay_frames={cfg.optim.lr_decay_frames} must be >= 1 (null: "
+            "collector.total_frames)",
+        ),
+        (
+            cfg.optim.lr_end is None or not cfg.compile,
+            "optim.lr_end tapers the learning rate, which a compiled update holds fixed: pass "
+            "compile=false, or optim.lr_end=null",
+        ),
+        (
             all(size >= 1 for size in cfg.network.hidden_sizes),
             f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
         ),

@@ -16,7 +16,7 @@ from torch import nn
 from trl_cartpole import defaults
 from trl_cartpole.parts.models import reset_network_noise
 
-__all__ = ["make_optimizer", "make_update"]
+__all__ = ["make_optimizer", "make_update", "tapered_lr"]
 
 
 def make_optimizer(
@@ -54,6 +54,22 @@ def make_optimizer(
     return torch.optim.AdamW(
         params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay, **adamw_kwargs
     )
+
+
+def tapered_lr(lr_start: float, lr_end: float, frames: int, decay_frames: int) -> float:
+    """The learning rate after ``frames`` frames: linear from ``lr_start`` to ``lr_end`` at
+    ``decay_frames``, then ``lr_end`` (a lever of the pixel-Atari literature: late updates
+    that move the policy less).
+
+    Computed from the frames alone, so a resumed run continues the taper where it stopped.
+
+    Example::
+
+        >>> from trl_cartpole.parts.optim import tapered_lr
+        >>> tapered_lr(1e-3, 1e-4, 5_000, 10_000), tapered_lr(1e-3, 1e-4, 20_000, 10_000)
+        (0.00055, 0.0001)
+    """
+    return lr_start + (lr_end - lr_start) * min(1.0, frames / decay_frames)
 
 
 def make_update(
