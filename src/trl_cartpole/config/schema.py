@@ -145,10 +145,10 @@ class OptimConfig:
     weight_decay: float = defaults.WEIGHT_DECAY  # the tutorial keeps AdamW's default 0.01
     grad_clip: str = defaults.GRAD_CLIP  # norm | value | none
     max_grad: float = defaults.MAX_GRAD  # the max norm, or the clip value per element
-    # a learning rate tapered linearly from lr to lr_end over lr_decay_frames (null: lr all
-    # run; null frames: collector.total_frames), set from the frames collected after each batch
+    # the learning rate tapered linearly from lr to this, set from the frames after each batch
+    # (null: lr the whole run)
     lr_end: float | None = None
-    lr_decay_frames: int | None = None
+    lr_decay_frames: int | None = None  # frames to reach lr_end; null: collector.total_frames
 
 
 @dataclass
