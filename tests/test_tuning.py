@@ -29,7 +29,7 @@ def test_the_frames_objective_reports_its_lower_bound_and_holds_a_solve():
 
     from trl_cartpole.tools.tuning import OBJECTIVES, _frames_score, _seed_reporter, frames_score
 
-    assert OBJECTIVES == {"return": "maximize", "frames": "minimize"}
+    assert OBJECTIVES == {"return": "maximize", "frames": "minimize", "seconds": "minimize"}
     assert frames_score(12288, 30000) == 12288.0 and frames_score(None, 30000) == 60000.0
     cfg = SimpleNamespace(
         collector=SimpleNamespace(total_frames=5000, frames_per_batch=32),
@@ -51,11 +51,37 @@ def test_the_frames_objective_reports_its_lower_bound_and_holds_a_solve():
     assert seen == [(6024, 2012.0)]
 
 
+def test_the_seconds_objective_reports_training_seconds_and_holds_a_solve():
+    from types import SimpleNamespace
+
+    from trl_cartpole.tools.tuning import _seconds_score, seconds_score
+
+    assert seconds_score(7.5, 30.0) == 7.5 and seconds_score(None, 30.0) == 60.0
+    cfg = SimpleNamespace(
+        collector=SimpleNamespace(total_frames=4000, frames_per_batch=32),
+        eval=SimpleNamespace(interval_frames=1000),
+    )
+
+    def solves_at_2048(cfg, on_evaluation):
+        for frames, seconds, solved in ((1024, 1.5, False), (2048, 3.25, True)):
+            on_evaluation(SimpleNamespace(frames=frames, seconds=seconds, solved=solved))
+        return {"seconds_to_solve": 3.25, "train_seconds": 3.3}
+
+    def never_solves(cfg, on_evaluation):
+        on_evaluation(SimpleNamespace(frames=1024, seconds=1.5, solved=False))
+        return {"seconds_to_solve": None, "train_seconds": 4.0}
+
+    reports = []
+    assert _seconds_score(solves_at_2048, cfg, lambda *step: reports.append(step)) == 3.25
+    assert reports == [(1024, 1.5), (2048, 3.25), (3072, 3.25)]  # held at 3 072 (< 4 000 + 32)
+    assert _seconds_score(never_solves, cfg, lambda *step: None) == 8.0
+
+
 def test_an_unknown_objective_or_a_study_of_the_other_direction_is_refused(tmp_path):
     out = f"out={tmp_path / 'x.yaml'}"
     proc = run_script_in_process("tune.py", "trials=1", out, "objective=wins")
     assert proc.returncode == 2 and proc.stderr.splitlines() == [
-        "error: objective='wins'; choose return or frames"
+        "error: objective='wins'; choose one of return, frames, seconds"
     ]
     from trl_cartpole.tools.study import run_study
 

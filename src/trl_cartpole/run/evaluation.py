@@ -287,6 +287,7 @@ class Evaluation:
     """One periodic evaluation: what :meth:`Evaluator.run` returns for the loop to dispatch."""
 
     frames: int  # frames collected when it ran
+    seconds: float  # training seconds when it ran (the clock stopped while it plays)
     result: EvalResult
     best_return: float  # the best greedy mean so far, this one included
     new_best: bool  # this one is the best so far (its weights are kept)
@@ -347,7 +348,7 @@ class Evaluator:
         if running:
             progress.clock.start()
         stop = solved and self.stop_when_solved
-        return Evaluation(frames, result, self.best_return, new_best, solved, stop)
+        return Evaluation(frames, seconds, result, self.best_return, new_best, solved, stop)
 
     def load_best(self) -> None:
         """Put the best weights seen into the network."""

@@ -297,6 +297,11 @@ def _score_words(objective: str, total_frames: int) -> str:
     """What a trial's score is, for the preset's header."""
     if objective == "frames":
         return f"mean frames to solve (unsolved: {2 * total_frames}) within {total_frames} frames"
+    if objective == "seconds":
+        return (
+            "mean training seconds to solve (unsolved: twice its training seconds) "
+            f"within {total_frames} frames"
+        )
     return f"mean greedy return over the evaluations of {total_frames} frames"
 
 

@@ -5,11 +5,12 @@ sampler (Bergstra et al. 2011), trains one run per seed with them, and scores th
 :data:`OBJECTIVES`: ``return`` (:func:`curve_score`, maximised: the mean greedy return over the
 periodic evaluations of the frame budget, the area under the evaluation curve divided by its
 length, where a run that stopped because it solved the env keeps its last value until the
-budget) or ``frames`` (:func:`frames_score`, minimised: the frames to solve, an unsolved run
-counting twice its budget). Each evaluation is reported to the trial, so Optuna's pruner
-(median rule by default) stops poor trials early. The study lives in an
-Optuna storage (SQLite by default), so a stopped study resumes and several processes share it.
-The best trial is written as a preset ``scripts/train.py`` takes by name.
+budget), ``frames`` (:func:`frames_score`, minimised: the frames to solve, an unsolved run
+counting twice its budget) or ``seconds`` (:func:`seconds_score`, minimised: the training
+seconds to solve, an unsolved run counting twice the seconds it trained). Each evaluation is
+reported to the trial, so Optuna's pruner (median rule by default) stops poor trials early. The
+study lives in an Optuna storage (SQLite by default), so a stopped study resumes and several
+processes share it. The best trial is written as a preset ``scripts/train.py`` takes by name.
 """
 
 from __future__ import annotations
@@ -33,15 +34,16 @@ __all__ = [
     "frames_score",
     "load_search_space",
     "objective_overrides",
+    "seconds_score",
     "suggest",
     "write_preset",
 ]
 
 RANGE_KEYS = {"low", "high", "log", "step"}
 
-OBJECTIVES = {"return": "maximize", "frames": "minimize"}
-"""A trial's score and its direction: the mean greedy return over the evaluations, or the
-frames to solve."""
+OBJECTIVES = {"return": "maximize", "frames": "minimize", "seconds": "minimize"}
+"""A trial's score and its direction: the mean greedy return over the evaluations, the frames
+to solve, or the training seconds to solve."""
 
 
 def load_search_space(path: str | Path) -> dict[str, dict[str, Any]]:
@@ -119,6 +121,11 @@ def frames_score(frames_to_solve: int | None, total_frames: int) -> float:
     return float(2 * total_frames if frames_to_solve is None else frames_to_solve)
 
 
+def seconds_score(seconds_to_solve: float | None, train_seconds: float) -> float:
+    """Training seconds to solve; a run that never solved counts as twice its training seconds."""
+    return float(2 * train_seconds if seconds_to_solve is None else seconds_to_solve)
+
+
 def write_preset(
     path: str | Path,
     base: Mapping[str, Any],
@@ -161,7 +168,9 @@ def trial_score(
     from trl_cartpole.config.compose import compose_config
     from trl_cartpole.run.training import train
 
-    score_run = _return_score if objective == "return" else _frames_score
+    score_run = {"return": _return_score, "frames": _frames_score, "seconds": _seconds_score}[
+        objective
+    ]
     scores: list[float] = []
     for index, seed in enumerate(seeds):
         run_overrides = [
@@ -202,18 +211,33 @@ def _return_score(train: Any, cfg: Any, report_seed: Any) -> float:
 
 def _frames_score(train: Any, cfg: Any, report_seed: Any) -> float:
     """One run's :func:`frames_score`; its frames so far reported at each evaluation."""
+    summary = _train_reporting_until_solved(train, cfg, report_seed, "frames")
+    return frames_score(summary["frames_to_solve"], cfg.collector.total_frames)
+
+
+def _seconds_score(train: Any, cfg: Any, report_seed: Any) -> float:
+    """One run's :func:`seconds_score`; its training seconds so far reported at each evaluation."""
+    summary = _train_reporting_until_solved(train, cfg, report_seed, "seconds")
+    return seconds_score(summary["seconds_to_solve"], summary["train_seconds"])
+
+
+def _train_reporting_until_solved(train: Any, cfg: Any, report_seed: Any, measure: str) -> Any:
+    """Train, reporting each evaluation's ``frames`` or ``seconds`` at its frames (the step).
+
+    Once a run solves, its value is held at the steps its budget would still have evaluated.
+    """
     total = cfg.collector.total_frames
     batch = cfg.collector.frames_per_batch
     period = -(-cfg.eval.interval_frames // batch) * batch  # evaluations fall on whole batches
 
     def on_evaluation(evaluation: Evaluation) -> None:
-        report_seed(evaluation.frames, float(evaluation.frames))
-        if evaluation.solved:  # held at the steps its budget would still have evaluated
+        value = float(getattr(evaluation, measure))
+        report_seed(evaluation.frames, value)
+        if evaluation.solved:
             for frames in range(evaluation.frames + period, total + batch, period):
-                report_seed(frames, float(evaluation.frames))
+                report_seed(frames, value)
 
-    summary = train(cfg, on_evaluation=on_evaluation)
-    return frames_score(summary["frames_to_solve"], total)
+    return train(cfg, on_evaluation=on_evaluation)
 
 
 # A trial's runs write no plots, periodic checkpoints or policies: only what the score needs.

@@ -1,7 +1,7 @@
 """Tune hyperparameters with Optuna and write the best trial as a preset (docs/tuning.md).
 
 usage: trl-cartpole tune trials=N out=FILE [jobs=J] [storage=URL] [study=NAME] [space=FILE]
-           [seeds=[0,1]] [pruner=median|none] [objective=return|frames]
+           [seeds=[0,1]] [pruner=median|none] [objective=return|frames|seconds]
            [train's key=value ...]
 
 Every other key=value is train's (env=lunarlander collector.total_frames=300000); the search
@@ -45,7 +45,8 @@ class TuneArgs:
     # same step (after 5 trials, from a quarter of the frame budget on); none: never
     pruner: str = "median"
     # return: maximise the mean greedy return over the evaluations; frames: minimise the frames
-    # to solve (an unsolved run counts twice the frame budget)
+    # to solve (an unsolved run counts twice the frame budget); seconds: minimise the training
+    # seconds to solve (an unsolved run counts twice its training seconds; run it alone)
     objective: str = "return"
 
 
@@ -63,7 +64,7 @@ def main(argv: list[str]) -> None:
     if args.pruner not in ("median", "none"):
         raise ConfigError(f"pruner={args.pruner!r}; choose median or none")
     if args.objective not in OBJECTIVES:
-        raise ConfigError(f"objective={args.objective!r}; choose {' or '.join(OBJECTIVES)}")
+        raise ConfigError(f"objective={args.objective!r}; choose one of {', '.join(OBJECTIVES)}")
     # the trials' base config is checked before Optuna, torch and TorchRL are imported
     validate(to_config(compose_config(PRESETS_DIR, overrides)))
     from trl_cartpole.tools.study import run_study
