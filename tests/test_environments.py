@@ -80,7 +80,8 @@ def test_env_preset_wins_over_the_algo_defaults_it_sets(compose):
     cfg = to_config(compose("env=lunarlander", "algo=dueling"))  # a variant switch combines
     assert cfg.network.head == "dueling" and cfg.buffer.batch_size == 64
     cfg = to_config(compose("env=acrobot", "algo=noisy"))
-    assert cfg.exploration.schedule == "none" and cfg.network.hidden_sizes == [256, 256]
+    assert cfg.exploration.schedule == "none" and cfg.buffer.batch_size == 128
+    assert cfg.optim.lr == 2.75e-3 and cfg.loss.hard_update_interval == 82
 
 
 def test_custom_env_class_trains_from_the_command_line(tmp_path, examples_on_path, fresh_registry):
