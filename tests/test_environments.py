@@ -82,6 +82,8 @@ def test_env_preset_wins_over_the_algo_defaults_it_sets(compose):
     cfg = to_config(compose("env=acrobot", "algo=noisy"))
     assert cfg.exploration.schedule == "none" and cfg.buffer.batch_size == 128
     assert cfg.optim.lr == 2.75e-3 and cfg.loss.hard_update_interval == 82
+    # a preset leaves the variant switches it does not tune to the algo preset
+    assert to_config(compose("env=acrobot", "algo=double")).loss.double_dqn
 
 
 def test_custom_env_class_trains_from_the_command_line(tmp_path, examples_on_path, fresh_registry):
