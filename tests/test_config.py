@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 
 import pytest
 from hydra.errors import HydraException
+from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from trl_cartpole.config.compose import compose_config
+from trl_cartpole.config.presets import PRESETS_DIR
 from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.store.checkpoint import _config_metadata
 
 from .conftest import SCRIPTS
 
@@ -148,3 +153,21 @@ def test_cli_bad_input_is_one_line_and_exit_2(python, tmp_path, override, expect
     assert len(lines) == 1 and expected in lines[0]
     assert "Traceback" not in proc.stderr
     assert not run_dir.exists()  # nothing written before training
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        [],
+        *([f"env={path.stem}"] for path in sorted((PRESETS_DIR / "env").glob("*.yaml"))),
+        *([f"algo={path.stem}"] for path in sorted((PRESETS_DIR / "algo").glob("*.yaml"))),
+    ],
+    ids=lambda overrides: overrides[0] if overrides else "default",
+)
+def test_the_config_a_checkpoint_stores_is_omegaconfs_tree_of_it(overrides):
+    # checkpoints store dataclasses.asdict(cfg), the fast form of OmegaConf's container
+    cfg = to_config(compose_config(PRESETS_DIR, overrides))
+    stored = _config_metadata(cfg, "policy")["config"]
+    expected = OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
+    assert json.dumps(stored) == json.dumps(expected)  # same keys, values and their types
+    assert to_config(stored) == cfg

@@ -272,6 +272,16 @@ def discounted_return_reference(
     return float(np.mean(values)) if values else float("nan")
 
 
+DASHBOARD_MARGINS = {
+    "left": 0.06,
+    "right": 0.985,
+    "bottom": 0.075,
+    "top": 0.865,
+    "wspace": 0.18,
+    "hspace": 0.3,
+}
+
+
 def plot_dashboard(
     data: DashboardData, path: str | Path, smoothing: int = 100, title: str = ""
 ) -> Path:
@@ -340,7 +350,9 @@ def plot_dashboard(
             label=f"clipped to {data.max_grad_norm:g}",
         )
         gradient.legend(loc="upper right", fontsize="small")
-    fig.tight_layout()
+    # the margins tight_layout() finds for this grid, with room for a 2-line title and an
+    # offset label ("1e-4") over a panel; fixed, they cost nothing (tight_layout: about 0.2 s)
+    fig.subplots_adjust(**DASHBOARD_MARGINS)
     _atomic_savefig(fig, path)
     return path
 
