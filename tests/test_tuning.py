@@ -5,10 +5,18 @@ from __future__ import annotations
 import shutil
 
 import pytest
+import yaml
 
 from trl_cartpole.cli.main import compose_config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.tools.tuning import QUIET_RUN, curve_score, load_search_space, objective_overrides
+from trl_cartpole.tools.tuning import (
+    QUIET_RUN,
+    curve_score,
+    load_search_space,
+    objective_overrides,
+    variant_switch_defaults,
+    write_preset,
+)
 
 from .conftest import CONFIG_DIR, run_script, run_script_in_process
 
@@ -206,3 +214,26 @@ def test_every_search_space_samples_a_valid_config_of_its_env_preset(space):
     cfg = compose_config(CONFIG_DIR, [f"env={space.stem}", *objective_overrides(params)])
     validate(to_config(cfg))  # raises on an impossible value
     assert cfg.optim.lr == params["optim.lr"]
+
+
+def test_a_tuned_preset_leaves_out_a_variant_switch_at_its_default(tmp_path):
+    # env presets apply after algo presets: a tuned preset that wrote double_dqn: false would
+    # turn algo=double back into plain DQN
+    configs = tmp_path / "configs"
+    shutil.copytree(CONFIG_DIR, configs)
+    switches = variant_switch_defaults(configs)
+    assert switches["loss.double_dqn"] is False and switches["network.head"] == "plain"
+    assert "optim.lr" not in switches and "loss.gamma" not in switches  # recipe, not variant
+    base = {"env": {"id": "Acrobot-v1"}, "buffer": {"n_steps": 5}, "loss": {"gamma": 0.99}}
+    params = {"buffer.n_steps": 3, "loss.double_dqn": False, "optim.lr": 1e-3}
+    out = configs / "env" / "tuned.yaml"
+    write_preset(out, base, params, ["Acrobot-v1 tuned"], switches)
+    written = yaml.safe_load(out.read_text())
+    # n_steps 3 is the default: dropped with the base's 5, and the section it leaves empty
+    assert written == {"env": {"id": "Acrobot-v1"}, "loss": {"gamma": 0.99}, "optim": {"lr": 1e-3}}
+    double = compose_config(configs, ["env=tuned", "algo=double"])
+    assert double.loss.double_dqn is True and double.buffer.n_steps == 3
+    assert double.optim.lr == 1e-3 and double.loss.gamma == 0.99
+    # a switch tuned away from its default is the preset's own choice: written
+    write_preset(out, base, {"loss.double_dqn": True}, ["tuned"], switches)
+    assert yaml.safe_load(out.read_text())["loss"] == {"gamma": 0.99, "double_dqn": True}

@@ -33,6 +33,7 @@ from trl_cartpole.tools.tuning import (
     load_search_space,
     suggest,
     trial_score,
+    variant_switch_defaults,
     write_preset,
 )
 
@@ -281,7 +282,7 @@ def run_study(
         f"seeds {', '.join(map(str, seeds))}; {len(finished)} trials, {pruned} pruned",
         f"tuning overrides: {' '.join(overrides) or 'none'}",
     ]
-    path = write_preset(out, base, best.params, header)
+    path = write_preset(out, base, best.params, header, variant_switch_defaults(config_dir))
     _save_plots(study, study_dir)
     lines = [
         f"study {study_name} ({storage}): {len(finished)} trials finished, {pruned} pruned, "

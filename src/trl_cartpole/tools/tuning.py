@@ -131,20 +131,70 @@ def write_preset(
     base: Mapping[str, Any],
     params: Mapping[str, Any],
     header: Sequence[str],
+    switch_defaults: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write ``base`` (a preset's nested dict) with ``params`` (dotted keys) as a Hydra preset.
 
-    ``header`` lines become its leading comments (``train.py --help`` shows the first).
+    ``header`` lines become its leading comments (``train.py --help`` shows the first). A tuned
+    key of ``switch_defaults`` (:func:`variant_switch_defaults`: what the variant presets
+    switch, at its default value) whose value is that default is left out, ``base``'s line for
+    it too: env presets apply after algo presets, so writing it would switch the variant back
+    (``env=<this> algo=double`` without double DQN).
     """
     merged = OmegaConf.merge(
         OmegaConf.create(dict(base)), OmegaConf.from_dotlist(objective_overrides(params))
     )
+    switch_defaults = switch_defaults or {}
+    for key, value in params.items():
+        if key in switch_defaults and value == switch_defaults[key]:
+            _drop(merged, key)
     text = "".join(f"# {line}\n" for line in header)
     text = "# @package _global_\n" + text + OmegaConf.to_yaml(merged)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
     return path
+
+
+def _drop(tree: Any, dotted: str) -> None:
+    """Remove ``dotted`` from the nested config ``tree``, and the sections it leaves empty."""
+    *sections, leaf = dotted.split(".")
+    nodes = [tree]
+    for section in sections:
+        nodes.append(nodes[-1][section])
+    del nodes[-1][leaf]
+    for node, section in zip(reversed(nodes[:-1]), reversed(sections), strict=True):
+        if len(node[section]) == 0:
+            del node[section]
+
+
+def variant_switch_defaults(config_dir: str | Path) -> dict[str, Any]:
+    """The keys the variant presets of ``config_dir/algo`` set, each at its value in the
+    default config: the keys a tuned env preset must not repeat.
+
+    A variant preset (double, dueling, noisy, c51, rainbow...) switches parts of the algorithm;
+    one that sets the optimizer (``dqn``, ``tutorial``) is a whole recipe, not a variant.
+    """
+    from trl_cartpole.config.compose import compose_config
+
+    default = compose_config(config_dir, [])
+    keys: set[str] = set()
+    for path in sorted((Path(config_dir) / "algo").glob("*.yaml")):
+        preset = OmegaConf.to_container(OmegaConf.load(path))
+        if "optim" not in preset:
+            keys |= _dotted_keys(preset)
+    keys.discard("algo.name")
+    return {key: OmegaConf.select(default, key) for key in sorted(keys)}
+
+
+def _dotted_keys(tree: Mapping[str, Any], prefix: str = "") -> set[str]:
+    keys: set[str] = set()
+    for name, value in tree.items():
+        if isinstance(value, Mapping):
+            keys |= _dotted_keys(value, f"{prefix}{name}.")
+        else:
+            keys.add(f"{prefix}{name}")
+    return keys
 
 
 def trial_score(
