@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from omegaconf import OmegaConf
 
+from trl_cartpole.config.schema import flat_fields
 from trl_cartpole.errors import ConfigError
 
 if TYPE_CHECKING:  # the evaluation module imports torch: not at the tuner's import
@@ -182,19 +183,9 @@ def variant_switch_defaults(config_dir: str | Path) -> dict[str, Any]:
     for path in sorted((Path(config_dir) / "algo").glob("*.yaml")):
         preset = OmegaConf.to_container(OmegaConf.load(path))
         if "optim" not in preset:
-            keys |= _dotted_keys(preset)
+            keys |= set(flat_fields(preset))
     keys.discard("algo.name")
     return {key: OmegaConf.select(default, key) for key in sorted(keys)}
-
-
-def _dotted_keys(tree: Mapping[str, Any], prefix: str = "") -> set[str]:
-    keys: set[str] = set()
-    for name, value in tree.items():
-        if isinstance(value, Mapping):
-            keys |= _dotted_keys(value, f"{prefix}{name}.")
-        else:
-            keys.add(f"{prefix}{name}")
-    return keys
 
 
 def trial_score(
