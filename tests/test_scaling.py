@@ -12,6 +12,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -24,6 +25,7 @@ from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.collectors import (
     default_ray_init_config,
+    lost_worker,
     make_collector,
     needs_weight_sync,
     shutdown_collector,
@@ -61,6 +63,39 @@ def test_ray_actors_are_sent_the_learners_weights():
     policy = torch.nn.Linear(1, 1)
     assert needs_weight_sync(RayLike(policy), policy)
     assert not needs_weight_sync(SingleProcess(policy), policy)
+
+
+def test_a_transport_error_names_the_ray_actor_that_no_longer_answers(monkeypatch):
+    """A weight push to a killed actor fails first in gloo ("Connection closed by peer"), not
+    with Ray's ``RayActorError``: the actors are asked, and the one that is dead is named (a busy
+    one that times out is not); when every actor answers, the error is not a lost worker."""
+    ray = pytest.importorskip("ray")
+    from ray.exceptions import GetTimeoutError, RayActorError
+
+    dead = RayActorError(
+        actor_id="bb", error_msg="The actor died\n\tpid: 4242\n\tip: 10.0.0.3\n\tkilled by SIGKILL"
+    )
+
+    class Actor:  # what lost_worker sees of a Ray actor handle
+        def __init__(self, actor_id, answer):
+            self._actor_id = SimpleNamespace(hex=lambda: actor_id)
+            self.__ray_ready__ = SimpleNamespace(remote=lambda: answer)
+
+    def get(answer, timeout):
+        assert timeout > 0  # a dead actor's node may never answer: never wait forever
+        if isinstance(answer, BaseException):
+            raise answer
+        return answer
+
+    monkeypatch.setattr(ray, "get", get)
+    gloo = RuntimeError("[pair.cc:553] Connection closed by peer [127.0.0.1]:40600.")
+    busy, alive = Actor("aa", GetTimeoutError()), Actor("cc", True)
+    collector = SimpleNamespace(remote_collectors=[busy, Actor("bb", dead), alive])
+    assert lost_worker(gloo, collector) == (
+        "Ray collector actor 2 of 3 (pid 4242, ip 10.0.0.3) died: killed by SIGKILL"
+    )
+    assert lost_worker(gloo, SimpleNamespace(remote_collectors=[busy, alive])) is None
+    assert lost_worker(gloo, SimpleNamespace()) is None  # not a Ray collector
 
 
 def test_a_local_ray_instance_is_started_apart_from_any_other_on_the_machine():
@@ -437,6 +472,7 @@ def test_the_actors_run_on_the_worker_node_and_the_learner_on_the_head(two_node_
 _SHIPPED_PACKAGE = """
 import json, sys
 from pathlib import Path
+from types import SimpleNamespace
 import ray, trl_cartpole
 from trl_cartpole.run.build import build_actor
 from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors

@@ -354,18 +354,48 @@ def shutdown_collector(collector: BaseCollector) -> None:
     close_weight_sync_schemes(collector)
 
 
+# How long a live actor may take to answer whether it is alive (it may be mid-batch).
+RAY_ALIVE_TIMEOUT_S = 30.0
+
+
+def _dead_actor_error(collector: BaseCollector, ray_exceptions: Any) -> BaseException | None:
+    """The ``RayActorError`` of the first of ``collector``'s Ray actors that no longer
+    answers, or None when every one does (or ``collector`` has none)."""
+    actors = getattr(collector, "remote_collectors", None) or []
+    if not actors:
+        return None
+    import ray
+
+    for actor in actors:
+        try:
+            ray.get(actor.__ray_ready__.remote(), timeout=RAY_ALIVE_TIMEOUT_S)
+        except ray_exceptions.RayActorError as dead:
+            return dead
+        except ray_exceptions.GetTimeoutError:
+            continue  # busy, not dead
+    return None
+
+
 # The fields of Ray's ActorDiedError message ("\tpid: 1234"), between its first line and the reason.
 RAY_ACTOR_FIELDS = ("class_name", "actor_id", "pid", "name", "namespace", "ip")
 
 
 def lost_worker(error: BaseException, collector: BaseCollector) -> str | None:
     """``"Ray collector actor 2 of 2 (pid 1234, ip 10.0.0.3) died: <Ray's reason>"`` if ``error``
-    is Ray's word that one of ``collector``'s actors is gone (``RayActorError``), else None.
+    is Ray's word that one of ``collector``'s actors is gone (``RayActorError``), or any other
+    error while one of them no longer answers (a weight push to a dead actor fails in gloo
+    first), else None.
     The actor is named by its place among the collector's actors while the collector still
     lists them, else by Ray's actor id."""
     ray_exceptions = sys.modules.get("ray.exceptions")  # Ray not imported: no Ray actor
-    if ray_exceptions is None or not isinstance(error, ray_exceptions.RayActorError):
+    if ray_exceptions is None:
         return None
+    if not isinstance(error, ray_exceptions.RayActorError):
+        # a weight push to a dead actor fails first in torch.distributed's transport (gloo's
+        # "Connection closed by peer"): ask the actors, and take a dead one's error
+        error = _dead_actor_error(collector, ray_exceptions)
+        if error is None:
+            return None
     lines = [line.strip() for line in str(error).splitlines() if line.strip()] or ["(no reason)"]
     fields, reasons = {}, []
     for line in lines[1:]:
