@@ -115,6 +115,26 @@ def test_prioritized_sampler_names_the_segment_trees_it_uses():
     assert prioritized.SumSegmentTreeFp32 is not None
 
 
+def test_a_prioritized_buffer_keeps_cpu_trees_where_torchrl_has_no_cuda_ones(monkeypatch):
+    """TorchRL's ``PrioritizedSampler`` documents CPU trees for a CUDA storage on a build
+    without CUDA trees, yet raises (PyPI's 0.14.1 wheel, seen on an H200): the factory asks for
+    the CPU trees there, and leaves TorchRL's default (and a caller's choice) alone elsewhere."""
+    from torchrl.data.replay_buffers.samplers import prioritized
+
+    assert hasattr(prioritized, "CudaSumSegmentTreeFp32")  # the name the check reads
+    built = compat.cuda_segment_trees_available()
+    assert built == (prioritized.CudaSumSegmentTreeFp32 is not None)
+
+    def sampler_device(**kwargs):
+        return make_replay_buffer(prioritized=True, max_size=8, **kwargs)._sampler._device
+
+    monkeypatch.setattr(prioritized, "CudaSumSegmentTreeFp32", None)
+    assert sampler_device() == torch.device("cpu")
+    assert sampler_device(sampler_device="meta") == torch.device("meta")  # the caller's
+    monkeypatch.setattr(prioritized, "CudaSumSegmentTreeFp32", object())
+    assert sampler_device() is None  # TorchRL's own default: trees follow the storage
+
+
 @pytest.mark.parametrize("tree", [compat.TensorSumSegmentTree, compat.TensorMinSegmentTree])
 def test_segment_tree_stand_ins_answer_queries(tree):
     values = tree(4)

@@ -103,7 +103,7 @@ def draw_cartpole(
 
     # The full-resolution rows of the crop, bottom-up as pygame draws them (image row r is
     # pygame's row 399 - r); pixel k spans [k - 1/2, k + 1/2].
-    image_rows = torch.arange(top, top + height * pool, dtype=dtype)  # [R]
+    image_rows = torch.arange(top, top + height * pool, dtype=dtype, device=state.device)  # [R]
     y = (SCREEN_HEIGHT - 1 - image_rows)[None, :]  # [1, R]
     cart_x = (state[:, 0] * scale + SCREEN_WIDTH / 2)[:, None]  # [N, 1]
     cos, sin = state[:, 2].cos()[:, None], state[:, 2].sin()[:, None]  # [N, 1]
@@ -138,7 +138,7 @@ def draw_cartpole(
     last = ((x_max - origin) / pool).floor().nan_to_num(0, 0, 0).clamp(0, width - 1)
     window = int((last - first).clamp_min(0).max().item()) + 1 if len(first) else 1
     first = first.clamp(max=width - window).long()  # [N]
-    columns = first[:, None] + torch.arange(window)  # [N, K]
+    columns = first[:, None] + torch.arange(window, device=state.device)  # [N, K]
     col_lo = (origin + pool * columns.to(dtype))[:, None, :]  # [N, 1, K]
     col_hi = col_lo + pool
 
@@ -160,7 +160,7 @@ def draw_cartpole(
     track = (y == CART_TOP)[..., None]  # [1, R, 1]: the track is drawn last, black, full width
     darkening = darkening.masked_fill(track, 0.0)
     blocks = darkening.reshape(-1, height, pool, window).sum(2)  # [N, h, K]
-    dark = torch.zeros(len(state), height, width, dtype=dtype)
+    dark = torch.zeros(len(state), height, width, dtype=dtype, device=state.device)
     dark.scatter_add_(2, columns[:, None, :].expand(-1, height, -1), blocks)  # [N, h, w]
     track_rows = track[0, :, 0].to(dtype).reshape(height, pool).sum(1)  # [h]
     dark += (white - _gray(CART_RGB)) * pool * track_rows[None, :, None]

@@ -53,6 +53,7 @@ __all__ = [
     "autoreset_state",
     "carrier_of",
     "close_weight_sync_schemes",
+    "cuda_segment_trees_available",
     "greedy_action_rule",
     "greedy_value_rule",
     "gym_env",
@@ -290,6 +291,15 @@ class TensorMinSegmentTree(_TensorSegmentTree):
         """Minimum of the values at ``[left, right)`` (``inf`` when empty)."""
         values = self._slice(left, right)
         return float(values.min()) if values.numel() else self.neutral
+
+
+def cuda_segment_trees_available() -> bool:
+    """Whether the installed TorchRL has ``PrioritizedSampler``'s CUDA trees (PyPI's 0.14.1
+    wheel has not: a sampler over a CUDA storage then raises at its first use, where its
+    docstring says it keeps the CPU trees)."""
+    from torchrl.data.replay_buffers.samplers import prioritized
+
+    return getattr(prioritized, "CudaSumSegmentTreeFp32", None) is not None
 
 
 def install_segment_trees_if_missing() -> bool:

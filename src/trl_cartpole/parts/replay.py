@@ -32,7 +32,11 @@ from torchrl.data.replay_buffers import PrioritizedSampler, RandomSampler, Sampl
 from torchrl.envs import Compose, MultiStepTransform, Transform
 
 from trl_cartpole import defaults
-from trl_cartpole.parts.compat import held_steps, n_step_transform
+from trl_cartpole.parts.compat import (
+    cuda_segment_trees_available,
+    held_steps,
+    n_step_transform,
+)
 
 __all__ = [
     "DEFAULT_GAMMA",
@@ -238,7 +242,10 @@ def make_replay_buffer(
     :param gamma: the n-step discount. Ours 0.995, the loss's default too; refused without
         ``n_steps > 1``.
     :param buffer_kwargs: go to the buffer's constructor (``prefetch``, ``pin_memory``,
-        ``priority_key``, ...).
+        ``priority_key``, ...). ``sampler_device`` (the priority trees' device, with
+        ``prioritized=True``): default ``None``, TorchRL's, where the installed TorchRL has CUDA
+        trees; else ``"cpu"``, the trees TorchRL documents for that case (its 0.14.1 PyPI wheel
+        has none, and raises at the first sample from a CUDA storage instead).
     :returns: TorchRL's ``TensorDictReplayBuffer``, or ``TensorDictPrioritizedReplayBuffer``
         with ``prioritized=True``.
     :raises ValueError: when ``sampler`` is given with ``prioritized=True``, ``alpha``,
@@ -265,6 +272,9 @@ def make_replay_buffer(
                 "prioritized=True brings its own PrioritizedSampler; pass sampler= or "
                 "prioritized=True, not both"
             )
+        if buffer_kwargs.get("sampler_device") is None and not cuda_segment_trees_available():
+            # TorchRL's documented default for a CUDA storage on a build without CUDA trees
+            buffer_kwargs["sampler_device"] = "cpu"
         return TensorDictPrioritizedReplayBuffer(
             alpha=DEFAULT_ALPHA if alpha is None else alpha,
             beta=DEFAULT_BETA if beta is None else beta,

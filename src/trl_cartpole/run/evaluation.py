@@ -177,10 +177,15 @@ def evaluate_on_vector_env(
     )
     # the env's StepDeadline, if any, bounds the Gymnasium steps played here
     deadline = next((t.seconds for t in env.transform if isinstance(t, StepDeadline)), None)
+    device = next(actor.parameters()).device  # Gymnasium's observations are on the CPU
+
+    def q_values(observation: torch.Tensor) -> torch.Tensor:  # [E, obs_dim] -> [E, A] on CPU
+        return expected_action_values(actor, action_values(observation.to(device))).cpu()
+
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         return play_greedy_episodes(
             vector_env,
-            lambda observation: expected_action_values(actor, action_values(observation)),
+            q_values,
             max_steps,
             step_timeout=deadline,
         )
