@@ -19,6 +19,9 @@ Private names read (each through one function below):
   collector's ``shutdown()`` leaves open (the process hung at exit);
 - ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action;
 - ``SoftUpdate._sources`` / ``_targets``: the parameters a soft update lerps, for the fused step.
+- ``torchrl.data.replay_buffers.samplers.prioritized.CudaSumSegmentTreeFp32``: ``None`` where
+  the installed TorchRL has no CUDA priority trees (PyPI's 0.14.1 wheel), so that a prioritized
+  buffer over a CUDA storage is given CPU trees (:func:`cuda_segment_trees_available`).
 
 Stand-ins for TorchRL parts:
 
