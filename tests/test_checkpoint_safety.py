@@ -22,6 +22,7 @@ from torchrl.checkpoint import Checkpoint
 
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import make_env
+from trl_cartpole.policy.load import evaluate_checkpoint
 from trl_cartpole.store.env_state import env_snapshot, restore_env_snapshot
 from trl_cartpole.store.pickle_scan import executable_opcode
 
@@ -99,6 +100,22 @@ def planted(tmp_path, smoke_checkpoint):
     run_dir = tmp_path / "run"
     shutil.copytree(smoke_checkpoint.parent.parent, run_dir)
     return run_dir, tmp_path / "payload-ran"
+
+
+def test_a_policy_saved_on_a_gpu_plays_on_a_machine_without_one(planted):
+    """A GPU run's policy records its tensors as ``cuda:0``; ``evaluate`` (as ``render`` and
+    ``export``) reads them onto the CPU actor it builds. Loaded where they were saved, they
+    raised "Torch not compiled with CUDA enabled" on a CPU-only torch."""
+    run_dir, _ = planted
+    best = run_dir / "checkpoints" / "best"
+    (component,) = (best / "components").glob("*-policy")
+    for record in (component / "state.json", component / "state" / "meta.json"):
+        text = record.read_text()
+        assert '"device":"cpu"' in text  # what is rewritten below
+        record.write_text(text.replace('"device":"cpu"', '"device":"cuda:0"'))
+    _rewrite_integrity(best)
+    result, loaded = evaluate_checkpoint(best, episodes=2)
+    assert loaded["device"] == "cpu" and len(result.returns) == 2
 
 
 @pytest.mark.parametrize("script", ["evaluate.py", "render.py", "export.py"])

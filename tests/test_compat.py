@@ -121,9 +121,10 @@ def test_a_prioritized_buffer_keeps_cpu_trees_where_torchrl_has_no_cuda_ones(mon
     the CPU trees there, and leaves TorchRL's default (and a caller's choice) alone elsewhere."""
     from torchrl.data.replay_buffers.samplers import prioritized
 
-    assert hasattr(prioritized, "CudaSumSegmentTreeFp32")  # the name the check reads
+    names = [f"Cuda{k}SegmentTree{p}" for k in ("Sum", "Min") for p in ("Fp32", "Fp64")]
+    assert all(hasattr(prioritized, name) for name in names)  # the names the check reads
     built = compat.cuda_segment_trees_available()
-    assert built == (prioritized.CudaSumSegmentTreeFp32 is not None)
+    assert built == all(getattr(prioritized, name) is not None for name in names)
 
     def sampler_device(**kwargs):
         return make_replay_buffer(prioritized=True, max_size=8, **kwargs)._sampler._device
@@ -131,7 +132,8 @@ def test_a_prioritized_buffer_keeps_cpu_trees_where_torchrl_has_no_cuda_ones(mon
     monkeypatch.setattr(prioritized, "CudaSumSegmentTreeFp32", None)
     assert sampler_device() == torch.device("cpu")
     assert sampler_device(sampler_device="meta") == torch.device("meta")  # the caller's
-    monkeypatch.setattr(prioritized, "CudaSumSegmentTreeFp32", object())
+    for name in names:
+        monkeypatch.setattr(prioritized, name, object())
     assert sampler_device() is None  # TorchRL's own default: trees follow the storage
 
 

@@ -81,20 +81,26 @@ def test_a_transport_error_names_the_ray_actor_that_no_longer_answers(monkeypatc
             self._actor_id = SimpleNamespace(hex=lambda: actor_id)
             self.__ray_ready__ = SimpleNamespace(remote=lambda: answer)
 
-    def get(answer, timeout):
-        assert timeout > 0  # a dead actor's node may never answer: never wait forever
+    def wait(probes, num_returns, timeout):
+        assert timeout > 0 and num_returns == len(probes)  # one wait for all, never forever
+        answered = [probe for probe in probes if not isinstance(probe, GetTimeoutError)]
+        return answered, [probe for probe in probes if probe not in answered]
+
+    def get(answer):
         if isinstance(answer, BaseException):
             raise answer
         return answer
 
+    monkeypatch.setattr(ray, "wait", wait)
     monkeypatch.setattr(ray, "get", get)
     gloo = RuntimeError("[pair.cc:553] Connection closed by peer [127.0.0.1]:40600.")
     busy, alive = Actor("aa", GetTimeoutError()), Actor("cc", True)
-    collector = SimpleNamespace(remote_collectors=[busy, Actor("bb", dead), alive])
+    confused = Actor("dd", RuntimeError("Ray's own failure"))  # names no dead actor
+    collector = SimpleNamespace(remote_collectors=[busy, confused, Actor("bb", dead), alive])
     assert lost_worker(gloo, collector) == (
-        "Ray collector actor 2 of 3 (pid 4242, ip 10.0.0.3) died: killed by SIGKILL"
+        "Ray collector actor 3 of 4 (pid 4242, ip 10.0.0.3) died: killed by SIGKILL"
     )
-    assert lost_worker(gloo, SimpleNamespace(remote_collectors=[busy, alive])) is None
+    assert lost_worker(gloo, SimpleNamespace(remote_collectors=[busy, confused, alive])) is None
     assert lost_worker(gloo, SimpleNamespace()) is None  # not a Ray collector
 
 
@@ -472,7 +478,6 @@ def test_the_actors_run_on_the_worker_node_and_the_learner_on_the_head(two_node_
 _SHIPPED_PACKAGE = """
 import json, sys
 from pathlib import Path
-from types import SimpleNamespace
 import ray, trl_cartpole
 from trl_cartpole.run.build import build_actor
 from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors

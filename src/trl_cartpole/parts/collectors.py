@@ -360,19 +360,25 @@ RAY_ALIVE_TIMEOUT_S = 30.0
 
 def _dead_actor_error(collector: BaseCollector, ray_exceptions: Any) -> BaseException | None:
     """The ``RayActorError`` of the first of ``collector``'s Ray actors that no longer
-    answers, or None when every one does (or ``collector`` has none)."""
+    answers, or None when every one does (or ``collector`` has none). The actors are asked at
+    once and waited for together, ``RAY_ALIVE_TIMEOUT_S`` at most; one that has not answered by
+    then is busy, not dead."""
     actors = getattr(collector, "remote_collectors", None) or []
     if not actors:
         return None
     import ray
 
-    for actor in actors:
+    probes = [actor.__ray_ready__.remote() for actor in actors]
+    answered, _ = ray.wait(probes, num_returns=len(probes), timeout=RAY_ALIVE_TIMEOUT_S)
+    for probe in probes:
+        if probe not in answered:
+            continue
         try:
-            ray.get(actor.__ray_ready__.remote(), timeout=RAY_ALIVE_TIMEOUT_S)
+            ray.get(probe)
         except ray_exceptions.RayActorError as dead:
             return dead
-        except ray_exceptions.GetTimeoutError:
-            continue  # busy, not dead
+        except Exception:  # any other answer names no dead actor
+            continue
     return None
 
 

@@ -19,7 +19,8 @@ Private names read (each through one function below):
   collector's ``shutdown()`` leaves open (the process hung at exit);
 - ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action;
 - ``SoftUpdate._sources`` / ``_targets``: the parameters a soft update lerps, for the fused step.
-- ``torchrl.data.replay_buffers.samplers.prioritized.CudaSumSegmentTreeFp32``: ``None`` where
+- ``torchrl.data.replay_buffers.samplers.prioritized.CudaSumSegmentTreeFp32`` (and its Min and
+  Fp64 siblings): ``None`` where
   the installed TorchRL has no CUDA priority trees (PyPI's 0.14.1 wheel), so that a prioritized
   buffer over a CUDA storage is given CPU trees (:func:`cuda_segment_trees_available`).
 
@@ -302,7 +303,12 @@ def cuda_segment_trees_available() -> bool:
     docstring says it keeps the CPU trees)."""
     from torchrl.data.replay_buffers.samplers import prioritized
 
-    return getattr(prioritized, "CudaSumSegmentTreeFp32", None) is not None
+    names = [
+        f"Cuda{kind}SegmentTree{precision}"
+        for kind in ("Sum", "Min")
+        for precision in ("Fp32", "Fp64")
+    ]
+    return all(getattr(prioritized, name, None) is not None for name in names)
 
 
 def install_segment_trees_if_missing() -> bool:

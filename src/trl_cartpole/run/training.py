@@ -109,7 +109,8 @@ def train(
                 fault = worker_env_fault(log_dir, run.env_id, progress.frames)  # a worker died
             if fault is not None:
                 raise record_failure(run, fault) from None
-            lost = lost_worker(error, run.collector)  # a Ray actor died: checkpoint, then stop
+            # a Ray actor died: checkpoint, then stop (our own stops say their own word)
+            lost = None if isinstance(error, _OUR_STOPS) else lost_worker(error, run.collector)
             if lost is None:
                 raise
             raise run.checkpointer.stop_for_lost_worker(progress, lost) from None

@@ -329,11 +329,13 @@ def read_observation_norm(path: str | Path) -> dict[str, list[float]] | None:
 
 
 def load_policy(path: str | Path, actor: nn.Module) -> nn.Module:
-    """Load policy weights saved by :func:`save_policy` into ``actor`` (in place)."""
+    """Load policy weights saved by :func:`save_policy` into ``actor`` (in place), read onto
+    ``actor``'s device whatever device they were saved from (a GPU run's, on a CPU machine)."""
     verify_checkpoint(path)
+    device = next(actor.parameters()).device
     try:
         with no_unpickling(path):
-            Checkpoint(policy=actor).load(path, components=["policy"])
+            Checkpoint(policy=actor).load(path, components=["policy"], map_location=device)
     except (CheckpointError, RuntimeError, KeyError) as error:
         first_line = str(error).splitlines()[0]
         raise ConfigError(
