@@ -42,7 +42,10 @@ RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
-RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in ("acrobot", "mountaincar")}
+RACES = {
+    env: ROOT / "docs" / "results" / f"race_{env}.json"
+    for env in ("acrobot", "mountaincar", "lunarlander")
+}
 SEEDS = [0]
 OUT = Path("runs/bench/docs")
 
