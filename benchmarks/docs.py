@@ -35,6 +35,7 @@ from functools import partial
 from pathlib import Path
 
 from benchmarks.harness import provenance_line
+from benchmarks.run import RACE_ENVS
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "src" / "trl_cartpole"
@@ -42,10 +43,7 @@ RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
-RACES = {
-    env: ROOT / "docs" / "results" / f"race_{env}.json"
-    for env in ("acrobot", "mountaincar", "lunarlander")
-}
+RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in RACE_ENVS}
 SEEDS = [0]
 OUT = Path("runs/bench/docs")
 
