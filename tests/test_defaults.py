@@ -51,6 +51,7 @@ FACTORY_FIELDS = {
         "lr": "optim.lr",
         "amsgrad": "optim.amsgrad",
         "weight_decay": "optim.weight_decay",
+        "eps": "optim.eps",
     },
     make_update: {"grad_clip": "optim.grad_clip", "max_grad": "optim.max_grad"},
     make_collector: {

@@ -403,6 +403,7 @@ BAD_INPUTS = [
         "env.step_timeout=9223376706.0 must be > 0 and at most 604800 seconds",
     ),
     ("a step deadline of no time", ["env.step_timeout=0"], "env.step_timeout=0.0 must be > 0"),
+    ("an AdamW without a floor", ["optim.eps=0"], "optim.eps=0.0 must be > 0 (AdamW's: 1e-08)"),
     ("a taper to nothing", ["optim.lr_end=0"], "optim.lr_end=0.0 must be > 0 (null: no taper)"),
     (
         "a taper a compiled update cannot follow",

@@ -130,3 +130,18 @@ def test_a_run_updates_at_the_learning_rate_of_the_frames_collected(compose, tmp
         end = 1e-3 if lr_end is None else lr_end
         expected = 1e-3 + (end - 1e-3) * min(1.0, (frames - previous_batch) / 400)
         assert lr == pytest.approx(expected, rel=1e-9), (frames, lr)
+
+
+def test_the_config_sets_adamws_eps(compose, tmp_path):
+    """``optim.eps`` reaches AdamW: 1e-8 (AdamW's own) unless set, data-efficient Rainbow's
+    1.5e-4 when asked."""
+    from tests.conftest import SMOKE_OVERRIDES
+    from trl_cartpole.config.schema import to_config
+    from trl_cartpole.run.build import build_components
+
+    for overrides, expected in (([], 1e-8), (["optim.eps=0.00015"], 1.5e-4)):
+        cfg = to_config(compose(*SMOKE_OVERRIDES, *overrides, f"run_dir={tmp_path / 'run'}"))
+        with build_components(cfg) as components:
+            optimizer = components.learner.optimizer
+        assert isinstance(optimizer, torch.optim.AdamW)
+        assert optimizer.param_groups[0]["eps"] == pytest.approx(expected, rel=1e-12)

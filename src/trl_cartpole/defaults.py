@@ -29,5 +29,6 @@ LOSS_FUNCTION = "smooth_l1"  # Huber, as the PyTorch DQN tutorial
 TAU = 0.02  # a soft target update's step
 HARD_UPDATE_INTERVAL = 50  # gradient updates between hard target copies
 LR, AMSGRAD, WEIGHT_DECAY = 4e-3, True, 0.0  # AdamW
+ADAM_EPS = 1e-8  # AdamW's own: the floor under its denominator
 GRAD_CLIP, MAX_GRAD = "norm", 10.0
 TOTAL_FRAMES, FRAMES_PER_BATCH, INIT_RANDOM_FRAMES = 50_000, 32, 1000

@@ -143,6 +143,8 @@ class OptimConfig:
     lr: float = defaults.LR  # AdamW learning rate
     amsgrad: bool = defaults.AMSGRAD  # AdamW's AMSGrad variant, as the tutorial
     weight_decay: float = defaults.WEIGHT_DECAY  # the tutorial keeps AdamW's default 0.01
+    # the floor under AdamW's denominator (its own default; data-efficient Rainbow: 1.5e-4)
+    eps: float = defaults.ADAM_EPS
     grad_clip: str = defaults.GRAD_CLIP  # norm | value | none
     max_grad: float = defaults.MAX_GRAD  # the max norm, or the clip value per element
     # the learning rate tapered linearly from lr to this, set from the frames after each batch

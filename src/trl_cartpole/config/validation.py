@@ -118,6 +118,7 @@ def validate(cfg: Config) -> Config:
         (cfg.exploration.decay_frames >= 1, "exploration.decay_frames must be >= 1"),
         (cfg.optim.lr > 0, f"optim.lr={cfg.optim.lr} must be > 0"),
         (cfg.optim.weight_decay >= 0, "optim.weight_decay must be >= 0"),
+        (cfg.optim.eps > 0, f"optim.eps={cfg.optim.eps} must be > 0 (AdamW's: 1e-08)"),
         (cfg.optim.max_grad > 0, f"optim.max_grad={cfg.optim.max_grad} must be > 0"),
         (
             cfg.optim.lr_end is None or cfg.optim.lr_end > 0,

@@ -24,6 +24,7 @@ def make_optimizer(
     lr: float = defaults.LR,
     amsgrad: bool = defaults.AMSGRAD,
     weight_decay: float = defaults.WEIGHT_DECAY,
+    eps: float = defaults.ADAM_EPS,
     **adamw_kwargs: Any,
 ) -> torch.optim.AdamW:
     """AdamW (Loshchilov & Hutter 2019), with AMSGrad (Reddi et al. 2018) as in the tutorial.
@@ -52,7 +53,7 @@ def make_optimizer(
     """
     adamw_kwargs.setdefault("fused", True)
     return torch.optim.AdamW(
-        params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay, **adamw_kwargs
+        params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay, eps=eps, **adamw_kwargs
     )
 
 

@@ -399,7 +399,11 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
             loss, hard_update_interval=loss_cfg.hard_update_interval
         )
     optimizer = make_optimizer(
-        actor.parameters(), cfg.optim.lr, cfg.optim.amsgrad, cfg.optim.weight_decay
+        actor.parameters(),
+        cfg.optim.lr,
+        cfg.optim.amsgrad,
+        cfg.optim.weight_decay,
+        eps=cfg.optim.eps,
     )
     fused = fuse_dqn_loss(loss) if loss_cfg.fused else None  # None: C51, noisy layers
     update = make_update(
