@@ -107,7 +107,7 @@ def test_the_drawn_env_plays_the_rendered_envs_episode_frame_for_frame(compose):
     rendered = make_pixel_env(rendered_cfg.env, seed=7, num_envs=1)
     drawn = make_pixel_env(drawn_cfg.env, seed=7, num_envs=1)
     exact = make_pixel_env(replace(drawn_cfg.env, pixels_rendered_share=1.0), seed=7, num_envs=1)
-    assert rendered.observation_spec == drawn.observation_spec  # pixels [2, 20, 60] uint8 only
+    assert rendered.observation_spec == drawn.observation_spec  # pixels [3, 20, 60] uint8 only
     torch.manual_seed(0)
     expected = rendered.rollout(60, break_when_any_done=False)
     for env in (drawn, exact):
@@ -173,8 +173,8 @@ def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_
     env = make_pixel_env(cfg.env, seed=0, num_envs=8)
     assert env.batch_size == (8,)
     assert "observation" not in env.observation_spec.keys()  # noqa: SIM118 (a spec)
-    frames = env.reset()["pixels"]  # [8, 2, 20, 60]
-    assert frames.shape == (8, 2, 20, 60) and frames.float().std() > 0
+    frames = env.reset()["pixels"]  # [8, 3, 20, 60]
+    assert frames.shape == (8, 3, 20, 60) and frames.float().std() > 0
     built = []
 
     def spy(env_cfg, *args, **kwargs):

@@ -60,7 +60,7 @@ def test_the_preset_shows_the_network_pixels_only(compose, renderer, share):
     spec = env.observation_spec
     assert "observation" not in spec.keys()  # noqa: SIM118 (a spec): the state is not there
     pixels = spec["pixels"]
-    assert pixels.dtype == torch.uint8 and tuple(pixels.shape) == (2, 2, 20, 60)  # [E, 2, h, w]
+    assert pixels.dtype == torch.uint8 and tuple(pixels.shape) == (2, 3, 20, 60)  # [E, 3, h, w]
     actor = build_actor(cfg, env)
     assert actor.in_keys == ["pixels"]
     frames = env.reset()
@@ -70,8 +70,8 @@ def test_the_preset_shows_the_network_pixels_only(compose, renderer, share):
     assert actor(only_pixels)["action"].shape == (2, 2)
     # The buffer keeps uint8: a transition is at least the frames now and next, a byte each.
     need = run_memory_need(cfg, env)
-    assert need.transition_bytes >= 2 * 2 * 20 * 60
-    assert need.transition_bytes < 2 * 2 * 20 * 60 + 200  # not float32 (4 bytes a pixel)
+    assert need.transition_bytes >= 2 * 3 * 20 * 60  # frames now and next, 3 patches each
+    assert need.transition_bytes < 2 * 3 * 20 * 60 + 200  # not float32 (4 bytes a pixel)
     env.close()
 
 
@@ -167,14 +167,14 @@ def test_render_and_export_take_the_agents_frames(tmp_path):
     onnx_file = tmp_path / "policy.onnx"
     exported = run_script_in_process("export.py", f"checkpoint={run_dir}", f"output={onnx_file}")
     assert exported.returncode == 0, exported.stderr[-2000:]
-    assert "pixels [batch, 2, 20, 60] uint8" in exported.stdout
+    assert "pixels [batch, 3, 20, 60] uint8" in exported.stdout
     trained = load_trained_policy(run_dir, num_envs=3)
-    frames = trained.env.reset()["pixels"]  # [3, 2, 40, 120] uint8
+    frames = trained.env.reset()["pixels"]  # [3, 3, 20, 60] uint8
     session = onnxruntime.InferenceSession(str(onnx_file))
     (values,) = session.run(None, {"pixels": frames.numpy()})
     expected = trained.actor(TensorDict({"pixels": frames}, batch_size=[3]))["action_value"]
     assert torch.allclose(torch.from_numpy(values), expected, atol=1e-5)
-    assert greedy_q_network(run_dir).input_shape == (2, 20, 60)
+    assert greedy_q_network(run_dir).input_shape == (3, 20, 60)
     trained.env.close()
 
 
