@@ -26,6 +26,7 @@ from benchmarks import (
     wall,
 )
 from benchmarks.harness import sweep_arguments
+from trl_cartpole.report.console import quiet_libraries
 
 SUBCOMMANDS = {
     "run": run,
@@ -64,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    args.main(args)
+    with quiet_libraries():  # no TorchRL INFO lines from the subcommands run in this process
+        args.main(args)
     return 0
 
 
