@@ -152,9 +152,11 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
     finally:
         shutdown_collector(collector)
     assert all(m > 0 for m in mismatches[:4])  # eps = 1: half the actions are random
-    # After the sync every batch is greedy; asynchronous workers may deliver one batch each
-    # that they had started before it.
-    assert mismatches[4 if sync else 6 :] == [0.0] * (6 if sync else 4)
+    if sync:  # after the sync every batch is greedy
+        assert mismatches[4:] == [0.0] * 6
+    else:  # each asynchronous worker may deliver one batch it had started before the sync,
+        # and a worker the machine starves may deliver it late: at most one stale batch each
+        assert sum(m > 0 for m in mismatches[4:]) <= 2  # of 6 batches, at least 4 greedy
 
 
 def test_each_worker_seeds_its_own_envs(compose):
