@@ -156,7 +156,7 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
         assert mismatches[4:] == [0.0] * 6
     else:  # each asynchronous worker may deliver one batch it had started before the sync,
         # and a worker the machine starves may deliver it late: at most one stale batch each
-        assert sum(m > 0 for m in mismatches[4:]) <= 2  # of 6 batches, at least 4 greedy
+        assert sum(m > 0 for m in mismatches[4:]) <= cfg.collector.workers
 
 
 def test_each_worker_seeds_its_own_envs(compose):
