@@ -166,9 +166,10 @@ def pixel_seeds() -> str:
     runs, target = record["runs"], ENV_MEDIAN_TARGETS["cartpole_pixels"]
     rows = [
         "| seed | frames | train s | greedy return at each evaluation | first evaluation >= "
-        f"{target:g}: frames, train s | best | final (100 episodes) | frames/s, updates/s | "
+        f"{target:g}: frames, train s | best | candidates: frames, evaluation -> new "
+        "episodes (the kept one in bold) | final (100 episodes) | frames/s, updates/s | "
         "peak memory, MiB |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for run in runs:
         curve, finals = run["eval_curve"], run["final_eval_returns"]
@@ -185,7 +186,8 @@ def pixel_seeds() -> str:
         rows.append(
             f"| {run['seed']} | {_spaced(run['frames'])} | {_spaced(run['train_seconds'])} | "
             f"{', '.join(f'{value:.0f}' for value in curve['returns'])} | {reached} | "
-            f"{run['best_eval_return_mean']:.1f} | {run['final_eval_return_mean']:.1f} +/- "
+            f"{run['best_eval_return_mean']:.1f} | {_candidates_cell(run)} | "
+            f"{run['final_eval_return_mean']:.1f} +/- "
             f"{run['final_eval_return_std']:.1f} ({min(finals):.0f} to {max(finals):.0f}) | "
             f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "
             f"{_spaced(run['peak_rss_mb'])} |"
@@ -208,6 +210,22 @@ def pixel_seeds() -> str:
             f"render() frames, {budget}): {verdict}.",
         ]
     )
+
+
+def _candidates_cell(run: dict) -> str:
+    """The policies a run played again before keeping one (``eval.candidates``), or "none"
+    where it kept its best evaluation's as is."""
+    scores = run.get("candidates")
+    if not scores:
+        return "none"
+    cells = []
+    for score in scores:
+        cell = (
+            f"{_spaced(score['frames'])}: {score['eval_return_mean']:.0f} -> "
+            f"{score['replay_return_mean']:.1f}"
+        )
+        cells.append(f"**{cell}**" if score["frames"] == run["kept_policy_frames"] else cell)
+    return "; ".join(cells)
 
 
 def train_listing() -> str:

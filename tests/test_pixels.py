@@ -33,6 +33,7 @@ TINY_PIXEL_RUN = [
     "eval.interval_frames=100",
     "eval.episodes=2",
     "eval.final_episodes=2",
+    "eval.candidate_episodes=2",  # the preset's 3 candidates: here the 2 evaluations' policies
     "eval.max_steps=50",
     "checkpoint.interval_frames=100",
     "logger.progress_bar=false",
@@ -140,10 +141,11 @@ def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_
         "train.py", *TINY_PIXEL_RUN, *overrides, f"run_dir={tmp_path / 'run'}"
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    training, periodic, *final = built
+    training, periodic, *candidates, final = built
     assert training == (4, 2)  # 2 of its 4 envs painted by Gymnasium's calls
-    # the periodic evaluations (which choose the best policy) and the final one: every frame
-    assert periodic == (3, 3) and final == [(2, 2)]
+    # the periodic evaluations and the candidates' new episodes (which choose the policy to
+    # keep) and the final evaluation: every frame
+    assert periodic == (3, 3) and candidates == [(2, 2), (2, 2)] and final == (2, 2)
 
 
 @pytest.mark.slow  # a pixel run, then its video and its exported policy

@@ -180,6 +180,11 @@ class EvalConfig:
     interval_frames: int = 1000  # greedy evaluation every this many frames
     episodes: int = 20  # episodes per periodic evaluation
     final_episodes: int = 100  # episodes for the final evaluation of the best policy
+    # the best this many policies (by periodic evaluation) each play candidate_episodes new
+    # episodes before the final evaluation, and the best over those is kept; 1: the best
+    # periodic evaluation's policy, as is (docs/choices.md)
+    candidates: int = 1
+    candidate_episodes: int = 50  # the same episodes for every candidate
     solve_threshold: float | None = None  # null: Gymnasium's reward_threshold for the env
     stop_when_solved: bool = True  # end the run at the first evaluation >= the threshold
     max_steps: int = 10_000  # step cap for an episode of an env with no TimeLimit

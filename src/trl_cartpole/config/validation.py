@@ -92,7 +92,7 @@ def validate(cfg: Config) -> Config:
             raise ConfigError(f"{key}={value} must be a finite number")
         for number in value if isinstance(value, (list, tuple)) else [value]:
             check_integer_size(key, number)
-    for key in ("env.num_envs", "eval.episodes", "eval.final_episodes"):
+    for key in ("env.num_envs", "eval.episodes", "eval.final_episodes", "eval.candidate_episodes"):
         check_envs_at_once(key, _get(cfg, key))
     for key, options in _CHOICES.items():
         if _get(cfg, key) not in options:
@@ -167,6 +167,11 @@ def validate(cfg: Config) -> Config:
         (cfg.eval.interval_frames >= 1, "eval.interval_frames must be >= 1"),
         (cfg.eval.episodes >= 1, "eval.episodes must be >= 1"),
         (cfg.eval.final_episodes >= 1, "eval.final_episodes must be >= 1"),
+        (cfg.eval.candidates >= 1, f"eval.candidates={cfg.eval.candidates} must be >= 1"),
+        (
+            cfg.eval.candidate_episodes >= 1,
+            f"eval.candidate_episodes={cfg.eval.candidate_episodes} must be >= 1",
+        ),
         (cfg.eval.max_steps >= 1, "eval.max_steps must be >= 1"),
         (cfg.network.noisy_std > 0, f"network.noisy_std={cfg.network.noisy_std} must be > 0"),
         (cfg.network.atoms >= 2, f"network.atoms={cfg.network.atoms} must be >= 2"),

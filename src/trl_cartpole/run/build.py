@@ -607,6 +607,7 @@ def _assemble(
         cfg.eval.interval_frames,
         threshold,
         cfg.eval.stop_when_solved,
+        candidates=cfg.eval.candidates,
     )
     progress, history = Progress(), History()
     checkpointer = Checkpointer(

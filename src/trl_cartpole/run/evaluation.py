@@ -41,6 +41,7 @@ from trl_cartpole.run.env_faults import StepAlarm, StepDeadline
 from trl_cartpole.run.progress import Progress, resident_mb
 
 __all__ = [
+    "Candidate",
     "EpsilonGreedy",
     "EvalCurve",
     "EvalResult",
@@ -300,13 +301,25 @@ class Evaluation:
     stop: bool  # solved, and the run stops when solved
 
 
+@dataclass
+class Candidate:
+    """A policy the evaluator keeps: its weights and the periodic evaluation that found it."""
+
+    frames: int  # frames collected when it was evaluated
+    eval_return_mean: float  # its periodic greedy mean
+    state: dict[str, torch.Tensor]  # the network's state_dict then
+
+
 class Evaluator:
     """Greedy evaluations every ``interval_frames``; keeps the best weights and the solve point.
 
     ``play()`` plays the evaluation episodes (``evaluate(actor, env, max_steps)`` in a run, a
     peer's own greedy episodes in the benchmark) and ``network`` is what plays them: its
-    ``state_dict`` is kept at each new best. :meth:`run` only evaluates and keeps score; what
-    follows (logging, the progress bar, the plot, saving the best policy) is the caller's.
+    ``state_dict`` is kept at each new best, and with ``candidates=K`` the K best policies so
+    far are kept (:attr:`candidates`, best first, the earlier one first on a tie; the run plays
+    them again before its final evaluation, :mod:`trl_cartpole.run.kept_policy`). :meth:`run`
+    only evaluates and keeps score; what follows (logging, the progress bar, the plot, saving
+    the best policy) is the caller's.
     """
 
     def __init__(
@@ -316,8 +329,11 @@ class Evaluator:
         interval_frames: int,
         threshold: float | None,
         stop_when_solved: bool = True,
+        candidates: int = 1,
     ) -> None:
         self.play, self.network = play, network
+        self.max_candidates = candidates
+        self.candidates: list[Candidate] = []  # the best policies so far, best first
         self.interval_frames = interval_frames
         self.threshold, self.stop_when_solved = threshold, stop_when_solved
         self.best_return = -float("inf")
@@ -347,6 +363,7 @@ class Evaluator:
         if new_best:
             self.best_return = result.mean
             self.best_state = copy.deepcopy(self.network.state_dict())
+        self._keep_candidate(frames, result.mean, new_best)
         solved = self.threshold is not None and result.mean >= self.threshold
         if solved and self.frames_to_solve is None:
             self.frames_to_solve, self.seconds_to_solve = frames, seconds
@@ -355,14 +372,35 @@ class Evaluator:
         stop = solved and self.stop_when_solved
         return Evaluation(frames, seconds, result, self.best_return, new_best, solved, stop)
 
+    def _keep_candidate(self, frames: int, mean: float, new_best: bool) -> None:
+        """Keep this evaluation's weights among the ``max_candidates`` best (a new best's
+        weights are the copy just kept as ``best_state``: one copy, not two)."""
+        kept = self.candidates
+        if len(kept) >= self.max_candidates and mean <= kept[-1].eval_return_mean:
+            return
+        state = self.best_state if new_best else copy.deepcopy(self.network.state_dict())
+        place = sum(candidate.eval_return_mean >= mean for candidate in kept)
+        kept.insert(place, Candidate(frames, mean, state))
+        del kept[self.max_candidates :]
+
     def load_best(self) -> None:
         """Put the best weights seen into the network."""
         self.network.load_state_dict(self.best_state)
+
+    def keep(self, candidate: Candidate) -> None:
+        """Make ``candidate`` the policy the run keeps (its weights go into the network)."""
+        self.best_state = candidate.state
+        self.network.load_state_dict(candidate.state)
 
     def state_dict(self) -> dict[str, Any]:
         return {
             "best_return": self.best_return,
             "best_state": self.best_state,
+            "candidates": {
+                "frames": [candidate.frames for candidate in self.candidates],
+                "returns": [candidate.eval_return_mean for candidate in self.candidates],
+                "states": [candidate.state for candidate in self.candidates],
+            },
             "frames_to_solve": self.frames_to_solve,
             "seconds_to_solve": self.seconds_to_solve,
             "last_eval_frame": self.last_eval_frame,
@@ -378,3 +416,18 @@ class Evaluator:
             getattr(self.curve, name)[:] = values
         missing = len(self.curve.frames) - len(self.curve.rss_mb)  # a state from before it
         self.curve.rss_mb[:0] = [None] * missing
+        kept = state.get("candidates")
+        if kept is not None:
+            self.candidates = [
+                Candidate(frames, mean, weights)
+                for frames, mean, weights in zip(
+                    kept["frames"], kept["returns"], kept["states"], strict=True
+                )
+            ]
+        elif self.best_state is not None:  # a state from before candidates: the best alone
+            curve = zip(self.curve.frames, self.curve.returns, strict=True)
+            frames = next((f for f, mean in curve if mean == self.best_return), 0)
+            self.candidates = [Candidate(frames, self.best_return, self.best_state)]
+        else:
+            self.candidates = []
+        self.candidates = self.candidates[: self.max_candidates]

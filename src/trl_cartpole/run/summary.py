@@ -11,6 +11,7 @@ from __future__ import annotations
 import resource
 import shutil
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ from trl_cartpole.report.plotting import (
 )
 from trl_cartpole.run.build import REPLAY_FILES, Components, evaluate_episodes, run_title
 from trl_cartpole.run.evaluation import EvalResult, Evaluator
+from trl_cartpole.run.kept_policy import choose_kept_policy
 from trl_cartpole.store.files import write_json_atomic
 
 __all__ = ["finish", "peak_rss_mb", "record_failure", "run_summary"]
@@ -53,9 +55,21 @@ def finish(run: Components) -> dict[str, Any]:
     # a live plot to a file is the durations.png the end draws anew: no last redraw first
     if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
         run.live_plot.flush()
-    evaluator.load_best()
+    kept, scores = choose_kept_policy(
+        cfg,
+        evaluator,
+        lambda seed, episodes: evaluate_episodes(
+            cfg, run.actor, seed, episodes, run.observation_norm
+        ),
+        on_candidate=lambda number, count: run.progress_bar.status(
+            f"choosing the policy to keep: candidate {number} of {count} over "
+            f"{cfg.eval.candidate_episodes} new episodes"
+        ),
+    )
+    if scores and kept is not evaluator.candidates[0]:  # checkpoints/best: the kept policy
+        run.checkpointer.save_best(run.actor, kept.frames, kept.eval_return_mean)
     episodes = cfg.eval.final_episodes
-    say = f"final evaluation: the best policy over {episodes} new episodes"
+    say = f"final evaluation: the kept policy over {episodes} new episodes"
     run.progress_bar.status(say)
 
     def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
@@ -118,6 +132,8 @@ def finish(run: Components) -> dict[str, Any]:
         updates_per_second=round(progress.updates / max(phases["update"], 1e-9), 1),
         phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
         checkpoint=str(run.run_dir / "checkpoints" / "best") if cfg.checkpoint.save_best else None,
+        kept_policy_frames=None if kept is None else kept.frames,
+        **({"candidates": [asdict(score) for score in scores]} if scores else {}),
         **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
         versions={
             "torch": torch.__version__,
