@@ -136,8 +136,15 @@ def verdict(summary: dict[str, Any]) -> str:
 def _outcome(summary: dict[str, Any]) -> str:
     threshold = summary.get("solve_threshold")
     evaluations = len(summary["eval_curve"]["frames"])
+    kept = f"the best policy of {evaluations} evaluation{'s' * (evaluations != 1)}"
+    candidates = summary.get("candidates")
+    if candidates:  # eval.candidates: the best few played again, the best over those kept
+        kept = (
+            f"the kept policy (of the {len(candidates)} best of {evaluations} evaluations, the "
+            "best over new episodes)"
+        )
     final = (
-        f"the best policy of {evaluations} evaluation{'s' * (evaluations != 1)} returned "
+        f"{kept} returned "
         f"{summary['final_eval_return_mean']:.1f} +/- {summary['final_eval_return_std']:.1f} "
         f"over {summary['final_eval_episodes']} new episodes"
     )
