@@ -199,32 +199,6 @@ def test_a_users_own_prioritized_sampler_is_used_as_given(env):
     assert buffer.sample()["priority_weight"].shape == (8,)
 
 
-def test_n_step_windows_never_cross_from_one_env_into_another():
-    vector = make_env("CartPole-v1", seed=0, num_envs=3)
-    torch.manual_seed(0)  # the rollout's random actions
-    rollout = vector.rollout(20, break_when_any_done=False)  # [3, 20]
-    vector.close()
-    as_collected = make_replay_buffer(batch_size=8, n_steps=3)
-    as_collected.extend(rollout)
-    assert len(as_collected) == 3 * (20 - 3)
-    # flattened, env e+1's first step follows env e's last: refused at the first such seam
-    # whose last step did not end an episode (an ended one is a legitimate break)
-    last_done = rollout["next", "done"][:, -1, 0].tolist()  # [3]
-    seam = next(20 * (env + 1) for env in range(2) if not last_done[env])
-    flattened = make_replay_buffer(batch_size=8, n_steps=3)
-    with pytest.raises(
-        ValueError, match=rf"step {seam} of the batch does not follow the step before"
-    ):
-        flattened.extend(rollout.reshape(-1))
-    assert len(flattened) == 0
-    # TorchRL's trainers flatten a batch after marking each env's last step truncated: the
-    # windows end there, so that layout is accepted
-    marked = rollout.clone()
-    marked["next", "truncated"][:, -1] = True
-    flattened.extend(marked.reshape(-1))
-    assert len(flattened) == 3 * 20 - 3
-
-
 # --- one priority rule --------------------------------------------------------------------------
 
 

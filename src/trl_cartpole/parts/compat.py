@@ -69,6 +69,7 @@ __all__ = [
     "replay_transform",
     "set_autoreset_state",
     "set_gym_env",
+    "set_held_steps",
     "set_n_step_window",
     "set_worker_carriers",
     "soft_update_pairs",
@@ -154,6 +155,11 @@ def n_step_transform(buffer: ReplayBuffer) -> MultiStepTransform | None:
 def held_steps(transform: MultiStepTransform) -> TensorDictBase | None:
     """The last steps ``transform`` holds back from its previous ``extend`` (None: none yet)."""
     return transform._buffer
+
+
+def set_held_steps(transform: MultiStepTransform, steps: TensorDictBase) -> None:
+    """Give ``transform`` the steps it holds back for the next ``extend``."""
+    transform._buffer = steps
 
 
 def n_step_window(buffer: ReplayBuffer) -> TensorDictBase | None:

@@ -11,7 +11,8 @@
   R_t^(n) = sum_{j<k} gamma^j r_{t+j}, k = min(n, steps to the episode's end);
   ``steps_to_next_obs`` = k makes the TD target bootstrap with gamma ** k.
   ``("next", "terminated")`` is taken from step t+k-1, so a window that ends in a termination
-  does not bootstrap and one that ends in a truncation does.
+  does not bootstrap and one that ends in a truncation does. A window ends where its
+  trajectory does, however the data is handed over (:func:`trajectory_ends`).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from trl_cartpole.parts.compat import (
     cuda_segment_trees_available,
     held_steps,
     n_step_transform,
+    set_held_steps,
 )
 
 __all__ = [
@@ -48,6 +50,7 @@ __all__ = [
     "make_replay_buffer",
     "n_step_gamma",
     "sample_minibatches",
+    "trajectory_ends",
 ]
 
 
@@ -67,39 +70,60 @@ DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_PRIORITY_EPS = (
 # sampling, not stored), so a loss built apart from the buffer can check that it agrees.
 N_STEP_GAMMA_KEY = "n_step_gamma"
 # The entries of a step that are not its state: a step's ("next", key) equals the following
-# step's key for every other entry both hold, unless the episode ended between them.
+# step's key for every other entry both hold, unless a trajectory ended between them.
 _NOT_STATE = {"reward", "done", "terminated", "truncated", "episode_reward"}
+# The collector's trajectory ids ([*B, T], at the root only): a new id starts a trajectory.
+TRAJECTORY_ID_KEY = ("collector", "traj_ids")
+# Where a window must end (["next"], [*B, T, 1], set while extending and never stored).
+_WINDOW_END_KEY = "_window_end"
 
 
 class NStepTransform(MultiStepTransform):
-    """``MultiStepTransform`` whose output fits both DQN losses, on trajectories it checks.
+    """``MultiStepTransform`` whose windows end where a trajectory ends, however it is fed.
 
-    ``("next", "terminated")`` follows the window's last step (it is left out of the done
-    keys the transform keeps at step t), and ``steps_to_next_obs`` is shaped ``[*B, 1]`` like
-    the reward, so ``DistributionalDQNLoss`` broadcasts gamma ** k over the atoms (TorchRL
-    writes it ``[*B]``; ``DQNLoss`` reshapes it either way). A sampled batch is marked with the
-    discount (``N_STEP_GAMMA_KEY``), which :func:`~trl_cartpole.parts.losses.make_dqn_loss`
-    checks.
+    ``MultiStepTransform`` reads the last dimension as time and ends a window only at
+    ``("next", "done")``. Here a window also ends wherever the data shows that the next step
+    belongs to another trajectory (:func:`trajectory_ends`): a reset, the seam between envs of
+    a flattened batch (TorchRL's trainers extend with ``batch.reshape(-1)``), a second
+    ``env.rollout()``. So ``[envs, T]`` as collected, the same batch flattened to
+    ``[envs * T]``, and each env's ``[T]`` extended one at a time all store correct windows;
+    flattened ones are cut at each seam (the rest of the window is in the next batch).
 
-    A window must not cross from one env's steps into another's. ``MultiStepTransform`` reads
-    the last dimension as time, so each ``extend`` is checked first: along it, every step's
-    state (each entry held both at the root and under ``"next"``) must be the previous step's
-    ``"next"`` one unless the previous step is ``done`` or ``truncated`` (TorchRL's trainers
-    mark the last step of each env truncated when they flatten a batch, which ends the window
-    there too); otherwise ``extend`` raises a one-line ``ValueError`` and nothing is stored.
+    Differences from the stock transform's output: ``("next", "terminated")`` follows the
+    window's last step (it is left out of the done keys the stock transform keeps at step t),
+    so a window that ends in a termination does not bootstrap and one cut short does;
+    ``steps_to_next_obs`` is ``[*B, 1]`` like the reward (stock: ``[*B]``), so
+    ``DistributionalDQNLoss`` broadcasts gamma ** k over the atoms (``DQNLoss`` reshapes it
+    either way); a sampled batch is marked with the discount (``N_STEP_GAMMA_KEY``), which
+    :func:`~trl_cartpole.parts.losses.make_dqn_loss` checks.
     """
 
     def __init__(self, n_steps: int, gamma: float) -> None:
-        super().__init__(n_steps, gamma, done_keys=["done", "truncated"])
+        super().__init__(
+            n_steps,
+            gamma,
+            done_key=_WINDOW_END_KEY,
+            done_keys=["done", "truncated", _WINDOW_END_KEY],
+        )
 
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase | None:
-        check_time_order(held_steps(self), tensordict)
-        out = super()._inv_call(tensordict)
-        if out is not None:
-            steps = out.get("steps_to_next_obs")  # [*B]
-            out.set("steps_to_next_obs", steps.reshape(out["next", "reward"].shape))
-            out = out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
-        return out
+        if not tensordict.batch_dims:
+            raise ValueError("an n-step buffer extends with a batch [T] or [envs, T] in time order")
+        held = held_steps(self)  # [*B, n] kept back from the previous extend, or None
+        joined = tensordict if held is None else torch.cat([held, tensordict], -1)
+        ends = trajectory_ends(joined)  # [*B, T', 1]
+        data = tensordict.clone(False)
+        data.set(("next", _WINDOW_END_KEY), ends[..., joined.shape[-1] - tensordict.shape[-1] :, :])
+        if held is not None:
+            held.set(("next", _WINDOW_END_KEY), ends[..., : held.shape[-1], :])
+        out = super()._inv_call(data)
+        set_held_steps(self, held_steps(self).exclude(("next", _WINDOW_END_KEY)))
+        if out is None:
+            return None
+        out = out.exclude(("next", _WINDOW_END_KEY))
+        steps = out.get("steps_to_next_obs")  # [*B]
+        out.set("steps_to_next_obs", steps.reshape(out["next", "reward"].shape))
+        return out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Mark a sampled batch ``[*B]`` with this transform's discount ``[*B, 1]``."""
@@ -108,44 +132,48 @@ class NStepTransform(MultiStepTransform):
         return tensordict
 
 
-def check_time_order(held: TensorDictBase | None, data: TensorDictBase) -> None:
-    """Raise ``ValueError`` unless ``data`` ``[*B, T]`` continues each trajectory in time.
+def trajectory_ends(steps: TensorDictBase) -> torch.Tensor:
+    """``[*B, T, 1]`` bool: True where step t is the last of its trajectory in ``steps``.
 
-    ``held`` is what the n-step transform kept of the previous ``extend`` (``[*B, n]``), which
-    ``data``'s first steps must continue. A batch of several envs or workers flattened to
-    ``[T]`` (``batch.reshape(-1)``) fails here: its steps jump from one env to the next.
+    ``steps`` is ``[*B, T]``, read along its last dimension. Step t ends a trajectory when its
+    ``("next", "done")`` is set, or when step t + 1 does not continue it: the collector's
+    trajectory id changes, or an entry held both at the root and under ``"next"`` (the
+    observation, ``step_count``, ``is_init``...) is not step t's ``("next", key)``. The last
+    step ends only with ``done``: what follows it is not known yet. A ``truncated`` mark
+    alone does not end a trajectory (TorchRL's trainers mark every step truncated when they
+    flatten a batch); a real time limit sets ``done`` too.
+
+    :raises ValueError: when ``steps`` holds no entry both at the root and under ``"next"``,
+        so where one trajectory ends and another begins cannot be told.
     """
-    if not data.batch_dims:
-        raise ValueError("an n-step buffer extends with a batch [T] or [envs, T] in time order")
-    joined = data if held is None else torch.cat([held, data], -1)  # [*B, T]
-    if joined.shape[-1] < 2 or "next" not in joined.keys():  # noqa: SIM118 (a tensordict)
-        return
-    following, before = joined[..., 1:], joined["next"][..., :-1]  # [*B, T - 1]
-    keys = [
-        key
-        for key in before.keys(True, True)
-        if key not in _NOT_STATE and key in following.keys(True, True)
-    ]
-    ended = torch.zeros(tuple(before.batch_size), dtype=torch.bool)  # [*B, T - 1]
-    for flag in ("done", "truncated"):  # TorchRL marks a cut trajectory truncated
-        if flag in before.keys():  # noqa: SIM118 (a tensordict)
-            ended = ended | before[flag].reshape(*before.batch_size, -1).any(-1).cpu()
+    shape = tuple(steps.batch_size)  # (*B, T)
+    ends = torch.zeros(shape, dtype=torch.bool)
+    if ("next", "done") in steps.keys(True, True):
+        ends |= steps["next", "done"].reshape(*shape, -1).any(-1).cpu()
+    if shape[-1] < 2:
+        return ends.unsqueeze(-1)
+    following, before = steps[..., 1:], steps["next"][..., :-1]  # [*B, T - 1]
+    root_keys = set(following.keys(True, True))
+    keys = [k for k in before.keys(True, True) if k not in _NOT_STATE and k in root_keys]
+    if not keys:
+        raise ValueError(
+            "n-step replay: the batch holds no entry both at its root and under 'next' (the "
+            "observation, or StepCounter's step_count), so where one trajectory ends and the "
+            "next begins cannot be told; extend with batches as env.rollout() or a collector "
+            "yields them"
+        )
+    broken = torch.zeros((*shape[:-1], shape[-1] - 1), dtype=torch.bool)  # [*B, T - 1]
+    if TRAJECTORY_ID_KEY in root_keys:
+        ids = steps.get(TRAJECTORY_ID_KEY).reshape(*shape, -1)  # [*B, T, 1]
+        broken |= (ids[..., 1:, :] != ids[..., :-1, :]).any(-1).cpu()
     for key in keys:
         now, then = following[key], before[key]
         same = now == then
         if now.is_floating_point():
             same = same | (now.isnan() & then.isnan())
-        broken = ~(same.reshape(*before.batch_size, -1).all(-1).cpu() | ended)  # [*B, T - 1]
-        if broken.any():
-            where = broken.nonzero()[0].tolist()
-            step = where[-1] + 1 - (0 if held is None else held.shape[-1])
-            env = f" of env {where[:-1]}" if len(where) > 1 else ""
-            raise ValueError(
-                f"n-step replay: step {step}{env} of the batch does not follow the step before "
-                f"it ({key!r} is not that step's ('next', {key!r}) and no episode ended between "
-                "them); extend with each env's steps in time order, [T] or [envs, T] as the "
-                "collector yields them, not a batch flattened from several envs"
-            )
+        broken |= ~same.reshape(*broken.shape, -1).all(-1).cpu()
+    ends[..., :-1] |= broken
+    return ends.unsqueeze(-1).to(steps.device or "cpu")
 
 
 def n_step_gamma(buffer: ReplayBuffer) -> float | None:
