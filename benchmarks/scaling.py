@@ -114,10 +114,10 @@ def collection_fps(cfg: Config, frames: int, parallel_env: bool = False) -> floa
     collector = make_collector(
         create_env_fn,
         policy,
-        batch_frames,
-        frames + WARMUP_BATCHES * batch_frames,
-        0,  # the policy from the first frame: random frames would time the env alone
-        cfg.device,
+        frames_per_batch=batch_frames,
+        total_frames=frames + WARMUP_BATCHES * batch_frames,
+        init_random_frames=0,  # the policy from the first frame: random ones time the env alone
+        device=cfg.device,
         sync=cfg.collector.sync,
         backend=cfg.collector.backend,
         ray_address=cfg.collector.ray_address,

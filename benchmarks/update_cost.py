@@ -65,7 +65,12 @@ def raw_update(cfg, obs_dim: int, num_actions: int, size: int = RANDOM_FRAMES):
         layers += [torch.nn.Linear(width_in, width_out), torch.nn.ReLU()]
     online = torch.nn.Sequential(*layers, torch.nn.Linear(widths[-1], num_actions))
     target = copy.deepcopy(online).requires_grad_(False)
-    optimizer = make_optimizer(online.parameters(), cfg.optim.lr, cfg.optim.amsgrad)
+    optimizer = make_optimizer(
+        online.parameters(),
+        lr=cfg.optim.lr,
+        amsgrad=cfg.optim.amsgrad,
+        weight_decay=cfg.optim.weight_decay,
+    )
     memory = {
         "obs": torch.randn(size, obs_dim),  # [N, obs_dim]
         "action": torch.randint(num_actions, (size,)),  # [N]

@@ -50,7 +50,11 @@ def main() -> None:
     actor, exploration = build_actor(cfg, env), build_exploration(cfg, env)
     policy = TensorDictSequential(actor, exploration)
     collector = make_collector(
-        worker_env_constructors(cfg), policy, 32, 32 * args.batches, 0, backend=args.backend
+        worker_env_constructors(cfg),
+        policy,
+        frames_per_batch=32,
+        total_frames=32 * args.batches,
+        backend=args.backend,
     )
     history = [copy.deepcopy(actor)]  # the weights each batch was asked to use
     try:

@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     loss_module = make_dqn_loss(value_network=model, gamma=0.99, loss_function="l2")
     target_net_updater = make_target_updater(loss_module, value_network_update_interval=50)
-    optimizer = make_optimizer(loss_module.parameters(), lr=2.5e-4)
+    optimizer = make_optimizer(loss_module.parameters(), lr=2.5e-4, weight_decay=0.0)  # Adam's
     test_env = make_env(env_name, device, seed=args.seed + 1_000)
     initial_target = [p.clone() for p in loss_module.target_value_network_params.values(True, True)]
 

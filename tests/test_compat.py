@@ -22,7 +22,7 @@ from trl_cartpole.parts.replay import extend_with_batch, make_replay_buffer
 
 def test_carrier_of_is_the_next_step_of_the_in_process_collector():
     env = make_env("CartPole-v1", seed=0)
-    collector = make_collector(env, None, 8, 16, init_random_frames=0)
+    collector = make_collector(env, None, frames_per_batch=8, total_frames=16)
     assert isinstance(collector, Collector)
     batch = next(iter(collector))
     carrier = compat.carrier_of(collector)
@@ -89,7 +89,7 @@ def test_n_step_window_is_what_the_multistep_transform_holds_back():
 
 def test_weight_sync_schemes_attribute_exists_and_closing_them_is_safe():
     env = make_env("CartPole-v1", seed=0)
-    collector = make_collector(env, None, 8, 16, init_random_frames=0)
+    collector = make_collector(env, None, frames_per_batch=8, total_frames=16)
     assert hasattr(collector, "_weight_sync_schemes")
     collector.shutdown()
     compat.close_weight_sync_schemes(collector)

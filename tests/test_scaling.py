@@ -128,7 +128,9 @@ def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
     actor = build_actor(cfg, env)
     exploration = make_exploration(env.action_spec, 1.0, 1.0, 1000, device="cpu")  # eps 1
     policy = TensorDictSequential(actor, exploration)
-    collector = make_collector(worker_env_constructors(cfg), policy, 32, 32 * 40, 0, sync=sync)
+    collector = make_collector(
+        worker_env_constructors(cfg), policy, frames_per_batch=32, total_frames=32 * 40, sync=sync
+    )
     mismatches = []
     try:
         for index, batch in enumerate(collector):

@@ -25,6 +25,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
@@ -32,6 +33,7 @@ from torchrl.envs import EnvBase
 from trl_cartpole import defaults
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.compat import close_weight_sync_schemes
+from trl_cartpole.parts.tuned import resolve
 
 __all__ = [
     "BACKENDS",
@@ -108,24 +110,26 @@ def whole_batches(frames: int, frames_per_batch: int) -> int:
 def make_collector(
     create_env_fn: EnvBase | Callable[[], EnvBase] | Sequence[Callable[[], EnvBase]],
     policy: TensorDictModuleBase,
-    frames_per_batch: int = defaults.FRAMES_PER_BATCH,
-    total_frames: int = defaults.TOTAL_FRAMES,
-    init_random_frames: int = defaults.INIT_RANDOM_FRAMES,
-    device: str = "cpu",
-    *,
+    *args: Any,
+    frames_per_batch: int | None = None,
+    total_frames: int | None = None,
+    init_random_frames: int | None = None,
+    device: str | torch.device | None = None,
     sync: bool = True,
     backend: str = "local",
     ray_address: str | None = None,
     remote_configs: dict[str, Any] | None = None,
     ray_init_config: dict[str, Any] | None = None,
+    tuned: bool = False,
     **collector_kwargs: Any,
 ) -> BaseCollector:
     """Return a collector yielding batches of ``frames_per_batch`` transitions.
 
     The policy runs under ``ExplorationType.RANDOM``, so epsilon-greedy is active. A batch is
     ``[T]`` or ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single
-    envs) for a synchronous multi-worker batch. The defaults are the default config's
-    ``collector`` section, given with each argument beside TorchRL's.
+    envs) for a synchronous multi-worker batch. The arguments after ``policy`` are keywords,
+    as ``Collector`` takes them, with ``Collector``'s defaults; ``tuned=True`` gives the ones
+    left out the default config's ``collector`` values (:mod:`trl_cartpole.parts.tuned`).
 
     Example::
 
@@ -141,15 +145,18 @@ def make_collector(
         that builds it (one local worker: collection in this process), or a list of env
         constructors, one per worker (picklable, each seeding its own envs).
     :param policy: the policy the collector steps (workers and Ray actors step copies of it).
-    :param frames_per_batch: the transitions in each batch. Default 32 (TorchRL's
-        ``Collector``: required).
+    :param args: refused: the arguments after ``policy`` are keywords, as ``Collector``'s (a
+        positional one raises ``TypeError`` naming the keywords).
+    :param frames_per_batch: the transitions in each batch. Required, as ``Collector``'s
+        (``tuned=True``: 32).
     :param total_frames: the frames to collect, rounded up to whole batches
-        (:func:`whole_batches`), as TorchRL would do with a warning. Default 50 000 (TorchRL:
-        ``-1``, endless).
+        (:func:`whole_batches`), as TorchRL would do with a warning. Default ``-1``, endless,
+        as ``Collector`` (``tuned=True``: 50 000).
     :param init_random_frames: the first ``init_random_frames`` frames come from the env's
-        uniform random policy; rounded up to whole batches. Default 1000 (TorchRL: no random
-        frames).
-    :param device: the collector's device. Default ``"cpu"`` (TorchRL: the policy's).
+        uniform random policy; rounded up to whole batches. Default None: none, as
+        ``Collector`` (``tuned=True``: 1 000).
+    :param device: the collector's device. Default None: ``Collector``'s, the policy's
+        (``tuned=True``: ``"cpu"``).
     :param sync: with several workers, ``True`` (default): every worker contributes
         ``frames_per_batch / workers`` frames to each batch (``MultiSyncCollector`` on the
         local backend); ``False``: each batch is one worker's ``frames_per_batch`` frames,
@@ -165,18 +172,41 @@ def make_collector(
     :param ray_init_config: ``RayCollector``'s too: adds to or replaces the ``ray.init``
         arguments of :func:`default_ray_init_config` (e.g.
         ``{"runtime_env": {"py_modules": [...]}}``).
+    :param tuned: fill the arguments left out with this project's tuned values (above).
     :param collector_kwargs: go to TorchRL's ``Collector`` (``storing_device``,
         ``compile_policy``, ``split_trajs``, ...).
     :returns: TorchRL's ``Collector`` (with ``backend="process"`` or ``"ray"`` for several
         workers or Ray actors).
     """
+    if args:
+        raise TypeError(
+            "make_collector() takes create_env_fn and policy, then keywords (as Collector): "
+            + "make_collector(env, policy, "
+            + ", ".join(
+                f"{name}={value!r}"
+                for name, value in zip(
+                    ("frames_per_batch", "total_frames", "init_random_frames", "device"),
+                    args,
+                    strict=False,
+                )
+            )
+            + ")"
+        )
     if backend not in BACKENDS:
         raise ConfigError(f"backend={backend!r}: choose one of {list(BACKENDS)}")
+    frames_per_batch = resolve("make_collector", "frames_per_batch", frames_per_batch, tuned)
+    if frames_per_batch is None:
+        raise TypeError(
+            "make_collector() needs frames_per_batch= (TorchRL's Collector requires it), or "
+            "tuned=True for this project's 32"
+        )
+    total_frames = resolve("make_collector", "total_frames", total_frames, tuned)
+    init_random_frames = resolve("make_collector", "init_random_frames", init_random_frames, tuned)
     common = {
         "frames_per_batch": frames_per_batch,
         "total_frames": whole_batches(total_frames, frames_per_batch),
-        "init_random_frames": whole_batches(init_random_frames, frames_per_batch) or None,
-        "device": device,
+        "init_random_frames": whole_batches(init_random_frames or 0, frames_per_batch) or None,
+        "device": resolve("make_collector", "device", device, tuned),
         # the Q-policy needs no env transform registered
         "auto_register_policy_transforms": False,
         **collector_kwargs,

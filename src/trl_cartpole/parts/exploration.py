@@ -14,6 +14,7 @@ from torchrl.modules import EGreedyModule
 
 from trl_cartpole import defaults
 from trl_cartpole.parts.aliases import resolve_alias
+from trl_cartpole.parts.tuned import resolve
 
 __all__ = ["SCHEDULES", "ExponentialEGreedyModule", "make_exploration"]
 
@@ -48,34 +49,44 @@ class ExponentialEGreedyModule(EGreedyModule):
 
 def make_exploration(
     spec: TensorSpec | None = None,
-    eps_init: float = defaults.EPS_START,
-    eps_end: float = defaults.EPS_END,
-    annealing_num_steps: int = defaults.DECAY_FRAMES,
-    *,
+    eps_init: float | None = None,
+    eps_end: float | None = None,
+    annealing_num_steps: int | None = None,
+    *args: Any,
     schedule: str = "linear",
     device: str | torch.device | None = None,
     action_spec: TensorSpec | None = None,
+    tuned: bool = False,
     **egreedy_kwargs: Any,
 ) -> EGreedyModule | None:
     """Return TorchRL's ``EGreedyModule``; the loop calls ``.step(frames)`` after each batch.
 
-    The arguments are ``EGreedyModule``'s, in its order and with its meanings; ``schedule``
-    picks the module. Defaults, ours (the default config's ``exploration`` section) beside
-    TorchRL's, are given with each argument.
+    The arguments are ``EGreedyModule``'s, in its order and with its meanings and defaults;
+    ``schedule`` picks the module. ``tuned=True`` gives the ones left out the default
+    config's ``exploration`` values (:mod:`trl_cartpole.parts.tuned`).
 
     Example::
 
         >>> from trl_cartpole import make_env, make_exploration
-        >>> explore = make_exploration(make_env("CartPole-v1").action_spec, 1.0, 0.05, 100)
+        >>> spec = make_env("CartPole-v1").action_spec
+        >>> explore = make_exploration(spec, 1.0, 0.05, 100)
         >>> explore.step(50)
         >>> round(explore.eps.item(), 3)
         0.525
+        >>> explore = make_exploration(spec)  # EGreedyModule's: 1.0 -> 0.1 over 1 000 frames
+        >>> explore.step(1000)
+        >>> round(explore.eps.item(), 3)
+        0.1
 
     :param spec: the env's action spec, ``EGreedyModule``'s ``spec``.
-    :param eps_init: epsilon at the start. Default 1.0 (TorchRL's: 1.0).
-    :param eps_end: the final epsilon. Default 0.05 (TorchRL's: 0.1).
+    :param eps_init: epsilon at the start. Default 1.0, as ``EGreedyModule``
+        (``tuned=True``: 1.0).
+    :param eps_end: the final epsilon. Default 0.1, as ``EGreedyModule`` (``tuned=True``:
+        0.05).
     :param annealing_num_steps: frames of the schedule (with ``"exponential"``, its time
-        constant). Default 3000 (TorchRL's: 1000).
+        constant). Default 1000, as ``EGreedyModule`` (``tuned=True``: 3000).
+    :param args: refused: an earlier form passed ``schedule`` before the epsilons; a fifth
+        positional argument raises ``TypeError`` naming the keywords.
     :param schedule: ``"linear"`` (default): TorchRL's ``EGreedyModule``, eps falls by
         ``(eps_init - eps_end) / annealing_num_steps`` per frame down to ``eps_end``;
         ``"exponential"``: :class:`ExponentialEGreedyModule` (an ``EGreedyModule``), the
@@ -84,14 +95,35 @@ def make_exploration(
         the greedy actor itself).
     :param device: the module's device. Default: the spec's (TorchRL's too).
     :param action_spec: this project's earlier name for ``spec``, kept as an alias.
+    :param tuned: fill the arguments left out with this project's tuned values (above).
     :param egreedy_kwargs: go to ``EGreedyModule``'s constructor (``action_key``,
         ``action_mask_key``, ...).
     :returns: TorchRL's ``EGreedyModule`` (``ExponentialEGreedyModule`` with
         ``schedule="exponential"``), or None with ``schedule="none"``.
     """
+    if args:
+        raise TypeError(
+            "make_exploration() takes spec, eps_init, eps_end, annealing_num_steps "
+            "(EGreedyModule's order), then keywords; an earlier form put the schedule first: "
+            "write make_exploration(spec, "
+            + ", ".join(
+                f"{name}={value!r}"
+                for name, value in zip(
+                    ("schedule", "eps_init", "eps_end", "annealing_num_steps"),
+                    (eps_init, eps_end, annealing_num_steps, *args),
+                    strict=False,
+                )
+            )
+            + ")"
+        )
     spec = resolve_alias("spec", spec, "action_spec", action_spec)
     if spec is None:
         raise TypeError("make_exploration() needs spec (the env's action_spec)")
+    eps_init = resolve("make_exploration", "eps_init", eps_init, tuned)
+    eps_end = resolve("make_exploration", "eps_end", eps_end, tuned)
+    annealing_num_steps = resolve(
+        "make_exploration", "annealing_num_steps", annealing_num_steps, tuned
+    )
     for name, value in (
         ("eps_init", eps_init),
         ("eps_end", eps_end),

@@ -26,9 +26,9 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
-from trl_cartpole import defaults
 from trl_cartpole.parts.compat import soft_update_pairs
-from trl_cartpole.parts.replay import DEFAULT_GAMMA, N_STEP_GAMMA_KEY, n_step_gamma
+from trl_cartpole.parts.replay import N_STEP_GAMMA_KEY, n_step_gamma
+from trl_cartpole.parts.tuned import TUNED, resolve
 
 __all__ = [
     "FusedSoftUpdate",
@@ -36,12 +36,6 @@ __all__ = [
     "make_dqn_loss",
     "make_target_updater",
 ]
-
-# This project's defaults, the default config's loss section (tests/test_defaults.py holds
-# them together).
-DEFAULT_LOSS_FUNCTION = defaults.LOSS_FUNCTION
-DEFAULT_TAU = defaults.TAU
-DEFAULT_HARD_UPDATE_INTERVAL = defaults.HARD_UPDATE_INTERVAL
 
 
 def make_dqn_loss(
@@ -52,54 +46,68 @@ def make_dqn_loss(
     delay_value: bool = True,
     double_dqn: bool | None = None,
     replay_buffer: ReplayBuffer | None = None,
+    tuned: bool = False,
     **loss_kwargs: Any,
 ) -> DQNLoss | DistributionalDQNLoss:
     """Return TorchRL's ``DQNLoss`` (or ``DistributionalDQNLoss``) for ``value_network``.
 
-    The arguments are ``DQNLoss``'s, with its meanings, keywords after ``value_network`` as in
-    ``DQNLoss``. Defaults, ours beside TorchRL's, are given with each argument.
+    The arguments are ``DQNLoss``'s, with its meanings and defaults, keywords after
+    ``value_network`` as in ``DQNLoss``; ``tuned=True`` gives the ones left out this
+    project's values (the default config's ``loss`` section, :mod:`trl_cartpole.parts.tuned`).
 
     One discount: an n-step buffer (:func:`~trl_cartpole.parts.replay.make_replay_buffer`) sums
     rewards with its own gamma, and the loss bootstraps with gamma ** k, so the two must agree.
-    Importance weights in the batch (``"priority_weight"``) are applied by both losses:
-    loss = sum_i w_i l_i / sum_i w_i.
+    The loss checks every n-step batch it is called on against the discount it uses at that
+    moment (its value estimator's, or ``DistributionalDQNLoss.gamma``), so
+    ``loss.make_value_estimator(gamma=...)``, TorchRL's way, is read too, and a mismatch raises
+    ``ValueError`` naming both on every call. Importance weights in the batch
+    (``"priority_weight"``) are applied by both losses: loss = sum_i w_i l_i / sum_i w_i.
 
     TorchRL runs a loss's forward under its ``deterministic_sampling_mode``
     (``DETERMINISTIC``), which would switch ``NoisyLinear`` noise off; for a network with noisy
     layers it is set to ``RANDOM``, so the networks train through their noise (Fortunato et al.
     2018, algorithm 1).
 
+    State: a loss whose discount was set here (``gamma=``, ``replay_buffer=``, ``tuned=True``)
+    has made its value estimator, so its ``state_dict`` holds ``_value_estimator.gamma``, as a
+    stock ``DQNLoss`` after ``make_value_estimator(gamma=...)``; a fresh stock ``DQNLoss``
+    makes its estimator on its first call, so call its ``make_value_estimator(gamma=...)``
+    before a strict ``load_state_dict``. Left to TorchRL's discount, the states are alike.
+
     Example::
 
         >>> from trl_cartpole import make_dqn_loss, make_env, make_q_actor
         >>> env = make_env("CartPole-v1")
         >>> actor = make_q_actor(env.observation_spec, env.action_spec)
-        >>> loss = make_dqn_loss(actor, gamma=0.99, double_dqn=True)
-        >>> type(loss).__name__, loss.double_dqn
-        ('DQNLoss', True)
+        >>> loss = make_dqn_loss(actor, double_dqn=True)
+        >>> type(loss).__name__, loss.double_dqn, loss.loss_function
+        ('DQNLoss', True, 'l2')
+        >>> make_dqn_loss(actor, tuned=True).loss_function  # this project's: Huber
+        'smooth_l1'
 
     :param value_network: the Q-value actor (:func:`~trl_cartpole.parts.models.make_q_actor`);
         a ``DistributionalQValueActor`` gets a ``DistributionalDQNLoss``.
     :param args: refused: the arguments after ``value_network`` are keywords, as in
         ``DQNLoss``; a positional one raises ``TypeError`` naming the keyword.
-    :param gamma: the discount. Default: the replay buffer's n-step discount when
-        ``replay_buffer`` is given, else the default config's ``loss.gamma`` (0.995);
-        TorchRL's value estimator defaults to 0.99. It is set with
-        ``loss.make_value_estimator(gamma=...)``, TorchRL's way.
-    :param loss_function: ``"smooth_l1"`` (Huber, as the PyTorch DQN tutorial) by default;
-        TorchRL's ``"l2"``. A ``DistributionalDQNLoss`` has none.
+    :param gamma: the discount, set with ``loss.make_value_estimator(gamma=...)``, TorchRL's
+        way (``DistributionalDQNLoss``: its ``gamma``). Default: the replay buffer's n-step
+        discount with ``replay_buffer``; else TorchRL's, 0.99, left to the loss
+        (``tuned=True``: 0.995).
+    :param loss_function: Default None: ``DQNLoss``'s, ``"l2"`` (``tuned=True``:
+        ``"smooth_l1"``, Huber, as the PyTorch DQN tutorial). A ``DistributionalDQNLoss`` has
+        none.
     :param delay_value: ``True`` (a target network), as TorchRL.
     :param double_dqn: ``False``, as TorchRL. A ``DistributionalDQNLoss`` has none (it is
         always double).
     :param replay_buffer: the n-step buffer the loss learns from: the loss takes the buffer's
-        gamma (a different ``gamma`` raises ``ValueError`` naming both); without it, the loss
-        checks the first n-step batch it sees and raises the same error there.
+        gamma (a different ``gamma`` raises ``ValueError`` naming both).
+    :param tuned: fill the arguments left out with this project's tuned values (above).
     :param loss_kwargs: go to the loss's constructor (``action_space``, ``reduction``, ...).
     :returns: TorchRL's ``DQNLoss``, or ``DistributionalDQNLoss`` for a
         ``DistributionalQValueActor``.
-    :raises ValueError: when ``gamma`` differs from the n-step buffer's (at the first n-step
-        batch without ``replay_buffer``), or when ``loss_function`` or ``double_dqn`` is passed
-        for a ``DistributionalDQNLoss``.
+    :raises ValueError: when ``gamma`` differs from the n-step buffer's (at construction with
+        ``replay_buffer``, and at every call on an n-step batch of another discount), or when
+        ``loss_function`` or ``double_dqn`` is passed for a ``DistributionalDQNLoss``.
     """
     if args:
         raise TypeError(
@@ -107,10 +115,16 @@ def make_dqn_loss(
             f"make_dqn_loss(value_network, gamma={args[0]!r})"
         )
     buffer_gamma = None if replay_buffer is None else n_step_gamma(replay_buffer)
-    if gamma is None:
-        gamma = DEFAULT_GAMMA if buffer_gamma is None else buffer_gamma
-    elif buffer_gamma is not None:
+    if gamma is not None and buffer_gamma is not None:
         check_discounts(gamma, buffer_gamma)
+    if gamma is None:  # None left: TorchRL's, 0.99, left to the loss
+        gamma = (
+            buffer_gamma
+            if buffer_gamma is not None
+            else TUNED["make_dqn_loss"]["gamma"]
+            if tuned
+            else None
+        )
     if isinstance(value_network, DistributionalQValueActor):
         ignored = [
             name
@@ -123,48 +137,70 @@ def make_dqn_loss(
                 "target is always double, its loss a cross-entropy); leave it out"
             )
         loss = DistributionalDQNLoss(
-            value_network, gamma=gamma, delay_value=delay_value, **loss_kwargs
+            value_network,
+            gamma=resolve("make_dqn_loss", "gamma", gamma, tuned),
+            delay_value=delay_value,
+            **loss_kwargs,
         )
     else:
         loss = DQNLoss(
             value_network,
-            loss_function=DEFAULT_LOSS_FUNCTION if loss_function is None else loss_function,
+            loss_function=resolve("make_dqn_loss", "loss_function", loss_function, tuned),
             delay_value=delay_value,
             double_dqn=bool(double_dqn),
             **loss_kwargs,
         )
-        loss.make_value_estimator(gamma=gamma)
+        if gamma is not None:  # None: TorchRL's estimator, made on the loss's first call
+            loss.make_value_estimator(gamma=gamma)
     if any(isinstance(module, NoisyLinear) for module in value_network.modules()):
         loss.deterministic_sampling_mode = ExplorationType.RANDOM
-    if replay_buffer is None:  # the buffer is not known: check the first n-step batch instead
-        _check_first_batch_discount(loss, gamma)
+    loss.register_forward_pre_hook(_check_n_step_discount)
     return loss
 
 
 def check_discounts(loss_gamma: float, buffer_gamma: float) -> None:
     """Raise ``ValueError`` unless the loss's and the n-step buffer's discounts are equal."""
-    if not math.isclose(loss_gamma, buffer_gamma, rel_tol=0.0, abs_tol=1e-9):
+    if not math.isclose(loss_gamma, buffer_gamma, rel_tol=0.0, abs_tol=1e-6):  # float32
         raise ValueError(
-            f"the loss's gamma={loss_gamma} differs from the replay buffer's n-step "
-            f"gamma={buffer_gamma}: the TD target would mix two discounts; build both with "
-            "the same gamma (make_dqn_loss(..., replay_buffer=buffer) takes the buffer's)"
+            f"the loss's gamma={loss_gamma:g} differs from the replay buffer's n-step "
+            f"gamma={buffer_gamma:g}: the TD target would mix two discounts; use one gamma "
+            "for both (make_dqn_loss(..., replay_buffer=buffer) takes the buffer's)"
         )
 
 
-def _check_first_batch_discount(loss: nn.Module, gamma: float) -> None:
-    """Check the n-step discount of the first batch the loss sees, then remove the check.
+def discount_in_use(loss: nn.Module) -> float:
+    """The discount ``loss`` bootstraps with now: its value estimator's ``gamma`` (TorchRL's
+    default estimator is made if the loss has none yet, as its first call would), or a
+    ``DistributionalDQNLoss``'s own ``gamma``."""
+    gamma = loss.gamma if isinstance(loss, DistributionalDQNLoss) else loss.value_estimator.gamma
+    return float(gamma)
+
+
+def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
+    """A forward pre-hook: an n-step batch's discount must be the one ``loss`` uses.
 
     An n-step buffer built by ``make_replay_buffer`` marks each sample with its discount
-    (``N_STEP_GAMMA_KEY``); a batch without the mark (a one-step buffer) passes.
+    (``N_STEP_GAMMA_KEY``, a plain number); a batch without the mark (a one-step buffer)
+    passes. The loss's discount is read again only when its estimator or gamma tensor has
+    changed since the last call, so the check costs no device synchronisation.
     """
-
-    def check(module: nn.Module, args: tuple[Any, ...]) -> None:
-        handle.remove()
-        batch = args[0] if args else None
-        if isinstance(batch, TensorDictBase) and N_STEP_GAMMA_KEY in batch.keys():  # noqa: SIM118
-            check_discounts(gamma, batch.get(N_STEP_GAMMA_KEY).reshape(-1)[0].item())
-
-    handle = loss.register_forward_pre_hook(check)
+    batch = args[0] if args else None
+    if not isinstance(batch, TensorDictBase):
+        return
+    marked = batch.get_non_tensor(N_STEP_GAMMA_KEY, None)
+    if marked is None:
+        return
+    gamma_tensor = (
+        loss.gamma if isinstance(loss, DistributionalDQNLoss) else loss.value_estimator.gamma
+    )
+    version = getattr(gamma_tensor, "_version", None)  # moves on each in-place write
+    cached = getattr(loss, "_n_step_discount_read", None)  # (tensor, version, value)
+    if cached is not None and cached[0] is gamma_tensor and cached[1] == version:
+        loss_gamma = cached[2]
+    else:
+        loss_gamma = discount_in_use(loss)
+        loss._n_step_discount_read = (gamma_tensor, version, loss_gamma)
+    check_discounts(loss_gamma, float(marked))
 
 
 class FusedSoftUpdate(SoftUpdate):
@@ -192,14 +228,16 @@ def make_target_updater(
     value_network_update_interval: int | None = None,
     hard_update_interval: int | None = None,
     kind: str | None = None,
+    tuned: bool = False,
 ) -> TargetNetUpdater:
     """Return TorchRL's ``SoftUpdate`` or ``HardUpdate`` of ``loss_module``'s target network.
 
-    The arguments are TorchRL's, with its meanings; which updater is built follows from them.
-    With none of them: the default config's, a ``HardUpdate`` copying every 50 updates
-    (``value_network_update_interval=49``). TorchRL has no default updater; its ``SoftUpdate``
-    needs ``eps`` or ``tau`` and ``HardUpdate`` defaults to ``value_network_update_interval=1000``.
-    Call ``.step()`` once per gradient update.
+    The arguments are TorchRL's, with its meanings and defaults; which updater is built
+    follows from them. With none of them: TorchRL's ``HardUpdate``, a copy every 1 001 updates
+    (``value_network_update_interval=1000``); with ``tuned=True``, the default config's: a copy
+    every 50 updates (``value_network_update_interval=49``), or ``tau=0.02`` with
+    ``kind="soft"``. TorchRL's ``SoftUpdate`` needs ``eps`` or ``tau``. Call ``.step()`` once
+    per gradient update.
 
     Example::
 
@@ -208,8 +246,10 @@ def make_target_updater(
         >>> loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
         >>> make_target_updater(loss, tau=0.01).eps
         0.99
-        >>> make_target_updater(loss, value_network_update_interval=3).value_network_update_interval
-        3
+        >>> make_target_updater(loss).value_network_update_interval  # HardUpdate's
+        1000
+        >>> make_target_updater(loss, tuned=True).value_network_update_interval
+        49
 
     :param loss_module: the loss (:func:`make_dqn_loss`) whose target network is updated.
     :param args: ``kind``, taken as the second positional argument too: its earlier form
@@ -218,15 +258,18 @@ def make_target_updater(
         (Lillicrap et al. 2016), built as :class:`FusedSoftUpdate`, a ``SoftUpdate`` doing the
         same arithmetic in one fused call.
     :param tau: ``SoftUpdate``'s: theta' <- tau theta + (1 - tau) theta' at each ``.step()``.
-        Default 0.02 with ``kind="soft"`` (TorchRL's ``SoftUpdate``: eps or tau required).
+        With ``kind="soft"``, required as ``SoftUpdate`` requires eps or tau (``tuned=True``:
+        0.02).
     :param value_network_update_interval: ``HardUpdate``'s, counted as TorchRL counts, so the
         copy happens on every ``(value_network_update_interval + 1)``-th ``.step()``
-        (``value_network_update_interval=3`` copies at steps 4, 8, 12).
+        (``value_network_update_interval=3`` copies at steps 4, 8, 12). Default 1000, as
+        ``HardUpdate`` (``tuned=True``: 49).
     :param hard_update_interval: this project's alias (the config's
         ``loss.hard_update_interval``) for a copy on every ``hard_update_interval``-th step
         (3: steps 3, 6, 9), i.e. ``value_network_update_interval = hard_update_interval - 1``.
-    :param kind: ``"soft"`` or ``"hard"`` (this project's): pick the updater with the default
-        config's setting for the rest (``tau=0.02``; a copy every 50 updates).
+    :param kind: ``"soft"`` or ``"hard"`` (this project's): pick the updater when no other
+        argument does.
+    :param tuned: fill the arguments left out with this project's tuned values (above).
     :returns: TorchRL's ``HardUpdate``, or :class:`FusedSoftUpdate` (a ``SoftUpdate``).
     """
     if args:
@@ -253,13 +296,18 @@ def make_target_updater(
         )
     if soft or kind == "soft":
         if eps is None and tau is None:
-            tau = DEFAULT_TAU
+            if not tuned:
+                raise TypeError(
+                    "make_target_updater(kind='soft') needs tau= or eps= (TorchRL's SoftUpdate "
+                    "requires one), or tuned=True for this project's tau=0.02"
+                )
+            tau = TUNED["make_target_updater"]["tau"]
         return FusedSoftUpdate(loss_module, eps=eps, tau=tau)
-    if value_network_update_interval is None:
-        interval = (
-            DEFAULT_HARD_UPDATE_INTERVAL if hard_update_interval is None else hard_update_interval
-        )
-        if interval < 1:
-            raise ValueError(f"hard_update_interval={interval} must be >= 1")
-        value_network_update_interval = interval - 1
-    return HardUpdate(loss_module, value_network_update_interval=value_network_update_interval)
+    if hard_update_interval is not None:
+        if hard_update_interval < 1:
+            raise ValueError(f"hard_update_interval={hard_update_interval} must be >= 1")
+        value_network_update_interval = hard_update_interval - 1
+    interval = resolve(
+        "make_target_updater", "value_network_update_interval", value_network_update_interval, tuned
+    )
+    return HardUpdate(loss_module, value_network_update_interval=interval)

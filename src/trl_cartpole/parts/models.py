@@ -36,6 +36,7 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.aliases import resolve_alias
 from trl_cartpole.parts.compat import use_first_greedy_action
 from trl_cartpole.parts.pixels import ScaleImage
+from trl_cartpole.parts.tuned import resolve
 
 __all__ = [
     "ACTIVATIONS",
@@ -250,7 +251,17 @@ def make_cnn_features(
     :param activation_class: the activation after each convolution. Default ``nn.ReLU``.
     :returns: ``nn.Sequential(ScaleImage(), ConvNet)`` (TorchRL's ``ConvNet``) and the width
         ``F`` of its flattened output.
+    :raises ValueError: when the image is smaller than the convolutions take (naming the
+        smallest height and width they do).
     """
+    smallest = smallest_image_side(kernel_sizes, strides)
+    if len(image_shape) != 3 or min(image_shape[1:]) < smallest:
+        raise ValueError(
+            f"torso='cnn': the image [C, H, W] = {list(image_shape)} is smaller than the "
+            f"convolutions take (kernel_sizes={list(kernel_sizes)}, strides={list(strides)}: "
+            f"at least {smallest}x{smallest}); render a larger image or give smaller kernels "
+            "or strides in cnn_kwargs"
+        )
     conv = ConvNet(
         in_features=image_shape[0],
         num_cells=list(channels),
@@ -262,6 +273,22 @@ def make_cnn_features(
     with torch.device("meta"):  # the flattened size, found on shapes only
         width = conv(torch.zeros(1, *image_shape)).shape[-1]
     return features, width
+
+
+def smallest_image_side(kernel_sizes: Sequence[int], strides: Sequence[int]) -> int:
+    """The smallest side an image needs for unpadded convolutions of these kernels and strides
+    to leave one pixel: each layer takes ``out = (in - k) // s + 1``, so ``in >= (out - 1) s + k``.
+
+    Example::
+
+        >>> from trl_cartpole.parts.models import smallest_image_side
+        >>> smallest_image_side((5, 5, 5), (2, 2, 2))
+        29
+    """
+    side = 1
+    for kernel, stride in reversed(list(zip(kernel_sizes, strides, strict=False))):
+        side = (side - 1) * stride + kernel
+    return side
 
 
 def _widths(num_cells: Sequence[int] | int | None, mlp_kwargs: dict[str, Any]) -> list[int]:
@@ -296,10 +323,10 @@ _MLP_SET_HERE = frozenset({"in_features", "out_features", "layer_class", "activa
 def make_q_actor(
     observation_spec: TensorSpec | nn.Module | None = None,
     spec: TensorSpec | None = None,
-    *,
+    *args: Any,
     module: nn.Module | None = None,
-    num_cells: Sequence[int] | int | None = defaults.HIDDEN_SIZES,
-    activation_class: type[nn.Module] = nn.ReLU,
+    num_cells: Sequence[int] | int | None = None,
+    activation_class: type[nn.Module] | None = None,
     head: str = "plain",
     device: str | torch.device | None = None,
     noisy: bool = False,
@@ -311,17 +338,19 @@ def make_q_actor(
     action_spec: TensorSpec | None = None,
     hidden_sizes: Sequence[int] | None = None,
     activation: str | None = None,
+    tuned: bool = False,
     **kwargs: Any,
 ) -> QValueActor | DistributionalQValueActor:
     """Return TorchRL's ``QValueActor`` reading ``in_keys`` and writing the greedy ``"action"``.
 
     The Q-network is built from ``observation_spec`` unless ``module`` is given. The arguments
-    are TorchRL's where a TorchRL class has them; ``head``, ``noisy``, ``noisy_std``,
-    ``support``, ``torso`` and ``cnn_kwargs`` are this project's own switches. The plain head
-    gives TorchRL's layout exactly: ``QValueActor(MLP(in_features, num_actions,
-    num_cells=num_cells, activation_class=...))``, so its ``state_dict`` loads into an actor
-    built with TorchRL alone. Defaults, ours (the default config's ``network``), are given
-    with each argument beside TorchRL's.
+    are TorchRL's where a TorchRL class has them, with its defaults; ``head``, ``noisy``,
+    ``noisy_std``, ``support``, ``torso`` and ``cnn_kwargs`` are this project's own switches.
+    ``tuned=True`` gives ``num_cells`` and ``activation_class``, when left out, the default
+    config's network (:mod:`trl_cartpole.parts.tuned`). The plain head gives TorchRL's layout
+    exactly: ``QValueActor(MLP(in_features, num_actions, num_cells=num_cells,
+    activation_class=...))``, so its ``state_dict`` loads into an actor built with TorchRL
+    alone.
 
     Without ``support`` it is a ``QValueActor`` writing ``action_value`` ``[*B, num_actions]``
     and ``chosen_action_value`` ``[*B, 1]``; with a ``support`` ``[atoms]`` of returns it is a
@@ -346,10 +375,13 @@ def make_q_actor(
     :param module: ``QValueActor``'s: your whole Q-network, ``[*B, obs] -> [*B, num_actions]``
         (``[*B, atoms, num_actions]`` with ``support``); nothing is built, as
         ``QValueActor(module, spec=...)``. Default None (TorchRL's ``QValueActor``: required).
+    :param args: refused: the arguments after ``spec`` are keywords; an earlier form gave the
+        hidden widths and the activation here, and raises ``TypeError`` naming the keywords.
     :param num_cells: ``MLP``'s, read as ``MLP`` reads it: a list of hidden widths (``[]``: no
-        hidden layer), an int with ``depth=``. Default (128, 128) (``MLP``: None, a single
-        linear layer).
-    :param activation_class: ``MLP``'s. Default ``nn.ReLU`` (``MLP``: ``nn.Tanh``).
+        hidden layer), an int with ``depth=``. Default None, ``MLP``'s: no hidden layer
+        (``tuned=True``: ``[128, 128]``).
+    :param activation_class: ``MLP``'s. Default ``nn.Tanh``, ``MLP``'s (``tuned=True``:
+        ``nn.ReLU``).
     :param head: ``"plain"`` (default) or ``"dueling"``: :class:`DuelingHead`, a module of this
         project (TorchRL 0.14 has dueling networks only for images).
     :param device: the actor's device. Default: the spec's.
@@ -370,11 +402,22 @@ def make_q_actor(
     :param hidden_sizes: this project's earlier name for ``num_cells``, kept as an alias.
     :param activation: this project's earlier name, a name (relu, tanh, elu, gelu) for
         ``activation_class``, kept as an alias.
+    :param tuned: fill ``num_cells`` and ``activation_class``, when left out, with this
+        project's tuned values (above).
     :param kwargs: any other keyword of ``MLP`` (``depth``, ``norm_class``, ``dropout``,
         ``activation_kwargs``...) goes to it, and any other keyword to the actor
         (``action_space``, ``action_value_key``, ``safe``...).
     :returns: TorchRL's ``QValueActor``, or its ``DistributionalQValueActor`` with ``support``.
     """
+    if args:
+        earlier = ", ".join(
+            f"{name}={value!r}"
+            for name, value in zip(("num_cells", "activation", "head"), args, strict=False)
+        )
+        raise TypeError(
+            "make_q_actor() takes observation_spec and spec, then keywords: write "
+            f"make_q_actor(observation_spec, spec, {earlier})"
+        )
     if isinstance(observation_spec, nn.Module):  # QValueActor's first argument is the module
         module = resolve_alias("module", module, "a module passed first", observation_spec)
         observation_spec = None
@@ -388,8 +431,14 @@ def make_q_actor(
                 f"activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)} "
                 "or pass activation_class="
             )
-        activation_class = ACTIVATIONS[activation]
+        activation_class = resolve_alias(
+            "activation_class", activation_class, "activation", ACTIVATIONS[activation]
+        )
     mlp_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in _MLP_KEYWORDS}
+    given_cells, given_activation = num_cells, activation_class  # before defaults fill them
+    if hidden_sizes is None:
+        num_cells = resolve("make_q_actor", "num_cells", num_cells, tuned)
+    activation_class = resolve("make_q_actor", "activation_class", activation_class, tuned)
     if module is None:
         module = _build_q_network(
             observation_spec,
@@ -408,11 +457,8 @@ def make_q_actor(
     else:
         _refuse_network_arguments_with_module(
             mlp_kwargs,
-            num_cells=(
-                num_cells if isinstance(num_cells, int) else tuple(num_cells or ()),
-                defaults.HIDDEN_SIZES,
-            ),
-            activation_class=(activation_class, nn.ReLU),
+            num_cells=(given_cells, None),
+            activation_class=(given_activation, None),
             noisy_std=(noisy_std, defaults.NOISY_STD),
             hidden_sizes=(hidden_sizes, None),
             head=(head, "plain"),

@@ -15,24 +15,28 @@ from torch import nn
 
 from trl_cartpole import defaults
 from trl_cartpole.parts.models import reset_network_noise
+from trl_cartpole.parts.tuned import resolve
 
 __all__ = ["make_optimizer", "make_update", "tapered_lr"]
 
 
 def make_optimizer(
     params: Iterable[nn.Parameter],
-    lr: float = defaults.LR,
-    amsgrad: bool = defaults.AMSGRAD,
-    weight_decay: float = defaults.WEIGHT_DECAY,
-    eps: float = defaults.ADAM_EPS,
+    lr: float | None = None,
+    *args: Any,
+    amsgrad: bool | None = None,
+    weight_decay: float | None = None,
+    eps: float | None = None,
+    tuned: bool = False,
     **adamw_kwargs: Any,
 ) -> torch.optim.AdamW:
-    """AdamW (Loshchilov & Hutter 2019), with AMSGrad (Reddi et al. 2018) as in the tutorial.
+    """PyTorch's AdamW (Loshchilov & Hutter 2019), with ``AdamW``'s defaults.
 
     PyTorch's fused implementation: one kernel for all parameters instead of a Python loop
-    over them (0.55 -> 0.17 ms per step for the default network, docs/performance.md). The
-    defaults are the default config's ``optim`` section, given with each argument beside
-    ``AdamW``'s.
+    over them (0.55 -> 0.17 ms per step for the default network, docs/performance.md), the
+    same update up to float rounding. ``tuned=True`` gives the arguments left out the
+    default config's ``optim`` values (:mod:`trl_cartpole.parts.tuned`), AMSGrad (Reddi et al.
+    2018) among them, as the PyTorch DQN tutorial.
 
     Example::
 
@@ -40,20 +44,41 @@ def make_optimizer(
         >>> from trl_cartpole import make_optimizer
         >>> optimizer = make_optimizer(nn.Linear(4, 2).parameters(), lr=1e-3)
         >>> type(optimizer).__name__, optimizer.defaults["amsgrad"]
-        ('AdamW', True)
+        ('AdamW', False)
+        >>> make_optimizer(nn.Linear(4, 2).parameters(), tuned=True).defaults["lr"]
+        0.004
 
     :param params: the parameters to optimize, as ``AdamW`` takes them.
-    :param lr: the learning rate. Default 4e-3 (``AdamW``'s: 1e-3).
-    :param amsgrad: AMSGrad (Reddi et al. 2018) on or off. Default True
-        (``AdamW``'s: False).
-    :param weight_decay: AdamW's decoupled weight decay. Default 0.0 (``AdamW``'s: 0.01; the
-        tutorial keeps ``weight_decay=0.01``, ``algo=tutorial`` sets it).
+    :param lr: the learning rate. Default 1e-3, ``AdamW``'s (``tuned=True``: 4e-3).
+    :param args: refused: the arguments after ``lr`` are keywords (``AdamW``'s third
+        positional argument is ``betas``); a positional one raises ``TypeError`` naming them.
+    :param amsgrad: AMSGrad (Reddi et al. 2018) on or off. Default False, ``AdamW``'s
+        (``tuned=True``: True).
+    :param weight_decay: AdamW's decoupled weight decay. Default 0.01, ``AdamW``'s
+        (``tuned=True``: 0.0; the tutorial's 0.01 is ``algo=tutorial``'s).
+    :param eps: the floor under AdamW's denominator. Default 1e-8, ``AdamW``'s (and tuned).
+    :param tuned: fill the arguments left out with this project's tuned values (above).
     :param adamw_kwargs: go to ``AdamW`` (``fused=True`` unless given).
     :returns: PyTorch's ``torch.optim.AdamW``.
     """
+    if args:
+        raise TypeError(
+            "make_optimizer() takes params and lr, then keywords (AdamW's third positional "
+            "argument is betas): write make_optimizer(params, lr, "
+            + ", ".join(
+                f"{name}={value!r}"
+                for name, value in zip(("amsgrad", "weight_decay", "eps"), args, strict=False)
+            )
+            + ")"
+        )
     adamw_kwargs.setdefault("fused", True)
     return torch.optim.AdamW(
-        params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay, eps=eps, **adamw_kwargs
+        params,
+        lr=resolve("make_optimizer", "lr", lr, tuned),
+        amsgrad=resolve("make_optimizer", "amsgrad", amsgrad, tuned),
+        weight_decay=resolve("make_optimizer", "weight_decay", weight_decay, tuned),
+        eps=resolve("make_optimizer", "eps", eps, tuned),
+        **adamw_kwargs,
     )
 
 

@@ -32,16 +32,15 @@ from torchrl.data import (
 from torchrl.data.replay_buffers import PrioritizedSampler, RandomSampler, Sampler, Storage
 from torchrl.envs import Compose, MultiStepTransform, Transform
 
-from trl_cartpole import defaults
 from trl_cartpole.parts.compat import (
     cuda_segment_trees_available,
     held_steps,
     n_step_transform,
     set_held_steps,
 )
+from trl_cartpole.parts.tuned import resolve
 
 __all__ = [
-    "DEFAULT_GAMMA",
     "N_STEP_GAMMA_KEY",
     "NStepTransform",
     "annealed_beta",
@@ -54,20 +53,8 @@ __all__ = [
 ]
 
 
-# This project's discount (the default config's loss.gamma; tests/test_defaults.py): the
-# default of an n-step buffer and of the loss, so the two agree when neither is given.
-DEFAULT_GAMMA = defaults.GAMMA
-# The prioritized sampler's defaults here (TorchRL's PrioritizedSampler requires alpha and
-# beta and defaults eps to 1e-8): the default config's buffer section. alpha is TorchRL's,
-# the exponent of the loss's td_error; DQNLoss writes delta ** 2, so 0.3 is Schaul et al.'s
-# 0.6 on |delta| (the config's buffer.alpha).
-DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_PRIORITY_EPS = (
-    defaults.ALPHA / 2,
-    defaults.BETA,
-    defaults.PRIORITY_EPS,
-)
-# Each sample of an n-step buffer carries its discount under this key ([*B, 1], added when
-# sampling, not stored), so a loss built apart from the buffer can check that it agrees.
+# Each sample of an n-step buffer carries its discount under this key (a non-tensor float,
+# added when sampling, not stored), so the loss can check that it agrees.
 N_STEP_GAMMA_KEY = "n_step_gamma"
 # The entries of a step that are not its state: a step's ("next", key) equals the following
 # step's key for every other entry both hold, unless a trajectory ended between them.
@@ -126,9 +113,9 @@ class NStepTransform(MultiStepTransform):
         return out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Mark a sampled batch ``[*B]`` with this transform's discount ``[*B, 1]``."""
-        gamma = torch.full((*tensordict.batch_size, 1), float(self.gamma), dtype=torch.float64)
-        tensordict.set(N_STEP_GAMMA_KEY, gamma.to(tensordict.device or "cpu"))
+        """Mark a sampled batch with this transform's discount, a plain number (no tensor to
+        read back in the loss's check)."""
+        tensordict.set_non_tensor(N_STEP_GAMMA_KEY, float(self.gamma))
         return tensordict
 
 
@@ -203,9 +190,9 @@ def make_replay_buffer(
     *args: Any,
     storage: Storage | None = None,
     sampler: Sampler | None = None,
-    batch_size: int | None = defaults.BATCH_SIZE,
+    batch_size: int | None = None,
     transform: Transform | None = None,
-    max_size: int = defaults.BUFFER_SIZE,
+    max_size: int | None = None,
     device: str | torch.device = "cpu",
     prioritized: bool = False,
     alpha: float | None = None,
@@ -213,13 +200,16 @@ def make_replay_buffer(
     eps: float | None = None,
     n_steps: int = 1,
     gamma: float | None = None,
+    tuned: bool = False,
     **buffer_kwargs: Any,
 ) -> TensorDictReplayBuffer:
     """Return TorchRL's ``TensorDictReplayBuffer`` (``TensorDictPrioritizedReplayBuffer``).
 
     Keyword arguments only, as TorchRL's buffers. The arguments are TorchRL's, with their
-    meanings and behaviour: a buffer built from TorchRL's arguments alone stores the one-step
-    transitions it is given. Defaults, ours beside TorchRL's, are given with each argument.
+    meanings, behaviour and defaults: a buffer built from TorchRL's arguments alone stores the
+    one-step transitions it is given, holds 1 000 of them and samples the batch size given to
+    ``sample``. ``tuned=True`` gives the arguments left out this project's values (the
+    default config's ``buffer`` section, :mod:`trl_cartpole.parts.tuned`).
 
     Priorities, TorchRL's way: after ``loss(sample)``, ``buffer.update_tensordict_priority(
     sample)`` stores ``(td_error + eps) ** alpha`` for each sampled index. ``DQNLoss`` writes
@@ -231,8 +221,10 @@ def make_replay_buffer(
     With ``n_steps > 1`` give the loss the same discount:
     ``make_dqn_loss(actor, replay_buffer=buffer)``. Each ``extend`` then stores the
     transitions whose n-step window is complete; the last ``n_steps`` frames wait for the next
-    ``extend``. Extend with ``[T]`` or ``[envs, T]`` in time order: a batch whose steps do not
-    follow one another (several envs flattened to ``[T]``) is refused with a ``ValueError``.
+    ``extend``. A window ends where its trajectory does, however the data comes: ``[T]`` or
+    ``[envs, T]`` as collected, a batch flattened from several envs (as TorchRL's trainers
+    store it: each window is cut at the seam between two envs), a new ``env.rollout()``
+    (:class:`NStepTransform`).
 
     Example::
 
@@ -240,35 +232,40 @@ def make_replay_buffer(
         >>> buffer = make_replay_buffer(max_size=10_000, batch_size=64)
         >>> type(buffer).__name__, buffer.batch_size
         ('TensorDictReplayBuffer', 64)
+        >>> make_replay_buffer(tuned=True).batch_size  # this project's
+        512
 
     :param args: refused: keyword arguments only, as TorchRL's buffers (a positional one raises
         ``TypeError`` naming the keyword).
     :param storage: Default ``LazyTensorStorage(max_size, device=device)`` (TorchRL:
-        ``ListStorage``); it allocates on the first ``extend`` from the batch's layout, so it
-        serves any env.
+        ``ListStorage(1_000)``); it allocates on the first ``extend`` from the batch's layout,
+        so it serves any env.
     :param sampler: Default ``RandomSampler()``, uniform with replacement, as TorchRL. Your
         own sampler (a ``PrioritizedSampler`` included) is used as given; refused with
         ``prioritized=True``, which brings its own.
-    :param batch_size: Default 512 (TorchRL: None, given at ``sample``).
+    :param batch_size: Default None, as TorchRL: given to ``sample`` (``tuned=True``: 512).
     :param transform: yours, as given (TorchRL: none); with ``n_steps > 1`` it follows
         ``NStepTransform`` in the ``Compose`` and sees each extended batch before it.
-    :param max_size: ``LazyTensorStorage``'s, for the default storage. Default 50 000.
+    :param max_size: the default storage's capacity. Default 1 000, the capacity of TorchRL's
+        default storage (``tuned=True``: 50 000).
     :param device: ``LazyTensorStorage``'s, for the default storage. Default ``"cpu"``.
     :param prioritized: ``True``: ``TensorDictPrioritizedReplayBuffer`` (Schaul et al. 2016,
         proportional), TorchRL's ``PrioritizedSampler`` with ``alpha``, ``beta`` and ``eps``.
         Default False.
-    :param alpha: the priority exponent, ``PrioritizedSampler``'s. Ours 0.3 (TorchRL requires
-        it); refused without ``prioritized=True``, as TorchRL's plain buffer refuses it.
-    :param beta: the importance-sampling exponent, ``PrioritizedSampler``'s. Ours 0.4 (TorchRL
-        requires it); refused without ``prioritized=True``.
-    :param eps: added to ``td_error`` before the exponent, ``PrioritizedSampler``'s. Ours 1e-6
-        (TorchRL: 1e-8); refused without ``prioritized=True``.
+    :param alpha: the priority exponent, ``PrioritizedSampler``'s: required with
+        ``prioritized=True``, as there (``tuned=True``: 0.3); refused without it, as TorchRL's
+        plain buffer refuses it.
+    :param beta: the importance-sampling exponent, ``PrioritizedSampler``'s: required with
+        ``prioritized=True`` (``tuned=True``: 0.4); refused without it.
+    :param eps: added to ``td_error`` before the exponent, ``PrioritizedSampler``'s. Default
+        1e-8, as there (``tuned=True``: 1e-6); refused without ``prioritized=True``.
     :param n_steps: this project's; default 1: one-step transitions, as TorchRL. With
         ``n_steps > 1`` the buffer's transform is ``Compose(NStepTransform(n_steps, gamma),
         transform)``, TorchRL's ``MultiStepTransform`` storing R_t^(n) = sum_{j<k} gamma^j
         r_{t+j} (Sutton 1988).
-    :param gamma: the n-step discount. Ours 0.995, the loss's default too; refused without
-        ``n_steps > 1``.
+    :param gamma: the n-step discount. Default 0.99, the discount of a ``DQNLoss`` left to its
+        defaults (``tuned=True``: 0.995, the tuned loss's); refused without ``n_steps > 1``.
+    :param tuned: fill the arguments left out with this project's tuned values (above).
     :param buffer_kwargs: go to the buffer's constructor (``prefetch``, ``pin_memory``,
         ``priority_key``, ...). ``sampler_device`` (the priority trees' device, with
         ``prioritized=True``): default ``None``, TorchRL's, where the installed TorchRL has CUDA
@@ -278,6 +275,8 @@ def make_replay_buffer(
         with ``prioritized=True``.
     :raises ValueError: when ``sampler`` is given with ``prioritized=True``, ``alpha``,
         ``beta`` or ``eps`` without it, or ``gamma`` without ``n_steps > 1``.
+    :raises TypeError: with ``prioritized=True`` but no ``alpha`` or ``beta`` (and no
+        ``tuned=True``).
     """
     _refuse_positional(args)
     if n_steps < 1:
@@ -287,32 +286,51 @@ def make_replay_buffer(
             f"gamma={gamma} discounts n-step returns, and n_steps=1 stores one-step "
             "transitions; pass n_steps > 1 with it, or give gamma to the loss alone"
         )
-    storage = LazyTensorStorage(max_size, device=device) if storage is None else storage
+    if storage is None:
+        max_size = resolve("make_replay_buffer", "max_size", max_size, tuned)
+        storage = LazyTensorStorage(max_size, device=device)
+    elif max_size is not None:
+        raise ValueError(
+            "max_size sizes the default storage; with storage= given, size that storage instead"
+        )
+    batch_size = resolve("make_replay_buffer", "batch_size", batch_size, tuned)
     n_step = (
-        NStepTransform(n_steps, DEFAULT_GAMMA if gamma is None else gamma) if n_steps > 1 else None
+        NStepTransform(n_steps, resolve("make_replay_buffer", "gamma", gamma, tuned))
+        if n_steps > 1
+        else None
     )
     transforms = [t for t in (n_step, transform) if t is not None]
     combined = Compose(*transforms) if n_step is not None else transform
-    sampler_arguments = {"alpha": alpha, "beta": beta, "eps": eps}
     if prioritized:
         if sampler is not None:
             raise ValueError(
                 "prioritized=True brings its own PrioritizedSampler; pass sampler= or "
                 "prioritized=True, not both"
             )
+        alpha = resolve("make_replay_buffer", "alpha", alpha, tuned)
+        beta = resolve("make_replay_buffer", "beta", beta, tuned)
+        if alpha is None or beta is None:
+            raise TypeError(
+                "prioritized=True needs alpha= and beta= (TorchRL's PrioritizedSampler "
+                "requires them), or tuned=True for this project's alpha=0.3, beta=0.4"
+            )
         if buffer_kwargs.get("sampler_device") is None and not cuda_segment_trees_available():
             # TorchRL's documented default for a CUDA storage on a build without CUDA trees
             buffer_kwargs["sampler_device"] = "cpu"
         return TensorDictPrioritizedReplayBuffer(
-            alpha=DEFAULT_ALPHA if alpha is None else alpha,
-            beta=DEFAULT_BETA if beta is None else beta,
-            eps=DEFAULT_PRIORITY_EPS if eps is None else eps,
+            alpha=alpha,
+            beta=beta,
+            eps=resolve("make_replay_buffer", "eps", eps, tuned),
             storage=storage,
             batch_size=batch_size,
             transform=combined,
             **buffer_kwargs,
         )
-    given = [name for name, value in sampler_arguments.items() if value is not None]
+    given = [
+        name
+        for name, value in {"alpha": alpha, "beta": beta, "eps": eps}.items()
+        if value is not None
+    ]
     if given:
         raise ValueError(
             f"{', '.join(given)}: the prioritized sampler's; pass prioritized=True with them, "

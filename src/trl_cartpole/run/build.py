@@ -348,7 +348,7 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         )
     replay_buffer = make_replay_buffer(
         storage=storage,
-        max_size=buffer.size,
+        max_size=buffer.size if storage is None else None,
         batch_size=buffer.batch_size,
         device=cfg.device,
         prioritized=buffer.prioritized,
@@ -400,9 +400,9 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         )
     optimizer = make_optimizer(
         actor.parameters(),
-        cfg.optim.lr,
-        cfg.optim.amsgrad,
-        cfg.optim.weight_decay,
+        lr=cfg.optim.lr,
+        amsgrad=cfg.optim.amsgrad,
+        weight_decay=cfg.optim.weight_decay,
         eps=cfg.optim.eps,
     )
     fused = fuse_dqn_loss(loss) if loss_cfg.fused else None  # None: C51, noisy layers
@@ -576,10 +576,10 @@ def _assemble(
         if distributed
         else env,
         policy,
-        cfg.collector.frames_per_batch,
-        cfg.collector.total_frames - frames_not_counted,
-        max(cfg.collector.init_random_frames - frames_not_counted, 0),
-        cfg.device,
+        frames_per_batch=cfg.collector.frames_per_batch,
+        total_frames=cfg.collector.total_frames - frames_not_counted,
+        init_random_frames=max(cfg.collector.init_random_frames - frames_not_counted, 0),
+        device=cfg.device,
         sync=cfg.collector.sync,
         backend=cfg.collector.backend,
         ray_address=cfg.collector.ray_address,
