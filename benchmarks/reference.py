@@ -87,7 +87,7 @@ def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
         "make_optimizer": (
             "PyTorch's `torch.optim.AdamW`",
             [torch.optim.AdamW],
-            ["lr", "amsgrad", "weight_decay"],
+            ["lr", "amsgrad", "weight_decay", "eps"],
         ),
         "make_update": (
             "this project's function `update(batch) -> TensorDict(loss, grad_norm)`",
@@ -102,44 +102,59 @@ def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
     }
 
 
-def _resolved() -> dict[tuple[str, str], Any]:
-    """Defaults that are None in a signature, as the factory resolves them."""
-    from trl_cartpole.parts import losses, replay
+def _resolved() -> dict[tuple[str, str], tuple[Any, Any]]:
+    """(left out, with ``tuned=True``) where the value depends on other arguments; the rest
+    is read off :data:`~trl_cartpole.parts.tuned.TORCHRL` and ``TUNED``."""
+    from trl_cartpole.parts.tuned import TORCHRL, TUNED
 
+    buffer, tuned_buffer = TORCHRL["make_replay_buffer"], TUNED["make_replay_buffer"]
+    loss, tuned_loss = TORCHRL["make_dqn_loss"], TUNED["make_dqn_loss"]
+    interval = TUNED["make_target_updater"]["value_network_update_interval"]
     return {
-        ("make_dqn_loss", "gamma"): f"{losses.DEFAULT_GAMMA} (the buffer's with `replay_buffer`)",
-        ("make_dqn_loss", "loss_function"): losses.DEFAULT_LOSS_FUNCTION,
-        ("make_dqn_loss", "double_dqn"): False,
-        ("make_target_updater", "value_network_update_interval"): (
-            f"{losses.DEFAULT_HARD_UPDATE_INTERVAL - 1} (a copy every "
-            f"{losses.DEFAULT_HARD_UPDATE_INTERVAL} updates) when neither eps nor tau is given"
+        ("make_dqn_loss", "gamma"): (
+            f"the buffer's with `replay_buffer`, else {loss['gamma']} (TorchRL's estimator)",
+            f"the buffer's with `replay_buffer`, else {tuned_loss['gamma']}",
         ),
-        ("make_target_updater", "tau"): f"{losses.DEFAULT_TAU} with `kind='soft'`",
-        ("make_replay_buffer", "storage"): "`LazyTensorStorage(max_size)`",
-        ("make_replay_buffer", "sampler"): "`RandomSampler()`",
-        (
-            "make_replay_buffer",
-            "transform",
-        ): "none (yours, after `NStepTransform` with `n_steps > 1`)",
-        (
-            "make_replay_buffer",
-            "alpha",
-        ): f"{replay.DEFAULT_ALPHA} with `prioritized` (refused without)",
-        (
-            "make_replay_buffer",
-            "beta",
-        ): f"{replay.DEFAULT_BETA} with `prioritized` (refused without)",
-        (
-            "make_replay_buffer",
-            "eps",
-        ): f"{replay.DEFAULT_PRIORITY_EPS} with `prioritized` (refused without)",
-        (
-            "make_replay_buffer",
-            "gamma",
-        ): f"{replay.DEFAULT_GAMMA} with `n_steps > 1` (refused without)",
-        ("make_q_actor", "module"): "None: built from `observation_spec`",
-        ("make_q_actor", "device"): "the spec's",
-        ("make_exploration", "device"): "the spec's",
+        ("make_target_updater", "value_network_update_interval"): (
+            f"`{TORCHRL['make_target_updater']['value_network_update_interval']}` when neither "
+            "eps nor tau is given",
+            f"{interval} (a copy every {interval + 1} updates) when neither eps nor tau is given",
+        ),
+        ("make_target_updater", "tau"): (
+            "required with `kind='soft'`",
+            f"{TUNED['make_target_updater']['tau']} with `kind='soft'`",
+        ),
+        ("make_replay_buffer", "storage"): ("`LazyTensorStorage(max_size)`",) * 2,
+        ("make_replay_buffer", "sampler"): ("`RandomSampler()`",) * 2,
+        ("make_replay_buffer", "transform"): (
+            "none (yours, after `NStepTransform` with `n_steps > 1`)",
+        )
+        * 2,
+        ("make_replay_buffer", "alpha"): (
+            "required with `prioritized` (refused without)",
+            f"{tuned_buffer['alpha']} with `prioritized`",
+        ),
+        ("make_replay_buffer", "beta"): (
+            "required with `prioritized` (refused without)",
+            f"{tuned_buffer['beta']} with `prioritized`",
+        ),
+        ("make_replay_buffer", "eps"): (
+            f"{buffer['eps']} with `prioritized` (refused without)",
+            f"{tuned_buffer['eps']} with `prioritized`",
+        ),
+        ("make_replay_buffer", "gamma"): (
+            f"{buffer['gamma']} with `n_steps > 1` (refused without)",
+            f"{tuned_buffer['gamma']} with `n_steps > 1`",
+        ),
+        ("make_dqn_loss", "double_dqn"): (False, None),
+        ("make_q_actor", "module"): ("None: built from `observation_spec`",) * 2,
+        ("make_q_actor", "num_cells"): ("None (`MLP`'s: no hidden layer)", None),
+        ("make_q_actor", "device"): ("the spec's",) * 2,
+        ("make_exploration", "device"): ("the spec's",) * 2,
+        ("make_collector", "frames_per_batch"): (
+            "required (as TorchRL)",
+            TUNED["make_collector"]["frames_per_batch"],
+        ),
     }
 
 
@@ -148,13 +163,14 @@ _TORCHRL_NOTES = {
     ("DQNLoss", "gamma"): "0.99 (its value estimator's)",
     ("SoftUpdate", "eps"): "required (eps or tau)",
     ("SoftUpdate", "tau"): "required (eps or tau)",
-    ("TensorDictReplayBuffer", "storage"): "`ListStorage`",
+    ("TensorDictReplayBuffer", "storage"): "`ListStorage(1_000)`",
     ("TensorDictReplayBuffer", "sampler"): "`RandomSampler()`",
     ("TensorDictReplayBuffer", "batch_size"): "None (given to `sample`)",
     ("TensorDictReplayBuffer", "transform"): "none",
-    ("MLP", "num_cells"): "None (a single linear layer; 32 per layer with `depth`)",
+    ("MLP", "num_cells"): "None (no hidden layer; 32 per layer with `depth`)",
     ("QValueActor", "module"): "required",
     ("PrioritizedSampler", "eps"): "1e-8",
+    ("LazyTensorStorage", "max_size"): "required (TorchRL's default `ListStorage`: 1 000)",
     ("MultiStepTransform", "n_steps"): "required (no n-step without it)",
     ("MultiStepTransform", "gamma"): "required",
 }
@@ -182,9 +198,10 @@ def _torchrl_default(classes: list[Any], argument: str) -> str:
 
 
 def defaults_table() -> str:
-    """Markdown: per factory, what it returns, then a table of each argument's default, ours
-    beside TorchRL's (three columns, so it fits the page's content column)."""
+    """Markdown: per factory, what it returns, then a table of each argument's default: left
+    out, TorchRL's (read off the TorchRL class), and with ``tuned=True``."""
     import trl_cartpole
+    from trl_cartpole.parts.tuned import TORCHRL, TUNED
 
     resolved = _resolved()
     sections = []
@@ -192,10 +209,21 @@ def defaults_table() -> str:
         parameters = inspect.signature(getattr(trl_cartpole, factory)).parameters
         lines = [f"**`{factory}`** returns {returns}."]
         if arguments:
-            lines += ["", "| argument | ours | TorchRL's |", "| --- | --- | --- |"]
+            lines += [
+                "",
+                "| argument | left out | TorchRL's | with `tuned=True` |",
+                "| --- | --- | --- | --- |",
+            ]
         for argument in arguments:
-            ours = resolved.get((factory, argument), parameters[argument].default)
+            left_out, tuned = resolved.get((factory, argument), (None, None))
+            if left_out is None:
+                table = TORCHRL.get(factory, {})
+                left_out = table[argument] if argument in table else parameters[argument].default
+            if tuned is None:
+                table = TUNED.get(factory, {})
+                tuned = table.get(argument, "the same")
             theirs = _torchrl_default(classes, argument)
-            lines.append(f"| `{argument}` | {_shown(ours)} | {theirs} |")
+            shown = [_shown(value) for value in (left_out, tuned)]
+            lines.append(f"| `{argument}` | {shown[0]} | {theirs} | {shown[1]} |")
         sections.append("\n".join(lines))
     return "\n\n".join(sections)

@@ -127,7 +127,9 @@ def test_a_prioritized_buffer_keeps_cpu_trees_where_torchrl_has_no_cuda_ones(mon
     assert built == all(getattr(prioritized, name) is not None for name in names)
 
     def sampler_device(**kwargs):
-        return make_replay_buffer(prioritized=True, max_size=8, **kwargs)._sampler._device
+        return make_replay_buffer(
+            prioritized=True, max_size=8, tuned=True, **kwargs
+        )._sampler._device
 
     monkeypatch.setattr(prioritized, "CudaSumSegmentTreeFp32", None)
     assert sampler_device() == torch.device("cpu")

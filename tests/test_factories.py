@@ -220,7 +220,9 @@ def test_minibatches_of_one_draw_are_uniform_and_prioritized_ones_are_drawn_one_
     assert [b.shape for b in batches] == [torch.Size([8])] * 5
     drawn = torch.cat([b["x"] for b in batches]).flatten()  # 40 indices with replacement
     assert drawn.min() >= 0 and drawn.max() < 100 and len(drawn.unique()) > 20
-    prioritized = make_replay_buffer(max_size=1000, batch_size=8, prioritized=True, n_steps=1)
+    prioritized = make_replay_buffer(
+        max_size=1000, batch_size=8, prioritized=True, alpha=0.3, beta=0.4, n_steps=1
+    )
     prioritized.extend(TensorDict(x=torch.arange(100.0)[:, None], batch_size=[100]))
     batches = list(sample_minibatches(prioritized, 3))
     assert len(batches) == 3 and all("priority_weight" in b for b in batches)

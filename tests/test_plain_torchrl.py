@@ -19,6 +19,7 @@ from torchrl.data import (
     OneHot,
     PrioritizedSampler,
     TensorDictReplayBuffer,
+    Unbounded,
 )
 from torchrl.envs import Transform
 from torchrl.modules import MLP, QValueActor
@@ -225,7 +226,7 @@ def test_the_pipelines_learner_writes_the_priorities_torchrls_way():
     # Q(s, a) of the actions taken: 1, 2, 2, 2; delta = y - Q = -1, -1, -1.5, 1
     delta = torch.tensor([-1.0, -1.0, -1.5, 1.0])
     alpha, eps = 0.3, 1e-6
-    buffer = make_replay_buffer(batch_size=4, prioritized=True, alpha=alpha, eps=eps)
+    buffer = make_replay_buffer(batch_size=4, prioritized=True, alpha=alpha, beta=0.4, eps=eps)
     buffer.extend(batch)
     loss = make_dqn_loss(actor, gamma=0.9, loss_function="l2")
     optimizer = torch.optim.SGD(net.parameters(), lr=0.0)
@@ -283,7 +284,9 @@ def test_a_policy_saved_in_the_earlier_layout_still_loads(env):
         nn.Linear(16, 2),
     )
     earlier_actor = QValueActor(earlier, in_keys=["observation"], spec=env.action_spec)
-    actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[16, 16])
+    actor = make_q_actor(
+        env.observation_spec, env.action_spec, num_cells=[16, 16], activation_class=nn.ReLU
+    )
     actor.load_state_dict(earlier_actor.state_dict())
     observation = env.reset()
     assert torch.equal(
@@ -351,6 +354,7 @@ def test_an_earlier_layout_with_norm_layers_loads_without_keys_colliding(env):
         env.observation_spec,
         env.action_spec,
         num_cells=[16, 16],
+        activation_class=nn.ReLU,
         norm_class=nn.LayerNorm,
         norm_kwargs={"normalized_shape": 16},
     )
@@ -358,4 +362,47 @@ def test_an_earlier_layout_with_norm_layers_loads_without_keys_colliding(env):
     observation = env.reset()
     assert torch.equal(
         actor(observation.clone())["action_value"], earlier_actor(observation)["action_value"]
+    )
+
+
+# --- every earlier positional form names the keywords --------------------------------------------
+
+
+def test_every_earlier_positional_form_answers_with_the_keywords_to_use(env):
+    with pytest.raises(
+        TypeError,
+        match=r"write make_exploration\(spec, schedule='linear', eps_init=1\.0, eps_end=0\.05, "
+        r"annealing_num_steps=3000\)",
+    ):
+        make_exploration(env.action_spec, "linear", 1.0, 0.05, 3000)
+    with pytest.raises(
+        TypeError,
+        match=r"write make_q_actor\(observation_spec, spec, num_cells=\[64, 64\], "
+        r"activation='tanh'\)",
+    ):
+        make_q_actor(env.observation_spec, env.action_spec, [64, 64], "tanh")
+    actor = make_q_actor(env.observation_spec, env.action_spec)
+    with pytest.raises(
+        TypeError,
+        match=r"make_collector\(env, policy, frames_per_batch=32, total_frames=1000, "
+        r"init_random_frames=0\)",
+    ):
+        make_collector(env, actor, 32, 1000, 0)
+    with pytest.raises(TypeError, match=r"write make_optimizer\(params, lr, amsgrad=True\)"):
+        make_optimizer(actor.parameters(), 1e-3, True)
+
+
+def test_a_cnn_torso_names_the_smallest_image_it_takes():
+    image = Composite(pixels=Unbounded(shape=(2, 20, 60), dtype=torch.uint8))
+    with pytest.raises(ValueError, match=r"\[2, 20, 60\] is smaller .* at least 29x29"):
+        make_q_actor(image, OneHot(2), in_keys=["pixels"], torso="cnn")
+    actor = make_q_actor(
+        image,
+        OneHot(2),
+        in_keys=["pixels"],
+        torso="cnn",
+        cnn_kwargs={"channels": [8], "kernel_sizes": [5], "strides": [2]},
+    )
+    assert actor(TensorDict(pixels=torch.zeros(2, 20, 60, dtype=torch.uint8)))["action"].shape == (
+        2,
     )

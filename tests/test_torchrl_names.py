@@ -71,8 +71,9 @@ def test_dqn_loss_takes_value_network_and_every_dqnloss_keyword(env):
     loss = make_dqn_loss(value_network=actor, delay_value=False, reduction="sum")
     assert isinstance(loss, DQNLoss)
     assert loss.delay_value is False and loss.reduction == "sum"
-    assert loss.loss_function == "smooth_l1"  # ours; TorchRL's is l2
-    assert make_dqn_loss(actor, loss_function="l2").loss_function == "l2"
+    assert loss.loss_function == "l2"  # DQNLoss's own
+    assert make_dqn_loss(actor, tuned=True).loss_function == "smooth_l1"  # this project's
+    assert make_dqn_loss(actor, loss_function="l1", tuned=True).loss_function == "l1"
 
 
 def test_exploration_takes_egreedy_modules_names_in_its_order(env):
@@ -82,7 +83,7 @@ def test_exploration_takes_egreedy_modules_names_in_its_order(env):
     assert (positional.eps_init.item(), positional.eps_end.item()) == pytest.approx((0.8, 0.2))
     assert positional.annealing_num_steps == 10
     alias = make_exploration(action_spec=env.action_spec)  # the earlier name still works
-    assert alias.annealing_num_steps == 3000
+    assert alias.annealing_num_steps == 1000  # EGreedyModule's
     with pytest.raises(TypeError, match="alias"):
         make_exploration(env.action_spec, action_spec=env.action_spec)
 
@@ -169,16 +170,39 @@ def test_loss_takes_the_n_step_buffers_discount_and_refuses_another(env):
         make_dqn_loss(actor, gamma=0.99, replay_buffer=buffer)
 
 
-def test_a_loss_built_apart_refuses_its_first_batch_from_a_buffer_of_another_discount(env):
+def test_the_discount_in_use_is_checked_on_every_n_step_batch(env):
     actor = make_q_actor(env.observation_spec, env.action_spec)
-    buffer = make_replay_buffer(batch_size=8, n_steps=3)  # 3-step returns, gamma 0.995
+    buffer = make_replay_buffer(batch_size=8, n_steps=3, gamma=0.995)
     batch = _n_step_batch(env, buffer)
-    with pytest.raises(ValueError, match=r"gamma=0\.99 differs .* n-step gamma=0\.995"):
-        make_dqn_loss(actor, gamma=0.99)(batch)
-    agreeing = make_dqn_loss(actor, gamma=0.995)
-    assert torch.isfinite(agreeing(batch)["loss"])
+    mismatched = make_dqn_loss(actor, gamma=0.99)
+    for _ in range(2):  # refused every time, not only at the first batch
+        with pytest.raises(ValueError, match=r"gamma=0\.99 differs .* n-step gamma=0\.995"):
+            mismatched(batch.clone())
+    # TorchRL's way: the loss's estimator made with the buffer's gamma after construction
+    torchrls_way = make_dqn_loss(actor)
+    torchrls_way.make_value_estimator(gamma=0.995)
+    assert torch.isfinite(torchrls_way(batch.clone())["loss"])
+    # a loss given the buffer, then another estimator: refused at each call, not trained on
+    changed = make_dqn_loss(actor, replay_buffer=buffer)
+    assert torch.isfinite(changed(batch.clone())["loss"])
+    changed.make_value_estimator(gamma=0.5)
+    for _ in range(2):
+        with pytest.raises(ValueError, match=r"gamma=0\.5 differs .* n-step gamma=0\.995"):
+            changed(batch.clone())
+    changed.make_value_estimator(gamma=0.995)  # and back: accepted again
+    assert torch.isfinite(changed(batch.clone())["loss"])
     one_step = make_replay_buffer(batch_size=8, n_steps=1)  # no discount in the buffer
     assert torch.isfinite(make_dqn_loss(actor, gamma=0.5)(_n_step_batch(env, one_step))["loss"])
+
+
+def test_a_c51_loss_checks_its_own_gamma_on_every_n_step_batch(env):
+    c51 = make_q_actor(env.observation_spec, env.action_spec, support=torch.linspace(0, 50, 11))
+    buffer = make_replay_buffer(batch_size=8, n_steps=3, gamma=0.99)
+    batch = _n_step_batch(env, buffer)
+    assert torch.isfinite(make_dqn_loss(c51, replay_buffer=buffer)(batch.clone())["loss"])
+    for _ in range(2):
+        with pytest.raises(ValueError, match=r"gamma=0\.9 differs"):
+            make_dqn_loss(c51, gamma=0.9)(batch.clone())
 
 
 def test_every_gymwrapper_keyword_make_env_routes_is_one_torchrl_reads():

@@ -180,14 +180,14 @@ def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
     """A forward pre-hook: an n-step batch's discount must be the one ``loss`` uses.
 
     An n-step buffer built by ``make_replay_buffer`` marks each sample with its discount
-    (``N_STEP_GAMMA_KEY``, a plain number); a batch without the mark (a one-step buffer)
-    passes. The loss's discount is read again only when its estimator or gamma tensor has
-    changed since the last call, so the check costs no device synchronisation.
+    (``N_STEP_GAMMA_KEY``); a batch without the mark (a one-step buffer) passes. The loss's
+    discount is read again only when its estimator or gamma tensor has changed since the last
+    call; the batch's is one number read per call.
     """
     batch = args[0] if args else None
     if not isinstance(batch, TensorDictBase):
         return
-    marked = batch.get_non_tensor(N_STEP_GAMMA_KEY, None)
+    marked = batch.get(N_STEP_GAMMA_KEY, None)  # [*B, 1]
     if marked is None:
         return
     gamma_tensor = (
@@ -200,7 +200,7 @@ def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
     else:
         loss_gamma = discount_in_use(loss)
         loss._n_step_discount_read = (gamma_tensor, version, loss_gamma)
-    check_discounts(loss_gamma, float(marked))
+    check_discounts(loss_gamma, float(marked.reshape(-1)[0]))
 
 
 class FusedSoftUpdate(SoftUpdate):

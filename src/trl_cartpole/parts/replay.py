@@ -53,8 +53,9 @@ __all__ = [
 ]
 
 
-# Each sample of an n-step buffer carries its discount under this key (a non-tensor float,
-# added when sampling, not stored), so the loss can check that it agrees.
+# Each sample of an n-step buffer carries its discount under this key ([*B, 1], added when
+# sampling, not stored; a tensor, so a stock loss takes the batch as it is), so the loss can
+# check that it agrees.
 N_STEP_GAMMA_KEY = "n_step_gamma"
 # The entries of a step that are not its state: a step's ("next", key) equals the following
 # step's key for every other entry both hold, unless a trajectory ended between them.
@@ -113,9 +114,9 @@ class NStepTransform(MultiStepTransform):
         return out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Mark a sampled batch with this transform's discount, a plain number (no tensor to
-        read back in the loss's check)."""
-        tensordict.set_non_tensor(N_STEP_GAMMA_KEY, float(self.gamma))
+        """Mark a sampled batch ``[*B]`` with this transform's discount ``[*B, 1]``."""
+        gamma = torch.full((*tensordict.batch_size, 1), float(self.gamma), dtype=torch.float64)
+        tensordict.set(N_STEP_GAMMA_KEY, gamma.to(tensordict.device or "cpu"))
         return tensordict
 
 
