@@ -22,7 +22,7 @@ from torchrl.data import (
     Unbounded,
 )
 from torchrl.envs import Transform
-from torchrl.modules import MLP, QValueActor
+from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import SoftUpdate
 
 from trl_cartpole.config.validation import ACTIVATION_NAMES, HEAD_NAMES
@@ -406,3 +406,12 @@ def test_a_cnn_torso_names_the_smallest_image_it_takes():
     assert actor(TensorDict(pixels=torch.zeros(2, 20, 60, dtype=torch.uint8)))["action"].shape == (
         2,
     )
+
+
+def test_factory_states_load_into_the_stock_classes_or_differ_as_the_reference_says(env):
+    """The reference names the one extra key of the exponential schedule's state."""
+    stock = EGreedyModule(env.action_spec)
+    stock.load_state_dict(make_exploration(env.action_spec).state_dict())  # strict
+    exponential = make_exploration(env.action_spec, schedule="exponential").state_dict()
+    missing, unexpected = stock.load_state_dict(exponential, strict=False)
+    assert (missing, unexpected) == ([], ["frames"])
