@@ -25,8 +25,9 @@ from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
 from trl_cartpole.run import envs
-from trl_cartpole.run.build import build_actor, evaluate_episodes
+from trl_cartpole.run.build import build_actor
 from trl_cartpole.run.envs import make_pixel_env, rendered_envs
+from trl_cartpole.run.judging import Judge
 
 CROP = (120, 320, None, None)  # the preset's band of rows
 
@@ -182,7 +183,7 @@ def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_
         return make_pixel_env(env_cfg, *args, **kwargs)
 
     monkeypatch.setattr(envs, "make_pixel_env", spy)
-    result = evaluate_episodes(cfg, build_actor(cfg, env), seed=3, episodes=2)
+    result = Judge.from_config(cfg).play(build_actor(cfg, env), seed=3, episodes=2)
     assert built == [("drawn", 1.0)] and len(result.returns) == 2  # every frame rendered
 
 

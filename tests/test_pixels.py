@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from dataclasses import replace
 
 import pytest
 import torch
@@ -15,9 +16,10 @@ from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole
 from trl_cartpole.parts.pixels import CropFrame, PoolImage, RandomShift
-from trl_cartpole.policy.load import evaluate_checkpoint
-from trl_cartpole.run import build
+from trl_cartpole.policy.load import evaluate_checkpoint, load_trained_policy
+from trl_cartpole.run import build, envs
 from trl_cartpole.run.build import build_actor, build_env, run_memory_need
+from trl_cartpole.run.judging import Judge
 
 # A pixel run small enough for the default tier: 2 envs (one painted by Gymnasium's calls),
 # 200 frames, evaluations of 2 episodes.
@@ -114,28 +116,33 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path, monkeypatch):
     assert more.returncode == 0, more.stderr[-2000:]
     assert json.loads((run_dir / "summary.json").read_text())["frames"] == 296
     # More episodes than pixel envs built at once are played in turns (each env a renderer).
-    monkeypatch.setattr(build, "PIXEL_ENVS_AT_ONCE", 2)
-    sizes, build_env = [], build.build_env
-    monkeypatch.setattr(
-        build,
-        "build_env",
-        lambda cfg, seed, n, *rest, **kw: sizes.append(n) or build_env(cfg, seed, n, *rest, **kw),
-    )
-    result, _ = evaluate_checkpoint(run_dir, episodes=5)
+    trained = load_trained_policy(run_dir)
+    trained.env.close()
+    sizes = []
+
+    class CountingJudge(Judge):
+        def make_envs(self, seed, count):
+            sizes.append(count)
+            return super().make_envs(seed, count)
+
+    judge = CountingJudge(**vars(Judge.from_config(trained.cfg)) | {"pixel_envs_at_once": 2})
+    result = judge.play(trained.actor, judge.seed_for("final"), 5)
     assert sizes == [2, 2, 1] and len(result.returns) == len(result.lengths) == 5
+    result, _ = evaluate_checkpoint(run_dir, episodes=5)  # the script's path: 20 at a time
+    assert len(result.returns) == 5
     assert all(1 <= length <= 50 for length in result.lengths)  # eval.max_steps=50
 
 
 def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_path, monkeypatch):
-    built, build_env = [], build.build_env
+    built, make_pixel_env = [], envs.make_pixel_env
 
-    def spy(cfg, seed, num_envs=None, *rest, **kwargs):
-        env = build_env(cfg, seed, num_envs, *rest, **kwargs)
+    def spy(*args, **kwargs):  # every pixel env the run builds, training and judging
+        env = make_pixel_env(*args, **kwargs)
         (draw,) = [t for t in env.transform if isinstance(t, DrawCartPole)]
         built.append((env.batch_size.numel(), draw.rendered))
         return env
 
-    monkeypatch.setattr(build, "build_env", spy)
+    monkeypatch.setattr(envs, "make_pixel_env", spy)
     overrides = ["env.num_envs=4", "env.pixels_rendered_share=0.5", "eval.episodes=3"]
     proc = run_script_in_process(
         "train.py", *TINY_PIXEL_RUN, *overrides, f"run_dir={tmp_path / 'run'}"
@@ -196,11 +203,11 @@ def test_a_budget_that_ends_before_the_first_update_is_warned_in_one_line(compos
 
 
 def test_the_final_evaluation_of_pixels_says_how_many_episodes_it_played(compose, monkeypatch):
-    monkeypatch.setattr(build, "PIXEL_ENVS_AT_ONCE", 2)  # turns of 2 envs: 2, 4, 5 episodes
     cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "eval.max_steps=5")))
     actor = build_actor(cfg, build_env(cfg, seed=0))
+    judge = replace(Judge.from_config(cfg), pixel_envs_at_once=2)  # turns of 2: 2, 4, 5 episodes
     played = []
-    result = build.evaluate_episodes(cfg, actor, seed=0, episodes=5, on_turn=played.append)
+    result = judge.play(actor, seed=0, episodes=5, on_turn=played.append)
     assert played == [2, 4, 5] and len(result.returns) == 5
 
 

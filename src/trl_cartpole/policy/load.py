@@ -18,9 +18,10 @@ from torchrl.modules import DistributionalQValueActor, QValueActor
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.report.console import quiet_libraries
-from trl_cartpole.run.build import build_actor, build_env, evaluate_episodes
+from trl_cartpole.run.build import build_actor, build_env
 from trl_cartpole.run.envs import on_gymnasium_frames
 from trl_cartpole.run.evaluation import EvalResult
+from trl_cartpole.run.judging import Judge
 from trl_cartpole.store.checkpoint import (
     load_policy,
     read_checkpoint_config,
@@ -81,8 +82,8 @@ def load_trained_policy(
     path = policy_checkpoint(checkpoint)
     verify_checkpoint(path)  # before its config names modules to import and envs to build
     cfg = read_checkpoint_config(path)
-    if seed is None:
-        seed = cfg.seed + 2 * cfg.eval.seed_offset
+    if seed is None:  # the final evaluation's episodes
+        seed = Judge.from_config(cfg).seed_for("final")
     cfg.device = "cpu"  # a policy trained on a GPU is loaded for this machine's CPU
     if render_mode is None:  # a trained policy plays on Gymnasium's own picture
         cfg.env = on_gymnasium_frames(cfg.env)
@@ -104,8 +105,8 @@ def evaluate_checkpoint(
     trained = load_trained_policy(checkpoint, num_envs=1, seed=seed)  # the actor, its config
     trained.env.close()
     cfg = trained.cfg
-    seed = cfg.seed + 2 * cfg.eval.seed_offset if seed is None else seed
-    norm = read_observation_norm(trained.checkpoint)
+    judge = Judge.from_config(cfg, read_observation_norm(trained.checkpoint))
+    seed = judge.seed_for("final") if seed is None else seed
     with quiet_libraries():
-        result = evaluate_episodes(cfg, trained.actor, seed, episodes, norm, epsilon)
+        result = judge.play(trained.actor, seed, episodes, epsilon)
     return result, OmegaConf.to_container(OmegaConf.structured(cfg))

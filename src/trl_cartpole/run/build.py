@@ -20,9 +20,8 @@ import random
 import shutil
 import time
 import warnings
-from collections.abc import Callable
 from contextlib import ExitStack
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -62,13 +61,14 @@ from trl_cartpole.report.plotting import LiveDurationPlot
 from trl_cartpole.report.progress_bar import ProgressBar
 from trl_cartpole.run.checkpointer import Checkpointer
 from trl_cartpole.run.envs import (
+    close_env,
     estimate_observation_norm,
     make_env_from_config,
-    on_gymnasium_frames,
     worker_env_constructors,
 )
-from trl_cartpole.run.evaluation import EvalResult, Evaluator, evaluate
+from trl_cartpole.run.evaluation import Evaluator, evaluate
 from trl_cartpole.run.history import History
+from trl_cartpole.run.judging import Judge
 from trl_cartpole.run.learner import Learner
 from trl_cartpole.run.memory_needs import (
     MemoryNeed,
@@ -93,7 +93,6 @@ __all__ = [
     "build_exploration",
     "build_learner",
     "build_replay_buffer",
-    "close_env",
     "prepare_run_dir",
     "run_title",
     "seed_everything",
@@ -114,13 +113,6 @@ def transition_keys(observation_key: str = "observation") -> tuple[Any, ...]:
         ("next", "terminated"),
         ("next", "truncated"),
     )
-
-
-def close_env(env: EnvBase) -> None:
-    """Close ``env`` unless it already is (TorchRL's ``SerialEnv`` refuses a second close; the
-    collector closes the env it steps)."""
-    if not getattr(env, "is_closed", False):
-        env.close()
 
 
 def seed_everything(seed: int) -> None:
@@ -207,12 +199,6 @@ def build_env(
     )
 
 
-# Pixel envs built at once by one evaluation: Gymnasium's rendered envs each hold their own
-# renderer and frames (about 30 MiB here: 100 at once took the final evaluation to 3.1 GiB),
-# so more episodes are played in turns of this many (a drawn env's batch shares one canvas).
-PIXEL_ENVS_AT_ONCE = 20
-
-
 def first_update_frame(cfg: Config) -> int:
     """The frames collected before the first gradient update: the random warm-up, the
     ``learning_starts`` floor and one batch of samples."""
@@ -231,44 +217,6 @@ def warn_if_no_update(cfg: Config) -> None:
             "but does not learn; raise collector.total_frames or lower those",
             stacklevel=2,
         )
-
-
-def evaluate_episodes(
-    cfg: Config,
-    actor: TensorDictModuleBase,
-    seed: int,
-    episodes: int,
-    observation_norm: dict[str, list[float]] | None = None,
-    epsilon: float = 0.0,
-    on_turn: Callable[[int], None] | None = None,
-) -> EvalResult:
-    """``episodes`` episodes of ``actor`` (:func:`trl_cartpole.run.evaluation.evaluate`), one per
-    env of ``cfg.env`` seeded ``seed`` onward; envs from pixels play on Gymnasium's own
-    picture whatever they trained on (``on_gymnasium_frames``), built and played
-    ``PIXEL_ENVS_AT_ONCE`` at a time, the turn starting at episode ``i`` seeded ``seed + i``;
-    ``on_turn`` is called with the episodes played after each turn."""
-    at_once = PIXEL_ENVS_AT_ONCE if cfg.env.from_pixels else episodes
-    if cfg.env.from_pixels:
-        cfg = replace(cfg, env=on_gymnasium_frames(cfg.env))
-    result = EvalResult()
-    for start in range(0, episodes, at_once):
-        env = build_env(
-            cfg,
-            seed + start,
-            min(at_once, episodes - start),
-            observation_norm,
-            step_timeout=cfg.env.step_timeout,
-        )
-        try:
-            turn = evaluate(actor, env, cfg.eval.max_steps, epsilon)
-        finally:
-            close_env(env)
-        result.returns += turn.returns
-        result.lengths += turn.lengths
-        result.initial_values += turn.initial_values
-        if on_turn is not None:
-            on_turn(len(result.returns))  # the episodes played so far
-    return result
 
 
 def run_memory_need(cfg: Config, env: TransformedEnv) -> MemoryNeed:
@@ -458,6 +406,7 @@ class Components:
     ray_nodes: dict[str, Any] | None  # Ray runs: the learner's and each actor's node id
     transition_keys: tuple[Any, ...]  # what the buffer stores of each frame (transition_keys)
     wall_start: float  # perf_counter() when the build began
+    judge: Judge  # the end of the run's evaluations: seeds, envs, episodes
     _collector_released: bool = field(default=False, init=False, repr=False)
 
     def release_collector(self) -> None:
@@ -507,13 +456,9 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     env = build_env(
         cfg, cfg.seed, observation_norm=observation_norm, step_timeout=cfg.env.step_timeout
     )
-    eval_env = build_env(  # a pixel policy is chosen on the frames it is judged on
-        replace(cfg, env=on_gymnasium_frames(cfg.env)),
-        cfg.seed + cfg.eval.seed_offset,
-        cfg.eval.episodes,
-        observation_norm,
-        step_timeout=cfg.env.step_timeout,
-    )
+    judge = Judge.from_config(cfg, observation_norm)
+    # a pixel policy is chosen on the frames it is judged on
+    eval_env = judge.make_envs(judge.seed_for("periodic"), judge.periodic_episodes)
     with ExitStack() as on_error:  # an error while building the rest closes what it holds
         on_error.callback(close_env, eval_env)
         on_error.callback(close_env, env)
@@ -529,7 +474,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         lock = RunLock(run_dir)  # a second writer of run_dir stops here
         on_error.callback(lock.release)
         components = _assemble(
-            cfg, resume, run_dir, env, eval_env, observation_norm, lock, wall_start, on_error
+            cfg, resume, run_dir, env, judge, eval_env, observation_norm, lock, wall_start, on_error
         )
         if resume is not None:
             components.checkpointer.load(resume, components.progress)
@@ -543,6 +488,7 @@ def _assemble(
     resume: str | Path | None,
     run_dir: Path,
     env: TransformedEnv,
+    judge: Judge,
     eval_env: TransformedEnv,
     observation_norm: dict[str, list[float]] | None,
     lock: RunLock,
@@ -683,4 +629,5 @@ def _assemble(
         ray_nodes=ray_placement(collector),
         transition_keys=transition_keys(actor.in_keys[0]),
         wall_start=wall_start,
+        judge=judge,
     )

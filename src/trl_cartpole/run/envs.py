@@ -272,3 +272,10 @@ def worker_env_constructors(
         )
         for worker in range(workers)
     ]
+
+
+def close_env(env: EnvBase) -> None:
+    """Close ``env`` unless it already is (TorchRL's ``SerialEnv`` refuses a second close; the
+    collector closes the env it steps)."""
+    if not getattr(env, "is_closed", False):
+        env.close()

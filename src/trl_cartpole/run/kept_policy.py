@@ -4,10 +4,10 @@ The best of many noisy means is biased upward (the winner's curse): a policy cho
 20 evaluation episodes averaged 486.7 played 461.2 over 100 new ones (docs/environments.md).
 With ``eval.candidates=K`` the evaluator keeps the K policies with the highest periodic means;
 before the final evaluation each plays ``eval.candidate_episodes`` new episodes, the same
-episodes for every candidate (seeds ``seed + 3 * eval.seed_offset`` onward, neither the
-periodic evaluations' nor the final's), and the candidate with the highest mean over them is
-kept (the best periodic one on a tie). The final evaluation then measures the kept policy on
-episodes no choice was made on.
+episodes for every candidate (the judge's candidate seeds, neither the periodic evaluations'
+nor the final's: :mod:`trl_cartpole.run.judging`), and the candidate with the highest mean
+over them is kept (the best periodic one on a tie). The final evaluation then measures the
+kept policy on episodes no choice was made on.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from trl_cartpole.config.schema import Config
 from trl_cartpole.run.evaluation import Candidate, EvalResult, Evaluator
+from trl_cartpole.run.judging import Judge
 
-__all__ = ["CandidateScore", "candidate_seed", "choose_kept_policy"]
+__all__ = ["CandidateScore", "choose_kept_policy"]
 
 
 @dataclass
@@ -30,25 +30,26 @@ class CandidateScore:
     replay_return_mean: float  # over eval.candidate_episodes new episodes
 
 
-def candidate_seed(cfg: Config) -> int:
-    """The seed of the candidates' first episode (the next ones count up from it)."""
-    return cfg.seed + 3 * cfg.eval.seed_offset
-
-
 def choose_kept_policy(
-    cfg: Config,
+    judge: Judge,
     evaluator: Evaluator,
-    play: Callable[[int, int], EvalResult],
+    play: Callable[[int, int], EvalResult] | None = None,
     on_candidate: Callable[[int, int], None] | None = None,
 ) -> tuple[Candidate | None, list[CandidateScore]]:
     """Play each of ``evaluator.candidates`` again, keep the best, put it into the network.
 
-    :param play: ``play(seed, episodes)`` plays the network's greedy episodes from ``seed`` on
-        (the run's ``evaluate_episodes``).
+    :param judge: the run's judge: the candidates' seeds and episodes.
+    :param play: ``play(seed, episodes)`` plays the network's greedy episodes from ``seed`` on;
+        default: ``judge.play`` with the evaluator's network.
     :param on_candidate: called with (candidate number from 1, candidates) before each plays.
     :returns: the kept candidate and every candidate's score, best periodic first; no scores
         when there is a single candidate (nothing to choose: nothing is played).
     """
+    if play is None:
+
+        def play(seed: int, episodes: int) -> EvalResult:
+            return judge.play(evaluator.network, seed, episodes)
+
     candidates = evaluator.candidates
     if len(candidates) <= 1:  # the best periodic evaluation's policy, as is
         evaluator.load_best()
@@ -58,7 +59,7 @@ def choose_kept_policy(
         if on_candidate is not None:
             on_candidate(number, len(candidates))
         evaluator.network.load_state_dict(candidate.state)
-        result = play(candidate_seed(cfg), cfg.eval.candidate_episodes)
+        result = play(judge.seed_for("candidates"), judge.candidate_episodes)
         scores.append(CandidateScore(candidate.frames, candidate.eval_return_mean, result.mean))
     best = max(range(len(scores)), key=lambda i: (scores[i].replay_return_mean, -i))
     evaluator.keep(candidates[best])

@@ -29,7 +29,7 @@ from trl_cartpole.report.plotting import (
     plot_dashboard,
     plot_durations,
 )
-from trl_cartpole.run.build import REPLAY_FILES, Components, evaluate_episodes, run_title
+from trl_cartpole.run.build import REPLAY_FILES, Components, run_title
 from trl_cartpole.run.evaluation import EvalResult, Evaluator
 from trl_cartpole.run.kept_policy import choose_kept_policy
 from trl_cartpole.store.files import write_json_atomic
@@ -55,20 +55,19 @@ def finish(run: Components) -> dict[str, Any]:
     # a live plot to a file is the durations.png the end draws anew: no last redraw first
     if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
         run.live_plot.flush()
+    judge = run.judge
     kept, scores = choose_kept_policy(
-        cfg,
+        judge,
         evaluator,
-        lambda seed, episodes: evaluate_episodes(
-            cfg, run.actor, seed, episodes, run.observation_norm
-        ),
+        lambda seed, episodes: judge.play(run.actor, seed, episodes),
         on_candidate=lambda number, count: run.progress_bar.status(
             f"choosing the policy to keep: candidate {number} of {count} over "
-            f"{cfg.eval.candidate_episodes} new episodes"
+            f"{judge.candidate_episodes} new episodes"
         ),
     )
     if scores and kept is not evaluator.candidates[0]:  # checkpoints/best: the kept policy
         run.checkpointer.save_best(run.actor, kept.frames, kept.eval_return_mean)
-    episodes = cfg.eval.final_episodes
+    episodes = judge.final_episodes
     say = f"final evaluation: the kept policy over {episodes} new episodes"
     run.progress_bar.status(say)
 
@@ -76,14 +75,7 @@ def finish(run: Components) -> dict[str, Any]:
         if played < episodes:
             run.progress_bar.status(f"{say} ({played} played)")
 
-    final = evaluate_episodes(
-        cfg,
-        run.actor,
-        cfg.seed + 2 * cfg.eval.seed_offset,
-        episodes,
-        run.observation_norm,
-        on_turn=show_played,
-    )
+    final = judge.final(run.actor, on_turn=show_played)
     run.metrics.log({"eval/final_return_mean": final.mean}, progress.frames)
     run.metrics.close()
     if cfg.logger.plots:
