@@ -43,8 +43,8 @@ from trl_cartpole.parts.collectors import (
     needs_weight_sync,
     shutdown_collector,
 )
-from trl_cartpole.run.build import build_actor, build_env, build_exploration
 from trl_cartpole.run.envs import worker_env_constructors
+from trl_cartpole.run.from_config import build_actor, build_env, build_exploration
 
 SEEDS, OUT = [0, 1, 2], "runs/scaling"
 WARMUP_BATCHES = 5  # batches left out of the timing: worker start-up, first allocations

@@ -35,14 +35,14 @@ from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.parts.optim import make_optimizer
 from trl_cartpole.parts.replay import extend_with_batch, sample_minibatches
-from trl_cartpole.run.build import (
+from trl_cartpole.run.from_config import (
     build_actor,
     build_env,
     build_learner,
     build_replay_buffer,
-    seed_everything,
     transition_keys,
 )
+from trl_cartpole.run.resources import seed_everything
 
 SEEDS, OUT = [0], "runs/update_cost"
 RANDOM_FRAMES, WARMUP_UPDATES = 3000, 20

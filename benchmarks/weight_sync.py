@@ -24,8 +24,8 @@ from trl_cartpole.parts.collectors import (
     needs_weight_sync,
     shutdown_collector,
 )
-from trl_cartpole.run.build import build_actor, build_env, build_exploration
 from trl_cartpole.run.envs import worker_env_constructors
+from trl_cartpole.run.from_config import build_actor, build_env, build_exploration
 
 
 def _source(batch, actors: list) -> str:

@@ -14,7 +14,7 @@ from trl_cartpole.config.schema import Config, NetworkConfig
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.losses import make_dqn_loss
 from trl_cartpole.parts.models import expected_action_values
-from trl_cartpole.run.build import build_actor
+from trl_cartpole.run.from_config import build_actor
 
 SUPPORT = torch.tensor([0.0, 1.0, 2.0])  # z, delta_z = 1
 P_S = torch.tensor([[0.25, 1 / 3], [0.25, 1 / 3], [0.5, 1 / 3]])  # p(s, .): [atoms, actions]

@@ -25,8 +25,8 @@ from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
 from trl_cartpole.run import envs
-from trl_cartpole.run.build import build_actor
 from trl_cartpole.run.envs import make_pixel_env, rendered_envs
+from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.run.judging import Judge
 
 CROP = (120, 320, None, None)  # the preset's band of rows

@@ -23,8 +23,8 @@ from trl_cartpole.config.help import field_help
 from trl_cartpole.config.schema import Config
 from trl_cartpole.report.console import DYNAMO_PROFILER_LOGGER, ending, quiet_libraries, verdict
 from trl_cartpole.report.progress_bar import BAR_FORMAT
-from trl_cartpole.run.build import prepare_run_dir
 from trl_cartpole.run.history import History
+from trl_cartpole.run.run_dir import prepare_run_dir
 
 SCRIPT_NAMES = sorted(path.name for path in SCRIPTS.glob("*.py"))
 

@@ -29,7 +29,7 @@ from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer
 from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.parts.tuned import TORCHRL, TUNED
-from trl_cartpole.run.build import (
+from trl_cartpole.run.from_config import (
     build_actor,
     build_env,
     build_exploration,

@@ -19,9 +19,9 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, make_env
 from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.policy.load import evaluate_checkpoint
-from trl_cartpole.run.build import build_actor
 from trl_cartpole.run.envs import estimate_observation_norm, make_env_from_config
 from trl_cartpole.run.evaluation import evaluate
+from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.run.training import train
 from trl_cartpole.store.checkpoint import read_observation_norm
 

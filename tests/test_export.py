@@ -26,7 +26,7 @@ from trl_cartpole.policy.export import (
     greedy_q_network_of,
 )
 from trl_cartpole.policy.load import evaluate_checkpoint, load_trained_policy
-from trl_cartpole.run.build import build_actor
+from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.store.checkpoint import read_observation_norm
 
 ort = pytest.importorskip("onnxruntime")

@@ -43,7 +43,7 @@ def _comparable(summary: dict) -> dict:
 
 def _weights(checkpoint: Path) -> dict[str, torch.Tensor]:
     from trl_cartpole.parts.env import make_env
-    from trl_cartpole.run.build import build_actor
+    from trl_cartpole.run.from_config import build_actor
     from trl_cartpole.store.checkpoint import load_policy, read_checkpoint_config
 
     cfg = read_checkpoint_config(checkpoint)

@@ -12,9 +12,10 @@ import torch
 
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.run.build import build_env, run_memory_need
+from trl_cartpole.run.from_config import build_env
 from trl_cartpole.run.memory_needs import MemoryNeed, available_memory_bytes, check_fits_in_memory
 from trl_cartpole.run.progress import resident_mb
+from trl_cartpole.run.resources import run_memory_need
 
 
 def test_the_default_runs_need_is_counted_by_hand():

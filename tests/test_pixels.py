@@ -17,9 +17,10 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole
 from trl_cartpole.parts.pixels import CropFrame, PoolImage, RandomShift
 from trl_cartpole.policy.load import evaluate_checkpoint, load_trained_policy
-from trl_cartpole.run import build, envs
-from trl_cartpole.run.build import build_actor, build_env, run_memory_need
+from trl_cartpole.run import envs, resources
+from trl_cartpole.run.from_config import build_actor, build_env, build_replay_buffer, run_title
 from trl_cartpole.run.judging import Judge
+from trl_cartpole.run.resources import run_memory_need
 
 # A pixel run small enough for the default tier: 2 envs (one painted by Gymnasium's calls),
 # 200 frames, evaluations of 2 episodes.
@@ -194,12 +195,12 @@ def test_a_budget_that_ends_before_the_first_update_is_warned_in_one_line(compos
         match=r"total_frames=3000 ends before the first update at "
         r"frame 5000",
     ) as caught:
-        build.warn_if_no_update(cfg)
+        resources.warn_if_no_update(cfg)
     assert "\n" not in str(caught[0].message)
     long_enough = validate(to_config(compose("env=cartpole_pixels")))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        build.warn_if_no_update(long_enough)  # the preset's whole budget: no warning
+        resources.warn_if_no_update(long_enough)  # the preset's whole budget: no warning
 
 
 def test_the_final_evaluation_of_pixels_says_how_many_episodes_it_played(compose, monkeypatch):
@@ -216,8 +217,8 @@ def test_a_pixel_runs_directory_and_plots_say_it_learns_from_pixels(compose):
     state = to_config(compose("seed=4"))
     assert pixels.run_dir.startswith("runs/CartPole-v1-pixels-dqn-seed4-")
     assert state.run_dir.startswith("runs/CartPole-v1-dqn-seed4-")
-    assert build.run_title(pixels) == "CartPole-v1 from pixels dqn seed 4"
-    assert build.run_title(state) == "CartPole-v1 dqn seed 4"
+    assert run_title(pixels) == "CartPole-v1 from pixels dqn seed 4"
+    assert run_title(state) == "CartPole-v1 dqn seed 4"
 
 
 def _shifted(image: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:
@@ -250,7 +251,7 @@ def test_random_shift_moves_each_frame_by_at_most_pad_pixels_independently():
 
 def test_a_shifting_buffer_stores_the_frames_as_collected(compose):
     cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "buffer.pixels_shift=1", "buffer.n_steps=1")))
-    buffer = build.build_replay_buffer(cfg)
+    buffer = build_replay_buffer(cfg)
     frames = torch.randint(0, 256, (40, 2, 20, 60), dtype=torch.uint8)
     data = TensorDict(
         {

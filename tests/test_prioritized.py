@@ -127,7 +127,7 @@ def test_the_configs_alpha_is_schauls_exponent_on_the_absolute_td_error():
     """buffer.alpha=0.6 (Schaul et al.'s, on |delta|) builds TorchRL's alpha=0.3 on delta ** 2
     for DQNLoss; C51's cross-entropy priority keeps it."""
     from trl_cartpole.config.schema import to_config
-    from trl_cartpole.run.build import build_replay_buffer
+    from trl_cartpole.run.from_config import build_replay_buffer
 
     cfg = to_config({"buffer": {"prioritized": True, "alpha": 0.6}})
     assert build_replay_buffer(cfg).sampler.alpha == pytest.approx(0.3)

@@ -14,7 +14,7 @@ from tests.conftest import SMOKE_OVERRIDES, TIMING_KEYS, run_script_in_process
 from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.run.build import REPLAY_FILES, build_replay_buffer
+from trl_cartpole.run.from_config import REPLAY_FILES, build_replay_buffer
 from trl_cartpole.run.memory_needs import (
     MemoryNeed,
     check_buffer_fits_on_disk,

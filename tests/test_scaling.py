@@ -31,8 +31,8 @@ from trl_cartpole.parts.collectors import (
     shutdown_collector,
 )
 from trl_cartpole.parts.exploration import make_exploration
-from trl_cartpole.run.build import build_actor
 from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors
+from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.run.training import train
 from trl_cartpole.store.checkpoint import resume_config
 from trl_cartpole.tools.sweeps import expand_grid
@@ -483,7 +483,7 @@ _SHIPPED_PACKAGE = """
 import json, sys
 from pathlib import Path
 import ray, trl_cartpole
-from trl_cartpole.run.build import build_actor
+from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.config.schema import Config

@@ -8,7 +8,7 @@ import torch
 
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.replay import NStepTransform, extend_with_batch, make_replay_buffer
-from trl_cartpole.run.build import transition_keys
+from trl_cartpole.run.from_config import transition_keys
 from trl_cartpole.run.training import train
 
 from .conftest import SMOKE_OVERRIDES

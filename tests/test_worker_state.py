@@ -13,8 +13,8 @@ import torch
 from tensordict.nn import TensorDictSequential
 
 from trl_cartpole.parts.collectors import make_collector
-from trl_cartpole.run.build import build_actor, build_exploration
 from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors
+from trl_cartpole.run.from_config import build_actor, build_exploration
 from trl_cartpole.store.worker_state import restore_worker_states, worker_states
 
 FRAMES = 64  # per batch: 32 per worker, so episodes are cut mid-way by the batch boundary

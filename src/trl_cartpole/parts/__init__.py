@@ -7,7 +7,7 @@ env seen through its frames), ``models`` (``QValueActor``), ``exploration`` (``E
 ``optim`` (AdamW and one gradient step), ``collectors`` (``Collector``), and ``compat`` (every
 private TorchRL name read, and every stand-in for a TorchRL part). They import nothing of the
 application (the config schema, its validation, the run, the command line): the import-linter
-contract in ``pyproject.toml`` holds it, and ``trl_cartpole.run.build`` joins the two.
+contract in ``pyproject.toml`` holds it, and ``trl_cartpole.run.from_config`` joins the two.
 
 One thing happens on import, here and nowhere else: where the torchrl wheel's C++ extension
 does not load against the installed torch (torchrl 0.14.1 beside torch 2.13.0's CPU build),

@@ -18,9 +18,9 @@ from torchrl.modules import DistributionalQValueActor, QValueActor
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.report.console import quiet_libraries
-from trl_cartpole.run.build import build_actor, build_env
 from trl_cartpole.run.envs import on_gymnasium_frames
 from trl_cartpole.run.evaluation import EvalResult
+from trl_cartpole.run.from_config import build_actor, build_env
 from trl_cartpole.run.judging import Judge
 from trl_cartpole.store.checkpoint import (
     load_policy,

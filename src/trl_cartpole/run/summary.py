@@ -1,8 +1,10 @@
 """How a run ends: the final evaluation of the best policy, the plots and ``summary.json``.
 
-:func:`finish` runs after the loop: it saves the last training state, evaluates the best
-policy (by periodic evaluation) over ``eval.final_episodes`` fresh episodes, draws the plots
-and writes ``summary.json``, whose keys other tools rely on (docs/architecture.md).
+:func:`finish` runs after the loop: it saves the last training state, chooses the policy to
+keep (:mod:`trl_cartpole.run.kept_policy`), evaluates it over the judge's final episodes
+(:mod:`trl_cartpole.run.judging`), draws the plots and writes ``summary.json``, whose keys
+other tools rely on (docs/architecture.md). It reads the run's values (``run.facts``,
+``run.judge``), not its config.
 :func:`record_failure` writes the summary of a run stopped by a numerical fault.
 """
 
@@ -20,7 +22,6 @@ import tensordict
 import torch
 import torchrl
 
-from trl_cartpole.env_ids import time_limit
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.report.plotting import (
     DashboardData,
@@ -29,9 +30,9 @@ from trl_cartpole.report.plotting import (
     plot_dashboard,
     plot_durations,
 )
-from trl_cartpole.run.build import REPLAY_FILES, Components, run_title
-from trl_cartpole.run.evaluation import EvalResult, Evaluator
-from trl_cartpole.run.kept_policy import choose_kept_policy
+from trl_cartpole.run.build import Components
+from trl_cartpole.run.evaluation import Candidate, EvalResult, Evaluator
+from trl_cartpole.run.kept_policy import CandidateScore, choose_kept_policy
 from trl_cartpole.store.files import write_json_atomic
 
 __all__ = ["finish", "peak_rss_mb", "record_failure", "run_summary"]
@@ -43,79 +44,26 @@ def peak_rss_mb() -> float:
 
 
 def finish(run: Components) -> dict[str, Any]:
-    """Save the last state, evaluate the best policy, draw the plots, write ``summary.json``."""
-    cfg, progress, evaluator = run.cfg, run.progress, run.evaluator
-    progress.clock.pause()
-    run.progress_bar.close()
-    run.progress_bar.status("saving the last training state")
-    run.checkpointer.save_last(progress)
-    run.release_collector()
-    if cfg.buffer.storage == "memmap":  # the training state just saved holds its own copy
-        shutil.rmtree(run.run_dir / REPLAY_FILES, ignore_errors=True)
-    # a live plot to a file is the durations.png the end draws anew: no last redraw first
-    if run.live_plot is not None and not (cfg.logger.plots and run.live_plot.target == "file"):
-        run.live_plot.flush()
-    judge = run.judge
-    kept, scores = choose_kept_policy(
-        judge,
-        evaluator,
-        lambda seed, episodes: judge.play(run.actor, seed, episodes),
-        on_candidate=lambda number, count: run.progress_bar.status(
-            f"choosing the policy to keep: candidate {number} of {count} over "
-            f"{judge.candidate_episodes} new episodes"
-        ),
-    )
-    if scores and kept is not evaluator.candidates[0]:  # checkpoints/best: the kept policy
-        run.checkpointer.save_best(run.actor, kept.frames, kept.eval_return_mean)
-    episodes = judge.final_episodes
-    say = f"final evaluation: the kept policy over {episodes} new episodes"
-    run.progress_bar.status(say)
-
-    def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
-        if played < episodes:
-            run.progress_bar.status(f"{say} ({played} played)")
-
-    final = judge.final(run.actor, on_turn=show_played)
-    run.metrics.log({"eval/final_return_mean": final.mean}, progress.frames)
-    run.metrics.close()
-    if cfg.logger.plots:
+    """Save the last state, choose and evaluate the kept policy, draw the plots, write
+    ``summary.json``."""
+    _save_last_state(run)
+    kept, scores = _choose_kept_policy(run)
+    final = _final_evaluation(run)
+    if run.facts.plots:
         run.progress_bar.status("drawing the plots")
-        history, curve = run.history, evaluator.curve
-        title = run_title(cfg)
-        final_point = FinalEvaluation(progress.frames, final.mean, final.std, len(final.returns))
-        plot_durations(
-            history.curves(curve, run.threshold, cfg.eval.episodes, final_point),
-            run.run_dir / "durations.png",
-            title,
-        )
-        dashboard = DashboardData(
-            update_frames=history.update_frames,
-            td_losses=history.td_losses,
-            grad_norms=history.grad_norms,
-            eval_frames=curve.frames,
-            eval_initial_values=curve.initial_values,
-            epsilon_frames=history.epsilon_frames,
-            epsilons=history.epsilons,
-            value_reference=discounted_return_reference(
-                final.returns,
-                final.lengths,
-                cfg.loss.gamma,
-                time_limit(run.env_id, cfg.env.max_episode_steps),
-            ),
-            max_grad_norm=cfg.optim.max_grad if cfg.optim.grad_clip == "norm" else None,
-        )
-        plot_dashboard(dashboard, run.run_dir / "dashboard.png", title=title)
+        _draw_plots(run, final)
+    progress, facts = run.progress, run.facts
     phases = progress.phase_seconds
     summary = run_summary(
-        env_id=cfg.env.id,
-        seed=cfg.seed,
-        algo=cfg.algo.name,
+        env_id=facts.env_id,
+        seed=facts.seed,
+        algo=facts.algo,
         frames=progress.frames,
         updates=progress.updates,
         train_seconds=progress.clock.seconds,
         wall_start=run.wall_start,
         threshold=run.threshold,
-        evaluator=evaluator,
+        evaluator=run.evaluator,
         final=final,
         run_dir=run.run_dir,
         episodes=len(run.history.episode_returns),
@@ -123,7 +71,7 @@ def finish(run: Components) -> dict[str, Any]:
         collect_frames_per_second=round(progress.frames / max(phases["collect"], 1e-9)),
         updates_per_second=round(progress.updates / max(phases["update"], 1e-9), 1),
         phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
-        checkpoint=str(run.run_dir / "checkpoints" / "best") if cfg.checkpoint.save_best else None,
+        checkpoint=None if facts.best_checkpoint is None else str(facts.best_checkpoint),
         kept_policy_frames=None if kept is None else kept.frames,
         **({"candidates": [asdict(score) for score in scores]} if scores else {}),
         **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
@@ -137,6 +85,81 @@ def finish(run: Components) -> dict[str, Any]:
     write_json_atomic(run.run_dir / "summary.json", summary)
     run.progress_bar.clear()
     return summary
+
+
+def _save_last_state(run: Components) -> None:
+    """Stop the clock, save the last training state, release the collector."""
+    run.progress.clock.pause()
+    run.progress_bar.close()
+    run.progress_bar.status("saving the last training state")
+    run.checkpointer.save_last(run.progress)
+    run.release_collector()
+    if run.facts.replay_files is not None:  # the training state just saved holds its own copy
+        shutil.rmtree(run.facts.replay_files, ignore_errors=True)
+    # a live plot to a file is the durations.png the end draws anew: no last redraw first
+    if run.live_plot is not None and not (run.facts.plots and run.live_plot.target == "file"):
+        run.live_plot.flush()
+
+
+def _choose_kept_policy(run: Components) -> tuple[Candidate | None, list[CandidateScore]]:
+    """The kept policy, in the network and, when it is not the best periodic one, saved as
+    ``checkpoints/best`` (:func:`~trl_cartpole.run.kept_policy.choose_kept_policy`)."""
+    judge, evaluator = run.judge, run.evaluator
+    kept, scores = choose_kept_policy(
+        judge,
+        evaluator,
+        lambda seed, episodes: judge.play(run.actor, seed, episodes),
+        on_candidate=lambda number, count: run.progress_bar.status(
+            f"choosing the policy to keep: candidate {number} of {count} over "
+            f"{judge.candidate_episodes} new episodes"
+        ),
+    )
+    if scores and kept is not evaluator.candidates[0]:  # checkpoints/best: the kept policy
+        run.checkpointer.save_best(run.actor, kept.frames, kept.eval_return_mean)
+    return kept, scores
+
+
+def _final_evaluation(run: Components) -> EvalResult:
+    """The kept policy over the judge's final episodes, logged; the metrics log closed."""
+    episodes = run.judge.final_episodes
+    say = f"final evaluation: the kept policy over {episodes} new episodes"
+    run.progress_bar.status(say)
+
+    def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
+        if played < episodes:
+            run.progress_bar.status(f"{say} ({played} played)")
+
+    final = run.judge.final(run.actor, on_turn=show_played)
+    run.metrics.log({"eval/final_return_mean": final.mean}, run.progress.frames)
+    run.metrics.close()
+    return final
+
+
+def _draw_plots(run: Components, final: EvalResult) -> None:
+    """``durations.png`` (the PyTorch DQN tutorial's plot) and ``dashboard.png`` (the Practical
+    RL DQN assignment's four panels)."""
+    history, curve, facts = run.history, run.evaluator.curve, run.facts
+    frames = run.progress.frames
+    final_point = FinalEvaluation(frames, final.mean, final.std, len(final.returns))
+    plot_durations(
+        history.curves(curve, run.threshold, run.judge.periodic_episodes, final_point),
+        run.run_dir / "durations.png",
+        facts.title,
+    )
+    dashboard = DashboardData(
+        update_frames=history.update_frames,
+        td_losses=history.td_losses,
+        grad_norms=history.grad_norms,
+        eval_frames=curve.frames,
+        eval_initial_values=curve.initial_values,
+        epsilon_frames=history.epsilon_frames,
+        epsilons=history.epsilons,
+        value_reference=discounted_return_reference(
+            final.returns, final.lengths, facts.gamma, facts.time_limit
+        ),
+        max_grad_norm=facts.max_grad_norm,
+    )
+    plot_dashboard(dashboard, run.run_dir / "dashboard.png", title=facts.title)
 
 
 def run_summary(
@@ -201,9 +224,9 @@ def record_failure(run: Components, failure: TrainingFailed) -> TrainingFailed:
     periodic = run.run_dir / "checkpoints" / "periodic"
     progress, evaluator = run.progress, run.evaluator
     summary = {
-        "env_id": run.cfg.env.id,
-        "seed": run.cfg.seed,
-        "algo": run.cfg.algo.name,
+        "env_id": run.facts.env_id,
+        "seed": run.facts.seed,
+        "algo": run.facts.algo,
         "frames": progress.frames,
         "updates": progress.updates,
         "wall_seconds": round(time.perf_counter() - run.wall_start, 3),

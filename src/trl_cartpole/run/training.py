@@ -25,7 +25,7 @@ from trl_cartpole.parts.collectors import lost_worker
 from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.parts.replay import extend_with_batch
 from trl_cartpole.report.console import quiet_libraries
-from trl_cartpole.run.build import Components, build_components, worker_log_dir
+from trl_cartpole.run.build import Components, build_components
 from trl_cartpole.run.env_faults import (
     check_finite_batch,
     disarm_step_deadline,
@@ -70,17 +70,7 @@ def train(
             for batch in progress.timed(run.collector, "collect"):
                 batch = batch.reshape(-1, batch.shape[-1]) if batch.ndim > 2 else batch
                 with phase("store"):
-                    check_finite_batch(batch, run.env_id, progress.frames)
-                    progress.frames += batch.numel()
-                    extend_with_batch(run.buffer, batch.select(*run.transition_keys))
-                    for episode in run.history.record_episodes(batch, progress.frames):
-                        run.metrics.log(
-                            {
-                                "train/episode_return": episode.episode_return,
-                                "train/episode_length": episode.length,
-                            },
-                            progress.frames,
-                        )
+                    _store(run, batch)
                 updates_before = progress.updates
                 with phase("update"):  # gradient steps, priorities, target network
                     if len(run.buffer) >= run.learning_starts:
@@ -102,23 +92,50 @@ def train(
         except TrainingFailed as failure:
             raise record_failure(run, failure) from None
         except Exception as error:
-            disarm_step_deadline()  # a step that raised left its alarm set
-            fault = env_fault(error, run.env_id, progress.frames)  # the env's own code raised
-            log_dir = worker_log_dir(run.cfg, run.run_dir)
-            if fault is None and log_dir is not None and not isinstance(error, _OUR_STOPS):
-                fault = worker_env_fault(log_dir, run.env_id, progress.frames)  # a worker died
-            if fault is not None:
-                raise record_failure(run, fault) from None
-            # a Ray actor died: checkpoint, then stop (our own stops say their own word)
-            lost = None if isinstance(error, _OUR_STOPS) else lost_worker(error, run.collector)
-            if lost is None:
+            stop_as = _stop_for(run, error)
+            if stop_as is None:
                 raise
-            raise run.checkpointer.stop_for_lost_worker(progress, lost) from None
+            raise stop_as from None
         return finish(run)
 
 
 # the loop's own ways to stop: never read as a worker's env fault
 _OUR_STOPS = (TrainingInterrupted, DiskFull, WorkerLost)
+
+
+def _store(run: Components, batch: TensorDictBase) -> None:
+    """Check the batch ``[envs, T]``, count its frames, store it, log its finished episodes."""
+    progress = run.progress
+    check_finite_batch(batch, run.env_id, progress.frames)
+    progress.frames += batch.numel()
+    extend_with_batch(run.buffer, batch.select(*run.transition_keys))
+    for episode in run.history.record_episodes(batch, progress.frames):
+        run.metrics.log(
+            {
+                "train/episode_return": episode.episode_return,
+                "train/episode_length": episode.length,
+            },
+            progress.frames,
+        )
+
+
+def _stop_for(run: Components, error: Exception) -> Exception | None:
+    """What the run stops with after ``error`` escaped the loop (None: ``error`` itself).
+
+    The env's own code raised, or a worker process's env died: the run's failure, recorded in
+    the run directory. A Ray actor died: a checkpoint, then ``WorkerLost``. The loop's own
+    stops (a signal, a full disk) and anything else go on as they are.
+    """
+    disarm_step_deadline()  # a step that raised left its alarm set
+    frames = run.progress.frames
+    fault = env_fault(error, run.env_id, frames)  # the env's own code raised
+    ours = isinstance(error, _OUR_STOPS)
+    if fault is None and run.worker_log_dir is not None and not ours:
+        fault = worker_env_fault(run.worker_log_dir, run.env_id, frames)  # a worker died
+    if fault is not None:
+        return record_failure(run, fault)
+    lost = None if ours else lost_worker(error, run.collector)  # a Ray actor died
+    return None if lost is None else run.checkpointer.stop_for_lost_worker(run.progress, lost)
 
 
 def _report_batch(run: Components, batch: TensorDictBase, updates_before: int) -> None:
@@ -167,7 +184,7 @@ def _record_evaluation(
         run.checkpointer.save_best(run.actor, evaluation.frames, result.mean)
     if run.live_plot is not None:
         run.live_plot.update(
-            run.history.curves(run.evaluator.curve, run.threshold, run.cfg.eval.episodes)
+            run.history.curves(run.evaluator.curve, run.threshold, run.judge.periodic_episodes)
         )
     if on_evaluation is not None:
         on_evaluation(evaluation)

@@ -1,0 +1,292 @@
+"""The config's sections as factory arguments: each ``build_x(cfg, ...)`` calls the factory of
+``trl_cartpole.parts`` with the values of its section, as TorchRL's own examples'
+``make_x(cfg)`` do. The one place where config fields become TorchRL objects."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict.nn import TensorDictModuleBase
+from torchrl.collectors import BaseCollector
+from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
+from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
+
+from trl_cartpole.config.schema import Config
+from trl_cartpole.parts.collectors import (
+    RAY_ACTOR_OPTIONS,
+    is_distributed,
+    make_collector,
+)
+from trl_cartpole.parts.exploration import make_exploration
+from trl_cartpole.parts.fused_loss import fuse_dqn_loss
+from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
+from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
+from trl_cartpole.parts.optim import make_optimizer, make_update
+from trl_cartpole.parts.pixels import PIXELS_KEY, RandomShift
+from trl_cartpole.parts.replay import make_replay_buffer
+from trl_cartpole.run.envs import (
+    make_env_from_config,
+    worker_env_constructors,
+)
+from trl_cartpole.run.learner import Learner
+from trl_cartpole.run.run_dir import fresh_worker_log_dir
+from trl_cartpole.run.schedules import Schedules
+from trl_cartpole.store.buffer_checkpoint import save_filled_part
+
+__all__ = [
+    "REPLAY_FILES",
+    "build_actor",
+    "build_collector",
+    "build_env",
+    "build_exploration",
+    "build_learner",
+    "build_replay_buffer",
+    "build_schedules",
+    "run_title",
+    "torchrl_priority_exponent",
+    "transition_keys",
+]
+
+
+def transition_keys(observation_key: str = "observation") -> tuple[Any, ...]:
+    """What the replay buffer stores of a collected frame: the observation the network reads
+    (``"observation"``, or ``"pixels"``), the action, and the next step's observation, reward
+    and flags. The rest (Q-values, counters) is dropped."""
+    return (
+        observation_key,
+        "action",
+        ("next", observation_key),
+        ("next", "reward"),
+        ("next", "done"),
+        ("next", "terminated"),
+        ("next", "truncated"),
+    )
+
+
+def run_title(cfg: Config) -> str:
+    """``CartPole-v1 dqn seed 0`` (``CartPole-v1 from pixels dqn seed 0``): a run's plot title."""
+    pixels = " from pixels" if cfg.env.from_pixels else ""
+    return f"{cfg.env.id}{pixels} {cfg.algo.name} seed {cfg.seed}"
+
+
+def build_env(
+    cfg: Config,
+    seed: int,
+    num_envs: int | None = None,
+    observation_norm: dict[str, list[float]] | None = None,
+    render_mode: str | None = None,
+    step_timeout: float | None = None,
+) -> TransformedEnv:
+    """The env of ``cfg.env`` (``num_envs`` overrides its count), seeded ``seed``; a training
+    env's steps are bounded by ``step_timeout`` (``cfg.env.step_timeout``)."""
+    return make_env_from_config(
+        cfg.env,
+        seed,
+        cfg.device,
+        num_envs,
+        observation_norm=observation_norm,
+        render_mode=render_mode,
+        step_timeout=step_timeout,
+    )
+
+
+def build_actor(
+    cfg: Config, env: EnvBase, device: str | None = None
+) -> QValueActor | DistributionalQValueActor:
+    """The Q-value actor of ``cfg.network``, sized from ``env``'s specs (on ``cfg.device``
+    unless ``device`` is given)."""
+    network = cfg.network
+    support = (
+        torch.linspace(network.v_min, network.v_max, network.atoms)
+        if network.distributional
+        else None
+    )
+    cnn = network.torso == "cnn"
+    return make_q_actor(
+        env.observation_spec,
+        env.action_spec,
+        in_keys=[PIXELS_KEY] if cnn else ["observation"],
+        torso=network.torso,
+        cnn_kwargs={
+            "channels": network.cnn_channels,
+            "kernel_sizes": network.cnn_kernels,
+            "strides": network.cnn_strides,
+        }
+        if cnn
+        else None,
+        num_cells=network.hidden_sizes,
+        activation_class=ACTIVATIONS[network.activation],
+        head=network.head,
+        device=cfg.device if device is None else device,
+        noisy=network.noisy,
+        noisy_std=network.noisy_std,
+        support=support,
+    )
+
+
+def build_exploration(cfg: Config, env: TransformedEnv) -> EGreedyModule | None:
+    """The epsilon-greedy module of ``cfg.exploration`` (None for noisy networks)."""
+    explore = cfg.exploration
+    return make_exploration(
+        env.action_spec,
+        eps_init=explore.eps_start,
+        eps_end=explore.eps_end,
+        annealing_num_steps=explore.decay_frames,
+        schedule=explore.schedule,
+        device=cfg.device,
+    )
+
+
+# Where buffer.storage=memmap keeps its files, in the run directory.
+REPLAY_FILES = "replay_buffer"
+
+
+def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictReplayBuffer:
+    """The replay buffer of ``cfg.buffer`` (n-step returns discounted by ``cfg.loss.gamma``).
+
+    ``buffer.storage=memmap`` stores it in TorchRL's ``LazyMemmapStorage``, in files under
+    ``run_dir/replay_buffer`` (TorchRL's temporary directory without ``run_dir``).
+    """
+    buffer = cfg.buffer
+    storage = None  # make_replay_buffer's LazyTensorStorage
+    if buffer.storage == "memmap":
+        scratch_dir = None if run_dir is None else str(run_dir / REPLAY_FILES)
+        # existsok: a resumed run writes over the files its stopped run left
+        storage = LazyMemmapStorage(
+            buffer.size, scratch_dir=scratch_dir, device=cfg.device, existsok=True
+        )
+    replay_buffer = make_replay_buffer(
+        storage=storage,
+        max_size=buffer.size if storage is None else None,
+        batch_size=buffer.batch_size,
+        device=cfg.device,
+        prioritized=buffer.prioritized,
+        **(
+            {
+                "alpha": torchrl_priority_exponent(buffer.alpha, cfg.network.distributional),
+                "beta": buffer.beta,
+                "eps": buffer.priority_eps,
+            }
+            if buffer.prioritized
+            else {}
+        ),
+        n_steps=buffer.n_steps,
+        **({"gamma": cfg.loss.gamma} if buffer.n_steps > 1 else {}),
+        transform=RandomShift(buffer.pixels_shift) if buffer.pixels_shift else None,
+    )
+    save_filled_part(replay_buffer.storage)  # a checkpoint holds the transitions, not capacity
+    return replay_buffer
+
+
+def torchrl_priority_exponent(alpha: float, distributional: bool) -> float:
+    """TorchRL's ``alpha`` for Schaul et al.'s exponent ``alpha`` on |delta| (``buffer.alpha``).
+
+    TorchRL stores ``(td_error + eps) ** alpha``, and ``DQNLoss`` writes ``td_error`` =
+    delta ** 2, so |delta| ** alpha is (delta ** 2) ** (alpha / 2). ``DistributionalDQNLoss``
+    writes the cross-entropy, Rainbow's priority itself (Hessel et al. 2018), so C51 keeps it.
+    """
+    return alpha if distributional else alpha / 2
+
+
+def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayBuffer) -> Learner:
+    """``DQNLoss`` (or C51's), its target updater, AdamW and the gradient step of ``cfg``."""
+    loss_cfg = cfg.loss
+    if cfg.network.distributional:  # C51's loss has neither switch (validate refuses them)
+        loss = make_dqn_loss(actor, gamma=loss_cfg.gamma, replay_buffer=buffer)
+    else:
+        loss = make_dqn_loss(
+            actor,
+            gamma=loss_cfg.gamma,
+            loss_function=loss_cfg.loss_function,
+            double_dqn=loss_cfg.double_dqn,
+            replay_buffer=buffer,
+        )
+    if loss_cfg.target_update == "soft":
+        target_updater = make_target_updater(loss, tau=loss_cfg.tau)
+    else:
+        target_updater = make_target_updater(
+            loss, hard_update_interval=loss_cfg.hard_update_interval
+        )
+    optimizer = make_optimizer(
+        actor.parameters(),
+        lr=cfg.optim.lr,
+        amsgrad=cfg.optim.amsgrad,
+        weight_decay=cfg.optim.weight_decay,
+        eps=cfg.optim.eps,
+    )
+    fused = fuse_dqn_loss(loss) if loss_cfg.fused else None  # None: C51, noisy layers
+    update = make_update(
+        loss if fused is None else fused,
+        optimizer,
+        cfg.optim.grad_clip,
+        cfg.optim.max_grad,
+        noisy_network=actor if cfg.network.noisy else None,
+    )
+    if cfg.compile:
+        update = torch.compile(update)
+    return Learner(buffer, loss, target_updater, optimizer, update)
+
+
+def build_collector(
+    cfg: Config,
+    env: TransformedEnv,
+    policy: TensorDictModuleBase,
+    observation_norm: dict[str, list[float]] | None,
+    run_dir: Path,
+    frames_done: int = 0,
+) -> tuple[BaseCollector, bool]:
+    """The collector of ``cfg.collector`` stepping ``policy``, and whether its own state is
+    saved with the run's (a resumed run's ``frames_done`` frames are not collected again)."""
+    # Workers (processes or Ray actors) build their own envs; their counters are not saved, so
+    # a resumed run gives them only the frames still to collect (a single-process collector's
+    # own frame counter is restored from the checkpoint instead).
+    distributed = is_distributed(cfg.collector.workers, cfg.collector.backend)
+    # The collector's own state (its frame counter, its env's) is saved for a single-process
+    # collector over a state-vector env; a pixel env's (TorchRL's SerialEnv, restarted with
+    # fresh transforms once the collector has closed it) is not, and counts as workers' do.
+    collector_state_saved = not distributed and not cfg.env.from_pixels
+    frames_not_counted = 0 if collector_state_saved else frames_done
+    collector = make_collector(
+        worker_env_constructors(cfg, observation_norm, fresh_worker_log_dir(cfg, run_dir))
+        if distributed
+        else env,
+        policy,
+        frames_per_batch=cfg.collector.frames_per_batch,
+        total_frames=cfg.collector.total_frames - frames_not_counted,
+        init_random_frames=max(cfg.collector.init_random_frames - frames_not_counted, 0),
+        device=cfg.device,
+        sync=cfg.collector.sync,
+        backend=cfg.collector.backend,
+        ray_address=cfg.collector.ray_address,
+        remote_configs={**RAY_ACTOR_OPTIONS, "resources": dict(cfg.collector.ray_resources)},
+        ray_init_config={"runtime_env": dict(cfg.collector.ray_runtime_env)}
+        if cfg.collector.ray_runtime_env
+        else None,
+    )
+    return collector, collector_state_saved
+
+
+def build_schedules(
+    cfg: Config,
+    exploration: EGreedyModule | None,
+    actor: torch.nn.Module,
+    buffer: TensorDictReplayBuffer,
+    learner: Learner,
+) -> Schedules:
+    """What moves after each batch: epsilon, network noise, the prioritized buffer's beta,
+    the learning rate's taper."""
+    total = cfg.collector.total_frames
+    return Schedules(
+        exploration,
+        actor if cfg.network.noisy else None,
+        buffer if cfg.buffer.prioritized else None,
+        cfg.buffer.beta,
+        cfg.buffer.beta_anneal_frames or total,
+        learner.optimizer if cfg.optim.lr_end is not None else None,
+        cfg.optim.lr,
+        cfg.optim.lr_end or cfg.optim.lr,
+        cfg.optim.lr_decay_frames or total,
+    )
