@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
+from pathlib import Path
 
 import pytest
 import torch
@@ -167,3 +169,13 @@ def test_update_metrics_logged_whenever_100_updates_pass(compose, tmp_path):
     assert summary["updates"] == 57 * 3  # 171 updates: the 100th falls inside a batch
     rows = (tmp_path / "metrics/scalars/train/td_loss.csv").read_text().splitlines()
     assert len(rows) == 1
+
+
+def test_the_guide_names_every_key_a_run_writes_to_its_summary(smoke_run):
+    """docs/guide.md's summary.json row lists each key of a real run's summary.json."""
+    run_dir, _ = smoke_run
+    summary = json.loads((run_dir / "summary.json").read_text())
+    guide = (Path(__file__).resolve().parent.parent / "docs" / "guide.md").read_text()
+    row = next(line for line in guide.splitlines() if line.startswith("| `summary.json` |"))
+    named = set(re.findall(r"`([a-z_]+)`", row))
+    assert sorted(set(summary) - named) == []
