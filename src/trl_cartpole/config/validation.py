@@ -99,17 +99,34 @@ def validate(cfg: Config) -> Config:
             raise ConfigError(
                 f"{key}={_get(cfg, key)!r} is not a known option; choose one of {list(options)}"
             )
-    checks: list[tuple[bool, str]] = [
+    checks = [  # by concern, each section's rules in one function below
+        *_learning_rules(cfg),
+        *_buffer_rules(cfg),
+        *_collector_rules(cfg),
+        *_env_rules(cfg),
+        *_pixels_rules(cfg),
+        *_evaluation_rules(cfg),
+        *_network_rules(cfg),
+        *_run_rules(cfg),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise ConfigError(message)
+    check_device(cfg.device)
+    if cfg.compile:
+        check_compiler(cfg.device)
+    _check_combination(cfg)
+    check_network_choices(cfg.network.head, cfg.network.activation)
+    check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
+    return cfg
+
+
+def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for the loss, the optimizer and exploration."""
+    return [
         (0.0 < cfg.loss.gamma <= 1.0, f"loss.gamma={cfg.loss.gamma} must lie in (0, 1]"),
         (0.0 < cfg.loss.tau <= 1.0, f"loss.tau={cfg.loss.tau} must lie in (0, 1]"),
         (cfg.loss.hard_update_interval >= 1, "loss.hard_update_interval must be >= 1"),
-        (cfg.buffer.size >= 1, f"buffer.size={cfg.buffer.size} must be >= 1"),
-        (cfg.buffer.batch_size >= 1, f"buffer.batch_size={cfg.buffer.batch_size} must be >= 1"),
-        (
-            cfg.buffer.batch_size <= cfg.buffer.size,
-            f"buffer.batch_size={cfg.buffer.batch_size} is larger than buffer.size="
-            f"{cfg.buffer.size}; lower the batch size or grow the buffer",
-        ),
         (
             0.0 <= cfg.exploration.eps_end <= cfg.exploration.eps_start <= 1.0,
             f"exploration needs 0 <= eps_end <= eps_start <= 1, got eps_start="
@@ -134,21 +151,34 @@ def validate(cfg: Config) -> Config:
             "optim.lr_end tapers the learning rate, which a compiled update holds fixed: pass "
             "compile=false, or optim.lr_end=null",
         ),
+    ]
+
+
+def _buffer_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for the replay buffer."""
+    return [
+        (cfg.buffer.size >= 1, f"buffer.size={cfg.buffer.size} must be >= 1"),
+        (cfg.buffer.batch_size >= 1, f"buffer.batch_size={cfg.buffer.batch_size} must be >= 1"),
         (
-            all(size >= 1 for size in cfg.network.hidden_sizes),
-            f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
+            cfg.buffer.batch_size <= cfg.buffer.size,
+            f"buffer.batch_size={cfg.buffer.batch_size} is larger than buffer.size="
+            f"{cfg.buffer.size}; lower the batch size or grow the buffer",
         ),
+        (cfg.buffer.alpha >= 0, f"buffer.alpha={cfg.buffer.alpha} must be >= 0"),
+        (0 <= cfg.buffer.beta <= 1, f"buffer.beta={cfg.buffer.beta} must lie in [0, 1]"),
+        (cfg.buffer.priority_eps > 0, "buffer.priority_eps must be > 0"),
+        (
+            cfg.buffer.beta_anneal_frames is None or cfg.buffer.beta_anneal_frames >= 1,
+            "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
+        ),
+        (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
+    ]
+
+
+def _collector_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for collection: workers, batches, budgets."""
+    return [
         (cfg.collector.frames_per_batch >= 1, "collector.frames_per_batch must be >= 1"),
-        (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
-        (
-            cfg.env.step_timeout is None or 0 < cfg.env.step_timeout <= MAX_STEP_TIMEOUT,
-            f"env.step_timeout={cfg.env.step_timeout} must be > 0 and at most "
-            f"{MAX_STEP_TIMEOUT} seconds, a week (or null: no limit)",
-        ),
-        (
-            cfg.env.normalization_frames >= 1,
-            f"env.normalization_frames={cfg.env.normalization_frames} must be >= 1",
-        ),
         (cfg.collector.workers >= 1, f"collector.workers={cfg.collector.workers} must be >= 1"),
         (
             cfg.collector.frames_per_batch % _envs_per_batch(cfg) == 0,
@@ -164,36 +194,33 @@ def validate(cfg: Config) -> Config:
         (cfg.collector.init_random_frames >= 0, "collector.init_random_frames must be >= 0"),
         (cfg.collector.updates_per_batch >= 0, "collector.updates_per_batch must be >= 0"),
         (cfg.collector.learning_starts >= 0, "collector.learning_starts must be >= 0"),
-        (cfg.eval.interval_frames >= 1, "eval.interval_frames must be >= 1"),
-        (cfg.eval.episodes >= 1, "eval.episodes must be >= 1"),
-        (cfg.eval.final_episodes >= 1, "eval.final_episodes must be >= 1"),
-        (cfg.eval.candidates >= 1, f"eval.candidates={cfg.eval.candidates} must be >= 1"),
+    ]
+
+
+def _env_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for the env and its envs at once."""
+    return [
+        (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
         (
-            cfg.eval.candidate_episodes >= 1,
-            f"eval.candidate_episodes={cfg.eval.candidate_episodes} must be >= 1",
+            cfg.env.step_timeout is None or 0 < cfg.env.step_timeout <= MAX_STEP_TIMEOUT,
+            f"env.step_timeout={cfg.env.step_timeout} must be > 0 and at most "
+            f"{MAX_STEP_TIMEOUT} seconds, a week (or null: no limit)",
         ),
-        (cfg.eval.max_steps >= 1, "eval.max_steps must be >= 1"),
-        (cfg.network.noisy_std > 0, f"network.noisy_std={cfg.network.noisy_std} must be > 0"),
-        (cfg.network.atoms >= 2, f"network.atoms={cfg.network.atoms} must be >= 2"),
         (
-            cfg.network.v_min < cfg.network.v_max,
-            f"network.v_min={cfg.network.v_min} must be < network.v_max={cfg.network.v_max}",
+            cfg.env.normalization_frames >= 1,
+            f"env.normalization_frames={cfg.env.normalization_frames} must be >= 1",
         ),
-        (cfg.buffer.alpha >= 0, f"buffer.alpha={cfg.buffer.alpha} must be >= 0"),
-        (0 <= cfg.buffer.beta <= 1, f"buffer.beta={cfg.buffer.beta} must lie in [0, 1]"),
-        (cfg.buffer.priority_eps > 0, "buffer.priority_eps must be > 0"),
-        (
-            cfg.buffer.beta_anneal_frames is None or cfg.buffer.beta_anneal_frames >= 1,
-            "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
-        ),
-        (cfg.buffer.n_steps >= 1, f"buffer.n_steps={cfg.buffer.n_steps} must be >= 1"),
         (
             cfg.env.max_episode_steps is None or cfg.env.max_episode_steps >= 1,
             f"env.max_episode_steps={cfg.env.max_episode_steps} must be >= 1 (or null for the "
             "env's registered limit)",
         ),
-        (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
-        (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
+    ]
+
+
+def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for learning from pixels: frames, CNN, renderer."""
+    return [
         (cfg.env.pixels_pool >= 1, f"env.pixels_pool={cfg.env.pixels_pool} must be >= 1"),
         (cfg.env.pixels_frames >= 1, f"env.pixels_frames={cfg.env.pixels_frames} must be >= 1"),
         (
@@ -256,29 +283,58 @@ def validate(cfg: Config) -> Config:
             not (cfg.env.from_pixels and cfg.env.normalize_observations),
             "env.normalize_observations=true normalises a state vector; pixels have none",
         ),
+    ]
+
+
+def _evaluation_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for evaluation."""
+    return [
+        (cfg.eval.interval_frames >= 1, "eval.interval_frames must be >= 1"),
+        (cfg.eval.episodes >= 1, "eval.episodes must be >= 1"),
+        (cfg.eval.final_episodes >= 1, "eval.final_episodes must be >= 1"),
+        (cfg.eval.candidates >= 1, f"eval.candidates={cfg.eval.candidates} must be >= 1"),
+        (
+            cfg.eval.candidate_episodes >= 1,
+            f"eval.candidate_episodes={cfg.eval.candidate_episodes} must be >= 1",
+        ),
+        (cfg.eval.max_steps >= 1, "eval.max_steps must be >= 1"),
+        (
+            cfg.eval.seed_offset >= 0,
+            f"eval.seed_offset={cfg.eval.seed_offset} must be >= 0 (Gymnasium takes no "
+            "negative seed)",
+        ),
+    ]
+
+
+def _network_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for the network."""
+    return [
+        (
+            all(size >= 1 for size in cfg.network.hidden_sizes),
+            f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
+        ),
+        (cfg.network.noisy_std > 0, f"network.noisy_std={cfg.network.noisy_std} must be > 0"),
+        (cfg.network.atoms >= 2, f"network.atoms={cfg.network.atoms} must be >= 2"),
+        (
+            cfg.network.v_min < cfg.network.v_max,
+            f"network.v_min={cfg.network.v_min} must be < network.v_max={cfg.network.v_max}",
+        ),
+    ]
+
+
+def _run_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for the run: threads, seeds, its directory."""
+    return [
+        (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
+        (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
         (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
         (
             cfg.num_threads <= (os.cpu_count() or 1),
             f"num_threads={cfg.num_threads} is more than this machine's {os.cpu_count()} cores",
         ),
         (cfg.seed >= 0, f"seed={cfg.seed} must be >= 0"),
-        (  # found by tests/test_fuzz.py: a negative offset gave Gymnasium a negative seed
-            cfg.eval.seed_offset >= 0,
-            f"eval.seed_offset={cfg.eval.seed_offset} must be >= 0 (Gymnasium takes no "
-            "negative seed)",
-        ),
         (bool(str(cfg.run_dir).strip()), "run_dir must not be empty"),
     ]
-    for ok, message in checks:
-        if not ok:
-            raise ConfigError(message)
-    check_device(cfg.device)
-    if cfg.compile:
-        check_compiler(cfg.device)
-    _check_combination(cfg)
-    check_network_choices(cfg.network.head, cfg.network.activation)
-    check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
-    return cfg
 
 
 def _drawn_crop_fits(env: Any) -> bool:
