@@ -8,7 +8,7 @@ run's observation statistics and loads the weights.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from omegaconf import OmegaConf
@@ -18,7 +18,7 @@ from torchrl.modules import DistributionalQValueActor, QValueActor
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.report.console import quiet_libraries
-from trl_cartpole.run.envs import on_gymnasium_frames
+from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.evaluation import EvalResult
 from trl_cartpole.run.from_config import build_actor, build_env
 from trl_cartpole.run.judging import Judge
@@ -85,10 +85,9 @@ def load_trained_policy(
     if seed is None:  # the final evaluation's episodes
         seed = Judge.from_config(cfg).seed_for("final")
     cfg.device = "cpu"  # a policy trained on a GPU is loaded for this machine's CPU
-    if render_mode is None:  # a trained policy plays on Gymnasium's own picture
-        cfg.env = on_gymnasium_frames(cfg.env)
-    else:  # a video records a Gymnasium env's own render()
-        cfg.env = replace(cfg.env, pixels_renderer="gymnasium", pixels_rendered_share=0.0)
+    kind = EnvKind(cfg.env)
+    # a trained policy plays on Gymnasium's own picture; a video records its own render()
+    cfg.env = kind.judged() if render_mode is None else kind.recorded()
     with quiet_libraries():  # no TorchRL INFO lines (spec checks) from a library call
         env = build_env(cfg, seed, num_envs, read_observation_norm(path), render_mode)
     actor = load_policy(path, build_actor(cfg, env))

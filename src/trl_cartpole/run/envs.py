@@ -11,7 +11,7 @@ import math
 import os
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -26,6 +26,7 @@ from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
 from trl_cartpole.parts.pixels import drawn_pixel_transforms, pixel_transforms
 from trl_cartpole.run.env_faults import StepDeadline
+from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.store.worker_state import WorkerSnapshot
 
 __all__ = [
@@ -33,7 +34,6 @@ __all__ = [
     "estimate_observation_norm",
     "make_env_from_config",
     "make_pixel_env",
-    "on_gymnasium_frames",
     "rendered_envs",
     "worker_env_constructors",
 ]
@@ -73,7 +73,7 @@ def _env_from_config(
 ) -> EnvBase:
     if env_cfg.normalize_observations and observation_norm is None:
         raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
-    if env_cfg.from_pixels:
+    if EnvKind(env_cfg).pixels:
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(
                 f"render_mode={render_mode!r}: a policy from pixels plays on rendered frames "
@@ -107,7 +107,7 @@ def make_pixel_env(
     ``seed + 1``, ... (batch ``[num_envs]``).
     """
     count = env_cfg.num_envs if num_envs is None else num_envs
-    if env_cfg.pixels_renderer == "drawn":
+    if EnvKind(env_cfg).name == "drawn pixels":
         return _drawn_pixel_env(env_cfg, seed, device, count)
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
     build = partial(_one_pixel_env, env_cfg, device)
@@ -121,15 +121,6 @@ def rendered_envs(share: float, count: int) -> int:
     """How many of ``count`` drawn envs ``env.pixels_rendered_share=share`` paints with
     Gymnasium's calls: ``share * count`` rounded up (at least one for a share above 0)."""
     return math.ceil(share * count - 1e-9)  # 0.3 * 10 is 3.0000000000000004 in floats
-
-
-def on_gymnasium_frames(env_cfg: EnvConfig) -> EnvConfig:
-    """``env_cfg`` playing on Gymnasium's own ``render()`` frames, as a pixel policy is judged:
-    a drawn pixel env with every frame rendered (``pixels_rendered_share=1``: the same vector
-    env, one renderer for the batch); any other env as it is."""
-    if env_cfg.from_pixels and env_cfg.pixels_renderer == "drawn":
-        return replace(env_cfg, pixels_rendered_share=1.0)
-    return env_cfg
 
 
 def _drawn_pixel_env(

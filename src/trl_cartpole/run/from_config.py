@@ -27,6 +27,7 @@ from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
 from trl_cartpole.parts.pixels import PIXELS_KEY, RandomShift
 from trl_cartpole.parts.replay import make_replay_buffer
+from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.envs import (
     make_env_from_config,
     worker_env_constructors,
@@ -68,8 +69,7 @@ def transition_keys(observation_key: str = "observation") -> tuple[Any, ...]:
 
 def run_title(cfg: Config) -> str:
     """``CartPole-v1 dqn seed 0`` (``CartPole-v1 from pixels dqn seed 0``): a run's plot title."""
-    pixels = " from pixels" if cfg.env.from_pixels else ""
-    return f"{cfg.env.id}{pixels} {cfg.algo.name} seed {cfg.seed}"
+    return f"{EnvKind(cfg.env).title} {cfg.algo.name} seed {cfg.seed}"
 
 
 def build_env(
@@ -244,10 +244,9 @@ def build_collector(
     # a resumed run gives them only the frames still to collect (a single-process collector's
     # own frame counter is restored from the checkpoint instead).
     distributed = is_distributed(cfg.collector.workers, cfg.collector.backend)
-    # The collector's own state (its frame counter, its env's) is saved for a single-process
-    # collector over a state-vector env; a pixel env's (TorchRL's SerialEnv, restarted with
-    # fresh transforms once the collector has closed it) is not, and counts as workers' do.
-    collector_state_saved = not distributed and not cfg.env.from_pixels
+    # The collector's own state is saved for a single-process collector over an env whose
+    # kind allows it; otherwise its frames count as workers' do.
+    collector_state_saved = not distributed and EnvKind(cfg.env).collector_state_saved
     frames_not_counted = 0 if collector_state_saved else frames_done
     collector = make_collector(
         worker_env_constructors(cfg, observation_norm, fresh_worker_log_dir(cfg, run_dir))

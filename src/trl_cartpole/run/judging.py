@@ -7,7 +7,7 @@ played again (:mod:`trl_cartpole.run.kept_policy`): three sets of episodes that 
 each other or the training envs (seeded ``seed`` onward).
 
 One memory rule for the envs: a pixel env is judged on Gymnasium's own frames
-(:func:`~trl_cartpole.run.envs.on_gymnasium_frames`), and each Gymnasium renderer holds its own
+(:meth:`~trl_cartpole.run.env_kind.EnvKind.judged`), and each Gymnasium renderer holds its own
 frames (about 30 MiB here), so episodes are played :data:`PIXEL_ENVS_AT_ONCE` at a time.
 
 The builder makes one :class:`Judge` from the config; the end of a run, the kept-policy choice
@@ -23,7 +23,8 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import TransformedEnv
 
 from trl_cartpole.config.schema import Config, EnvConfig
-from trl_cartpole.run.envs import close_env, make_env_from_config, on_gymnasium_frames
+from trl_cartpole.run.env_kind import EnvKind
+from trl_cartpole.run.envs import close_env, make_env_from_config
 from trl_cartpole.run.evaluation import EvalResult, evaluate
 
 __all__ = ["PIXEL_ENVS_AT_ONCE", "PURPOSES", "Judge"]
@@ -55,7 +56,7 @@ class Judge:
     ) -> Judge:
         """The judge of ``cfg``'s run (``observation_norm``: the statistics it trained with)."""
         return cls(
-            env=on_gymnasium_frames(cfg.env),
+            env=EnvKind(cfg.env).judged(),
             device=cfg.device,
             seed=cfg.seed,
             seed_offset=cfg.eval.seed_offset,
@@ -72,8 +73,7 @@ class Judge:
 
     def envs_at_once(self, episodes: int) -> int:
         """How many of ``episodes`` envs are built and played at a time."""
-        at_once = min(episodes, self.pixel_envs_at_once) if self.env.from_pixels else episodes
-        return max(at_once, 1)
+        return EnvKind(self.env).envs_at_once(episodes, self.pixel_envs_at_once)
 
     def make_envs(self, seed: int, count: int) -> TransformedEnv:
         """``count`` judging envs stepped together, seeded ``seed`` onward."""

@@ -1,0 +1,67 @@
+"""The kind of observation a run learns from, decided once from the config's ``env`` section.
+
+Three kinds today: the env's state vector; pixels drawn from CartPole's state
+(``env.pixels_renderer=drawn``, a share of the envs painted by Gymnasium's own calls); and
+pixels Gymnasium renders. What differs between them is asked of :class:`EnvKind`, nowhere
+else: the env a policy is judged on and the one a video records, the run's title, whether the
+collector's own state is saved with a checkpoint, how many envs one evaluation holds at once.
+A new kind (Atari frames) is one more case here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from trl_cartpole.config.schema import EnvConfig
+
+__all__ = ["KINDS", "EnvKind"]
+
+KINDS = ("state", "drawn pixels", "rendered pixels")
+
+
+@dataclass(frozen=True)
+class EnvKind:
+    """The kind of ``env``'s observation, and what follows from it."""
+
+    env: EnvConfig
+
+    @property
+    def name(self) -> str:
+        """One of :data:`KINDS`."""
+        if not self.env.from_pixels:
+            return "state"
+        return "drawn pixels" if self.env.pixels_renderer == "drawn" else "rendered pixels"
+
+    @property
+    def pixels(self) -> bool:
+        """Whether the policy sees frames (a CNN torso reads ``"pixels"``)."""
+        return self.name != "state"
+
+    @property
+    def title(self) -> str:
+        """The env as a run's title names it: ``CartPole-v1``, ``CartPole-v1 from pixels``."""
+        return f"{self.env.id} from pixels" if self.pixels else str(self.env.id)
+
+    @property
+    def collector_state_saved(self) -> bool:
+        """Whether a single-process collector's own state (its frame counter, its env's) is
+        saved with the run: a state env's is; a pixel env's (a ``SerialEnv`` or drawn frames,
+        restarted with fresh transforms once the collector has closed it) is not."""
+        return not self.pixels
+
+    def judged(self) -> EnvConfig:
+        """The env a policy is judged on: a pixel policy on Gymnasium's own frames, whichever
+        renderer it trained on (a drawn env with every frame painted by Gymnasium's calls: the
+        same vector env, one renderer for the batch); any other env as it is."""
+        if self.name == "drawn pixels":
+            return replace(self.env, pixels_rendered_share=1.0)
+        return self.env
+
+    def recorded(self) -> EnvConfig:
+        """The env a video records: Gymnasium's own ``render()`` for every kind."""
+        return replace(self.env, pixels_renderer="gymnasium", pixels_rendered_share=0.0)
+
+    def envs_at_once(self, episodes: int, pixel_envs_at_once: int) -> int:
+        """How many of ``episodes`` judging envs to build and play at a time: each Gymnasium
+        renderer holds its own frames, so pixel envs come ``pixel_envs_at_once`` at a time."""
+        return max(min(episodes, pixel_envs_at_once) if self.pixels else episodes, 1)
