@@ -6,6 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import pytest
 import torch
@@ -415,3 +416,24 @@ def test_factory_states_load_into_the_stock_classes_or_differ_as_the_reference_s
     exponential = make_exploration(env.action_spec, schedule="exponential").state_dict()
     missing, unexpected = stock.load_state_dict(exponential, strict=False)
     assert (missing, unexpected) == ([], ["frames"])
+
+
+def test_every_earlier_form_warns_with_the_version_it_goes_away_in(env):
+    from trl_cartpole.parts.earlier_forms import REMOVED_IN
+
+    version = rf"until trl_cartpole {REMOVED_IN.replace('.', chr(92) + '.')}"
+    with pytest.warns(FutureWarning, match=rf"action_spec= .* {version}; write spec="):
+        make_exploration(action_spec=env.action_spec)
+    with pytest.warns(FutureWarning, match=rf"hidden_sizes= .* {version}; write num_cells="):
+        make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
+    with pytest.warns(FutureWarning, match=rf"activation= .* {version}; write activation_class="):
+        make_q_actor(env.observation_spec, env.action_spec, activation="relu")
+    loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
+    with pytest.warns(FutureWarning, match=rf"{version}; write value_network_update_interval=2"):
+        assert make_target_updater(loss, hard_update_interval=3).value_network_update_interval == 2
+    with pytest.warns(FutureWarning, match=rf"make_target_updater\(loss, 'soft'\) .* {version}"):
+        make_target_updater(loss, "soft", tau=0.1)
+    with warnings.catch_warnings():  # TorchRL's own forms: no warning
+        warnings.simplefilter("error", FutureWarning)
+        make_q_actor(spec=env.action_spec, module=nn.Linear(4, 2))
+        make_exploration(env.action_spec)

@@ -13,7 +13,7 @@ from torchrl.data import TensorSpec
 from torchrl.modules import EGreedyModule
 
 from trl_cartpole import defaults
-from trl_cartpole.parts.aliases import resolve_alias
+from trl_cartpole.parts.earlier_forms import resolve_alias
 from trl_cartpole.parts.tuned import resolve
 
 __all__ = ["SCHEDULES", "ExponentialEGreedyModule", "make_exploration"]

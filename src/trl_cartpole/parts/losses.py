@@ -27,6 +27,7 @@ from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftU
 from torchrl.objectives.utils import TargetNetUpdater
 
 from trl_cartpole.parts.compat import soft_update_pairs
+from trl_cartpole.parts.earlier_forms import warn_earlier_form
 from trl_cartpole.parts.replay import N_STEP_GAMMA_KEY, n_step_gamma
 from trl_cartpole.parts.tuned import TUNED, resolve
 
@@ -280,6 +281,7 @@ def make_target_updater(
                 "kind='soft' / 'hard'"
             )
         kind = args[0]
+        warn_earlier_form(f"make_target_updater(loss, {kind!r})", f"kind={kind!r}")
     soft = eps is not None or tau is not None
     hard = value_network_update_interval is not None or hard_update_interval is not None
     if kind not in (None, "soft", "hard"):
@@ -304,6 +306,11 @@ def make_target_updater(
             tau = TUNED["make_target_updater"]["tau"]
         return FusedSoftUpdate(loss_module, eps=eps, tau=tau)
     if hard_update_interval is not None:
+        warn_earlier_form(
+            "hard_update_interval=N",
+            f"value_network_update_interval={hard_update_interval - 1} (TorchRL's count: a copy "
+            "on every (interval + 1)-th step)",
+        )
         if hard_update_interval < 1:
             raise ValueError(f"hard_update_interval={hard_update_interval} must be >= 1")
         value_network_update_interval = hard_update_interval - 1

@@ -33,8 +33,8 @@ from torchrl.modules import (
 
 from trl_cartpole import defaults
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.aliases import resolve_alias
 from trl_cartpole.parts.compat import use_first_greedy_action
+from trl_cartpole.parts.earlier_forms import EarlierLayoutKeys, resolve_alias
 from trl_cartpole.parts.pixels import ScaleImage
 from trl_cartpole.parts.tuned import resolve
 
@@ -199,34 +199,14 @@ def _with_earlier_layout_readable(mlp: MLP) -> MLP:
     Policies saved before the plain network became one ``MLP`` (TorchRL's layout, keys
     ``0.weight``, ``2.weight``...) hold ``Sequential(torso MLP, head)``: keys ``0.{j}.*`` for
     the torso's layer ``j`` and ``1.*`` (``1.0.*`` for C51) for the head. A load-time hook
-    renames them, so a policy trained earlier still evaluates.
+    (:class:`~trl_cartpole.parts.earlier_forms.EarlierLayoutKeys`) renames them, so a policy
+    trained earlier still evaluates.
     """
     last_linear = max(
         i for i, layer in enumerate(mlp) if isinstance(layer, (nn.Linear, NoisyLinear))
     )
-    mlp._register_load_state_dict_pre_hook(_EarlierLayoutKeys(last_linear))
+    mlp._register_load_state_dict_pre_hook(EarlierLayoutKeys(last_linear))
     return mlp
-
-
-class _EarlierLayoutKeys:
-    """The load-time renaming of :func:`_with_earlier_layout_readable` (picklable, so worker
-    processes receive the actor)."""
-
-    def __init__(self, last_linear: int) -> None:
-        self.last_linear = last_linear
-
-    def __call__(self, state_dict: dict[str, Any], prefix: str, *_: Any) -> None:
-        if not any(key.startswith(f"{prefix}0.0.") for key in state_dict):
-            return  # TorchRL's layout already
-        renamed = {}  # all at once: a new name may be another old one (0.1.* -> 1.*)
-        for key in [key for key in state_dict if key.startswith(prefix)]:
-            layer, _, name = key[len(prefix) :].partition(".")
-            if layer == "0":  # the torso: 0.{j}.name -> {j}.name
-                new = name
-            else:  # the head: 1.name, or 1.0.name for C51's Sequential(linear, Unflatten)
-                new = f"{self.last_linear}.{name[2:] if name.startswith('0.') else name}"
-            renamed[prefix + new] = state_dict.pop(key)
-        state_dict.update(renamed)
 
 
 def make_cnn_features(
@@ -419,8 +399,9 @@ def make_q_actor(
             f"make_q_actor(observation_spec, spec, {earlier})"
         )
     if isinstance(observation_spec, nn.Module):  # QValueActor's first argument is the module
-        module = resolve_alias("module", module, "a module passed first", observation_spec)
-        observation_spec = None
+        if module is not None:
+            raise TypeError("a module passed first is QValueActor's module=; pass one of them")
+        module, observation_spec = observation_spec, None
     spec = resolve_alias("spec", spec, "action_spec", action_spec)
     if spec is None:
         raise TypeError("make_q_actor() needs spec= (the env's action_spec)")
@@ -435,9 +416,9 @@ def make_q_actor(
             "activation_class", activation_class, "activation", ACTIVATIONS[activation]
         )
     mlp_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in _MLP_KEYWORDS}
+    num_cells = resolve_alias("num_cells", num_cells, "hidden_sizes", hidden_sizes)
     given_cells, given_activation = num_cells, activation_class  # before defaults fill them
-    if hidden_sizes is None:
-        num_cells = resolve("make_q_actor", "num_cells", num_cells, tuned)
+    num_cells = resolve("make_q_actor", "num_cells", num_cells, tuned)
     activation_class = resolve("make_q_actor", "activation_class", activation_class, tuned)
     if module is None:
         module = _build_q_network(
@@ -446,7 +427,7 @@ def make_q_actor(
             in_keys,
             torso,
             cnn_kwargs,
-            num_cells if hidden_sizes is None else hidden_sizes,
+            num_cells,
             activation_class,
             head,
             noisy,

@@ -35,6 +35,7 @@ from torchrl.envs.transforms import VecGymEnvTransform
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
 from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.parts.earlier_forms import upgrade_evaluator_state
 from trl_cartpole.parts.env import OBSERVATION_KEY
 from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.run.env_faults import StepAlarm, StepDeadline
@@ -408,26 +409,18 @@ class Evaluator:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        state = upgrade_evaluator_state(state)  # a state saved by an earlier version
         self.best_return, self.best_state = state["best_return"], state["best_state"]
         self.frames_to_solve = state["frames_to_solve"]
         self.seconds_to_solve = state["seconds_to_solve"]
         self.last_eval_frame = state["last_eval_frame"]
         for name, values in state["curve"].items():
             getattr(self.curve, name)[:] = values
-        missing = len(self.curve.frames) - len(self.curve.rss_mb)  # a state from before it
-        self.curve.rss_mb[:0] = [None] * missing
-        kept = state.get("candidates")
-        if kept is not None:
-            self.candidates = [
-                Candidate(frames, mean, weights)
-                for frames, mean, weights in zip(
-                    kept["frames"], kept["returns"], kept["states"], strict=True
-                )
-            ]
-        elif self.best_state is not None:  # a state from before candidates: the best alone
-            curve = zip(self.curve.frames, self.curve.returns, strict=True)
-            frames = next((f for f, mean in curve if mean == self.best_return), 0)
-            self.candidates = [Candidate(frames, self.best_return, self.best_state)]
-        else:
-            self.candidates = []
+        kept = state.get("candidates") or {"frames": [], "returns": [], "states": []}
+        self.candidates = [
+            Candidate(frames, mean, weights)
+            for frames, mean, weights in zip(
+                kept["frames"], kept["returns"], kept["states"], strict=True
+            )
+        ]
         self.candidates = self.candidates[: self.max_candidates]

@@ -207,8 +207,8 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
     if loss_cfg.target_update == "soft":
         target_updater = make_target_updater(loss, tau=loss_cfg.tau)
     else:
-        target_updater = make_target_updater(
-            loss, hard_update_interval=loss_cfg.hard_update_interval
+        target_updater = make_target_updater(  # TorchRL counts a copy every interval + 1
+            loss, value_network_update_interval=loss_cfg.hard_update_interval - 1
         )
     optimizer = make_optimizer(
         actor.parameters(),
