@@ -169,12 +169,11 @@ def check_discounts(loss_gamma: float, buffer_gamma: float) -> None:
         )
 
 
-def discount_in_use(loss: nn.Module) -> float:
+def discount_tensor(loss: nn.Module) -> torch.Tensor:
     """The discount ``loss`` bootstraps with now: its value estimator's ``gamma`` (TorchRL's
     default estimator is made if the loss has none yet, as its first call would), or a
     ``DistributionalDQNLoss``'s own ``gamma``."""
-    gamma = loss.gamma if isinstance(loss, DistributionalDQNLoss) else loss.value_estimator.gamma
-    return float(gamma)
+    return loss.gamma if isinstance(loss, DistributionalDQNLoss) else loss.value_estimator.gamma
 
 
 def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
@@ -191,15 +190,13 @@ def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
     marked = batch.get(N_STEP_GAMMA_KEY, None)  # [*B, 1]
     if marked is None:
         return
-    gamma_tensor = (
-        loss.gamma if isinstance(loss, DistributionalDQNLoss) else loss.value_estimator.gamma
-    )
+    gamma_tensor = discount_tensor(loss)
     version = getattr(gamma_tensor, "_version", None)  # moves on each in-place write
     cached = getattr(loss, "_n_step_discount_read", None)  # (tensor, version, value)
     if cached is not None and cached[0] is gamma_tensor and cached[1] == version:
         loss_gamma = cached[2]
     else:
-        loss_gamma = discount_in_use(loss)
+        loss_gamma = float(gamma_tensor)
         loss._n_step_discount_read = (gamma_tensor, version, loss_gamma)
     check_discounts(loss_gamma, float(marked.reshape(-1)[0]))
 

@@ -118,8 +118,3 @@ class Judge:
     ) -> EvalResult:
         """The final evaluation: ``final_episodes`` episodes on the final seeds."""
         return self.play(actor, self.seed_for("final"), self.final_episodes, on_turn=on_turn)
-
-    def candidate(self, actor: TensorDictModuleBase) -> EvalResult:
-        """One candidate's episodes: ``candidate_episodes`` on the candidates' seeds, the same
-        episodes for every candidate."""
-        return self.play(actor, self.seed_for("candidates"), self.candidate_episodes)

@@ -107,8 +107,7 @@ def _choose_kept_policy(run: Components) -> tuple[Candidate | None, list[Candida
     judge, evaluator = run.judge, run.evaluator
     kept, scores = choose_kept_policy(
         judge,
-        evaluator,
-        lambda seed, episodes: judge.play(run.actor, seed, episodes),
+        evaluator,  # its network is run.actor: the candidates play through it
         on_candidate=lambda number, count: run.progress_bar.status(
             f"choosing the policy to keep: candidate {number} of {count} over "
             f"{judge.candidate_episodes} new episodes"
