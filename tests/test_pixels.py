@@ -17,10 +17,12 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole
 from trl_cartpole.parts.pixels import CropFrame, PoolImage, RandomShift
 from trl_cartpole.policy.load import evaluate_checkpoint, load_trained_policy
-from trl_cartpole.run import envs, resources
+from trl_cartpole.run import resources
+from trl_cartpole.run.build import build_components
 from trl_cartpole.run.from_config import build_actor, build_env, build_replay_buffer, run_title
 from trl_cartpole.run.judging import Judge
 from trl_cartpole.run.resources import run_memory_need
+from trl_cartpole.run.training import train
 
 # A pixel run small enough for the default tier: 2 envs (one painted by Gymnasium's calls),
 # 200 frames, evaluations of 2 episodes.
@@ -104,7 +106,7 @@ def test_impossible_pixel_configs_are_refused(compose, overrides, message):
         validate(to_config(compose(*overrides)))
 
 
-def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path, monkeypatch):
+def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path):
     run_dir = tmp_path / "run"
     proc = run_script_in_process("train.py", *TINY_PIXEL_RUN, f"run_dir={run_dir}")
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -134,26 +136,53 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path, monkeypatch):
     assert all(1 <= length <= 50 for length in result.lengths)  # eval.max_steps=50
 
 
-def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_path, monkeypatch):
-    built, make_pixel_env = [], envs.make_pixel_env
+def _drawn_envs(env) -> tuple[int, int]:
+    """(envs, envs painted by Gymnasium's calls) of a drawn pixel env."""
+    (draw,) = [t for t in env.transform if isinstance(t, DrawCartPole)]
+    return env.batch_size.numel(), draw.rendered
 
-    def spy(*args, **kwargs):  # every pixel env the run builds, training and judging
-        env = make_pixel_env(*args, **kwargs)
-        (draw,) = [t for t in env.transform if isinstance(t, DrawCartPole)]
-        built.append((env.batch_size.numel(), draw.rendered))
-        return env
 
-    monkeypatch.setattr(envs, "make_pixel_env", spy)
+def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_path, compose):
+    judged = []  # the envs the end of the run judges on: the candidates, then the final
+
+    class RecordingJudge(Judge):
+        def make_envs(self, seed, count):
+            env = super().make_envs(seed, count)
+            judged.append(_drawn_envs(env))
+            return env
+
+    built = {}
+
+    def build_and_look(cfg, resume=None):
+        components = build_components(cfg, resume)
+        built["training"], built["periodic"] = map(
+            _drawn_envs, (components.env, components.eval_env)
+        )
+        components.judge = RecordingJudge(**vars(components.judge))
+        return components
+
     overrides = ["env.num_envs=4", "env.pixels_rendered_share=0.5", "eval.episodes=3"]
-    proc = run_script_in_process(
-        "train.py", *TINY_PIXEL_RUN, *overrides, f"run_dir={tmp_path / 'run'}"
-    )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    training, periodic, *candidates, final = built
-    assert training == (4, 2)  # 2 of its 4 envs painted by Gymnasium's calls
+    train(compose(*TINY_PIXEL_RUN, *overrides, f"run_dir={tmp_path / 'run'}"), build=build_and_look)
+    assert built["training"] == (4, 2)  # 2 of its 4 envs painted by Gymnasium's calls
     # the periodic evaluations and the candidates' new episodes (which choose the policy to
     # keep) and the final evaluation: every frame
-    assert periodic == (3, 3) and candidates == [(2, 2), (2, 2)] and final == (2, 2)
+    assert built["periodic"] == (3, 3) and judged == [(2, 2), (2, 2), (2, 2)]
+
+
+def test_periodic_evaluations_hold_no_more_pixel_envs_than_the_final_one(compose):
+    cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "eval.episodes=5", "eval.max_steps=5")))
+    actor = build_actor(cfg, build_env(cfg, seed=0))
+    judge = replace(Judge.from_config(cfg), pixel_envs_at_once=2)
+    periodic = judge.periodic()
+    try:
+        assert _drawn_envs(periodic.env) == (2, 2)  # one env of 2, kept for the run
+        first, second = periodic.play(actor), periodic.play(actor)
+    finally:
+        periodic.close()
+    assert len(first.returns) == len(first.initial_values) == 5  # turns of 2, 2 and 1
+    # each turn and each evaluation continues the envs' random streams: new first states
+    starts = first.initial_values + second.initial_values
+    assert len(set(starts)) == len(starts)
 
 
 @pytest.mark.slow  # a pixel run, then its video and its exported policy
@@ -203,7 +232,7 @@ def test_a_budget_that_ends_before_the_first_update_is_warned_in_one_line(compos
         resources.warn_if_no_update(long_enough)  # the preset's whole budget: no warning
 
 
-def test_the_final_evaluation_of_pixels_says_how_many_episodes_it_played(compose, monkeypatch):
+def test_the_final_evaluation_of_pixels_says_how_many_episodes_it_played(compose):
     cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "eval.max_steps=5")))
     actor = build_actor(cfg, build_env(cfg, seed=0))
     judge = replace(Judge.from_config(cfg), pixel_envs_at_once=2)  # turns of 2: 2, 4, 5 episodes

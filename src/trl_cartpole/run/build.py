@@ -49,7 +49,7 @@ from trl_cartpole.run.envs import (
     close_env,
     estimate_observation_norm,
 )
-from trl_cartpole.run.evaluation import Evaluator, evaluate
+from trl_cartpole.run.evaluation import Evaluator
 from trl_cartpole.run.from_config import (
     REPLAY_FILES,
     build_actor,
@@ -63,7 +63,7 @@ from trl_cartpole.run.from_config import (
     transition_keys,
 )
 from trl_cartpole.run.history import History
-from trl_cartpole.run.judging import Judge
+from trl_cartpole.run.judging import Judge, PeriodicEvaluation
 from trl_cartpole.run.learner import Learner
 from trl_cartpole.run.memory_needs import (
     available_memory_bytes,
@@ -85,12 +85,6 @@ from trl_cartpole.store.files import free_bytes, write_text_atomic
 from trl_cartpole.store.run_lock import RunLock
 
 __all__ = ["Components", "RunFacts", "build_components"]
-
-
-# --- one part each ----------------------------------------------------------------------------
-
-
-# --- a whole run ------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -214,10 +208,9 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         cfg, cfg.seed, observation_norm=observation_norm, step_timeout=cfg.env.step_timeout
     )
     judge = Judge.from_config(cfg, observation_norm)
-    # a pixel policy is chosen on the frames it is judged on
-    eval_env = judge.make_envs(judge.seed_for("periodic"), judge.periodic_episodes)
+    periodic = judge.periodic()  # a pixel policy is chosen on the frames it is judged on
     with ExitStack() as on_error:  # an error while building the rest closes what it holds
-        on_error.callback(close_env, eval_env)
+        on_error.callback(periodic.close)
         on_error.callback(close_env, env)
         if cfg.device == "cpu":  # a buffer or network that cannot fit stops here, not midway
             need, in_files = run_memory_need(cfg, env), cfg.buffer.storage == "memmap"
@@ -231,7 +224,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         lock = RunLock(run_dir)  # a second writer of run_dir stops here
         on_error.callback(lock.release)
         components = _assemble(
-            cfg, resume, run_dir, env, judge, eval_env, observation_norm, lock, wall_start, on_error
+            cfg, resume, run_dir, env, judge, periodic, observation_norm, lock, wall_start, on_error
         )
         if resume is not None:
             components.checkpointer.load(resume, components.progress)
@@ -246,7 +239,7 @@ def _assemble(
     run_dir: Path,
     env: TransformedEnv,
     judge: Judge,
-    eval_env: TransformedEnv,
+    periodic: PeriodicEvaluation,
     observation_norm: dict[str, list[float]] | None,
     lock: RunLock,
     wall_start: float,
@@ -264,20 +257,11 @@ def _assemble(
         cfg, env, policy, observation_norm, run_dir, frames_done
     )
     on_error.callback(shutdown_collector, collector)  # worker processes, Ray actors
-    metrics = MetricsLog(
-        make_logger(
-            cfg.logger.backend,
-            run_dir,
-            cfg.logger.project,
-            cfg.logger.wandb_offline,
-            resumed_at=None if resume is None else frames_done,
-            logger_step=logger_step,
-        )
-    )
+    metrics = _metrics_log(cfg, run_dir, resume, frames_done, logger_step)
     on_error.callback(metrics.close)
     threshold = solve_threshold(cfg.env.id, cfg.eval.solve_threshold)
     evaluator = Evaluator(
-        partial(evaluate, actor, eval_env, cfg.eval.max_steps),
+        partial(periodic.play, actor),
         actor,
         cfg.eval.interval_frames,
         threshold,
@@ -299,7 +283,7 @@ def _assemble(
         # last: its carrier replaces the one the collector's own state restored
         "envs": EnvState(
             None if is_distributed(cfg.collector.workers, cfg.collector.backend) else env,
-            eval_env,
+            periodic.env,
             collector,
             buffer,
             trust_pickle=cfg.checkpoint.trust_pickled_envs,
@@ -309,7 +293,7 @@ def _assemble(
         cfg=cfg,
         run_dir=run_dir,
         env=env,
-        eval_env=eval_env,
+        eval_env=periodic.env,
         observation_norm=observation_norm,
         actor=actor,
         exploration=exploration,
@@ -321,16 +305,8 @@ def _assemble(
         progress=progress,
         history=history,
         metrics=metrics,
-        progress_bar=ProgressBar(
-            cfg.logger.progress_bar,
-            cfg.env.id,
-            whole_batches(cfg.collector.total_frames, cfg.collector.frames_per_batch),
-        ),
-        live_plot=LiveDurationPlot(
-            run_dir / "durations.png", run_title(cfg), min_seconds=cfg.logger.live_plot_seconds
-        )
-        if cfg.logger.live_plot
-        else None,
+        progress_bar=_progress_bar(cfg),
+        live_plot=_live_plot(cfg, run_dir),
         checkpointer=Checkpointer(run_dir, cfg, saved, observation_norm, metrics),
         lock=lock,
         threshold=threshold,
@@ -345,6 +321,38 @@ def _assemble(
         judge=judge,
         worker_log_dir=worker_log_dir(cfg, run_dir),
         facts=RunFacts.of(cfg, run_dir),
+    )
+
+
+def _metrics_log(
+    cfg: Config,
+    run_dir: Path,
+    resume: str | Path | None,
+    frames_done: int,
+    logger_step: int | None,
+) -> MetricsLog:
+    """The run's metrics log on the configured TorchRL logger (a resumed run's continued)."""
+    logger = make_logger(
+        cfg.logger.backend,
+        run_dir,
+        cfg.logger.project,
+        cfg.logger.wandb_offline,
+        resumed_at=None if resume is None else frames_done,
+        logger_step=logger_step,
+    )
+    return MetricsLog(logger)
+
+
+def _progress_bar(cfg: Config) -> ProgressBar:
+    batches = whole_batches(cfg.collector.total_frames, cfg.collector.frames_per_batch)
+    return ProgressBar(cfg.logger.progress_bar, cfg.env.id, batches)
+
+
+def _live_plot(cfg: Config, run_dir: Path) -> LiveDurationPlot | None:
+    if not cfg.logger.live_plot:
+        return None
+    return LiveDurationPlot(
+        run_dir / "durations.png", run_title(cfg), min_seconds=cfg.logger.live_plot_seconds
     )
 
 

@@ -64,6 +64,12 @@ class EvalResult:
     lengths: list[int] = field(default_factory=list)
     initial_values: list[float] = field(default_factory=list)  # max_a Q(s_0, a) per episode
 
+    def extend(self, other: EvalResult, limit: int | None = None) -> None:
+        """Add ``other``'s episodes (its first ``limit`` of them, if given) to these."""
+        self.returns += other.returns[:limit]
+        self.lengths += other.lengths[:limit]
+        self.initial_values += other.initial_values[:limit]
+
     @property
     def mean(self) -> float:
         return float(torch.tensor(self.returns).mean())

@@ -8,7 +8,9 @@ each other or the training envs (seeded ``seed`` onward).
 
 One memory rule for the envs: a pixel env is judged on Gymnasium's own frames
 (:meth:`~trl_cartpole.run.env_kind.EnvKind.judged`), and each Gymnasium renderer holds its own
-frames (about 30 MiB here), so episodes are played :data:`PIXEL_ENVS_AT_ONCE` at a time.
+frames (about 30 MiB here), so no evaluation holds more than :data:`PIXEL_ENVS_AT_ONCE` pixel
+envs: the final evaluation and the candidates build them a turn at a time, the periodic
+evaluations keep one env of at most that many for the run (:class:`PeriodicEvaluation`).
 
 The builder makes one :class:`Judge` from the config; the end of a run, the kept-policy choice
 and ``evaluate.py`` ask it, and read no config themselves.
@@ -27,11 +29,11 @@ from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.envs import close_env, make_env_from_config
 from trl_cartpole.run.evaluation import EvalResult, evaluate
 
-__all__ = ["PIXEL_ENVS_AT_ONCE", "PURPOSES", "Judge"]
+__all__ = ["PIXEL_ENVS_AT_ONCE", "PURPOSES", "Judge", "PeriodicEvaluation"]
 
 # k in seed + k * eval.seed_offset, for each evaluation's purpose.
 PURPOSES = {"periodic": 1, "final": 2, "candidates": 3}
-# Pixel envs one evaluation builds at once: 100 at once took the final evaluation to 3.1 GiB.
+# Pixel envs one evaluation holds at once: each holds a Gymnasium renderer and its frames.
 PIXEL_ENVS_AT_ONCE = 20
 
 
@@ -106,15 +108,46 @@ class Judge:
                 turn = evaluate(actor, env, self.max_steps, epsilon)
             finally:
                 close_env(env)
-            result.returns += turn.returns
-            result.lengths += turn.lengths
-            result.initial_values += turn.initial_values
+            result.extend(turn)
             if on_turn is not None:
                 on_turn(len(result.returns))  # the episodes played so far
         return result
+
+    def periodic(self) -> PeriodicEvaluation:
+        """The periodic evaluations' env and player (:class:`PeriodicEvaluation`)."""
+        return PeriodicEvaluation(self)
 
     def final(
         self, actor: TensorDictModuleBase, on_turn: Callable[[int], None] | None = None
     ) -> EvalResult:
         """The final evaluation: ``final_episodes`` episodes on the final seeds."""
         return self.play(actor, self.seed_for("final"), self.final_episodes, on_turn=on_turn)
+
+
+class PeriodicEvaluation:
+    """The periodic evaluations' env and player (``partial(periodic.play, actor)`` is the
+    :class:`~trl_cartpole.run.evaluation.Evaluator`'s ``play``).
+
+    One judging env of :meth:`Judge.envs_at_once` envs, seeded ``judge.seed_for("periodic")``
+    onward, built once and kept for the run (its state is saved with a checkpoint, so a resumed
+    run plays the same episodes). Each :meth:`play` plays ``judge.periodic_episodes`` greedy
+    episodes on it, one per env and turn, each turn continuing the envs' seeded random
+    streams: every evaluation plays new episodes, and a pixel run's evaluations hold no more
+    renderers than the final one.
+    """
+
+    def __init__(self, judge: Judge) -> None:
+        self.judge = judge
+        self.episodes = judge.periodic_episodes
+        self.env = judge.make_envs(judge.seed_for("periodic"), judge.envs_at_once(self.episodes))
+
+    def play(self, actor: TensorDictModuleBase) -> EvalResult:
+        """One periodic evaluation of ``actor``."""
+        result = EvalResult()
+        while len(result.returns) < self.episodes:
+            turn = evaluate(actor, self.env, self.judge.max_steps)
+            result.extend(turn, limit=self.episodes - len(result.returns))
+        return result
+
+    def close(self) -> None:
+        close_env(self.env)
