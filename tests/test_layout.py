@@ -5,6 +5,7 @@ The layers of its imports are import-linter contracts in pyproject.toml (lint-im
 
 from __future__ import annotations
 
+import ast
 import re
 import subprocess
 import sys
@@ -43,3 +44,25 @@ def test_the_import_layers_of_pyproject_hold():
         [str(lint_imports), "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=120
     )
     assert proc.returncode == 0 and "0 broken" in proc.stdout, proc.stdout[-2000:]
+
+
+LONGEST_FUNCTION = 80  # lines of code, its docstring left out
+
+
+def _code_lines(function: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    lines = function.end_lineno - function.lineno + 1
+    first = function.body[0]
+    if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+        lines -= first.end_lineno - first.lineno + 1  # the docstring
+    return lines
+
+
+def test_no_function_of_the_package_is_longer_than_80_lines():
+    too_long = [
+        f"{path.relative_to(PACKAGE)}:{node.name} ({_code_lines(node)} lines)"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+        and _code_lines(node) > LONGEST_FUNCTION
+    ]
+    assert too_long == []

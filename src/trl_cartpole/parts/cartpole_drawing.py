@@ -107,28 +107,8 @@ def draw_cartpole(
     y = (SCREEN_HEIGHT - 1 - image_rows)[None, :]  # [1, R]
     cart_x = (state[:, 0] * scale + SCREEN_WIDTH / 2)[:, None]  # [N, 1]
     cos, sin = state[:, 2].cos()[:, None], state[:, 2].sin()[:, None]  # [N, 1]
-    ones = torch.ones_like(cart_x * y)  # [N, R]
 
-    # Each shape's interval of x on each row, [N, R], widened by half a pixel each side.
-    in_cart = (y >= CART_TOP - CART_HEIGHT / 2) & (y <= CART_TOP + CART_HEIGHT / 2)
-    drawn_x = cart_x - TRUNCATION
-    cart = (drawn_x - CART_WIDTH / 2) * ones, (drawn_x + CART_WIDTH / 2) * ones
-    cart = torch.where(in_cart, cart[0], torch.inf), torch.where(in_cart, cart[1], -torch.inf)
-    # the pole: u = cos * dx - sin * dy in [-w/2, w/2], v = sin * dx + cos * dy in
-    # [-w/2, L - w/2], with (dx, dy) from the axle (pygame's rotate_rad(-theta)).
-    dy = y + TRUNCATION - AXLE_HEIGHT  # [1, R]
-    u_lo, u_hi = _solve(cos * ones, -sin * dy, -POLE_WIDTH / 2, POLE_WIDTH / 2)
-    v_lo, v_hi = _solve(sin * ones, cos * dy, -POLE_WIDTH / 2, pole_length - POLE_WIDTH / 2)
-    pole = drawn_x + torch.maximum(u_lo, v_lo), drawn_x + torch.minimum(u_hi, v_hi)
-    axle_x = cart_x.floor()  # pygame's int() of a positive coordinate
-    axle_dy = y - int(AXLE_HEIGHT)
-    half = (AXLE_RADIUS**2 - axle_dy**2).clamp_min(0).sqrt()  # [1, R]
-    in_axle = axle_dy.abs() <= AXLE_RADIUS
-    axle = (
-        torch.where(in_axle, axle_x - half, torch.inf),
-        torch.where(in_axle, axle_x + half, -torch.inf),
-    )
-    cart, pole, axle = ((lo - 0.5, hi + 0.5) for lo, hi in (cart, pole, axle))
+    cart, pole, axle = _shape_spans(cart_x, cos, sin, y, pole_length)  # each ([N, R], [N, R])
 
     # Only the pooled columns the shapes reach are computed: a window of K columns per env.
     x_min = torch.stack([cart[0], pole[0], axle[0]], 1).flatten(1).amin(1)  # [N]; inf: none
@@ -166,6 +146,41 @@ def draw_cartpole(
     dark += (white - _gray(CART_RGB)) * pool * track_rows[None, :, None]
     pixels = (white - dark / pool**2).round().clamp(0, 255).to(torch.uint8)
     return pixels.reshape(*lead, 1, height, width)
+
+
+def _shape_spans(
+    cart_x: torch.Tensor,
+    cos: torch.Tensor,
+    sin: torch.Tensor,
+    y: torch.Tensor,
+    pole_length: float,
+) -> tuple[tuple[torch.Tensor, torch.Tensor], ...]:
+    """The cart's, the pole's and the axle's span of x on each row, ``([N, R], [N, R])`` each
+    (from, to; empty rows from +inf to -inf), widened by half a pixel each side.
+
+    ``cart_x``, ``cos``, ``sin``: ``[N, 1]``; ``y``: ``[1, R]``, pygame's rows bottom-up.
+    """
+    ones = torch.ones_like(cart_x * y)  # [N, R]
+    in_cart = (y >= CART_TOP - CART_HEIGHT / 2) & (y <= CART_TOP + CART_HEIGHT / 2)
+    drawn_x = cart_x - TRUNCATION
+    cart = (drawn_x - CART_WIDTH / 2) * ones, (drawn_x + CART_WIDTH / 2) * ones
+    cart = torch.where(in_cart, cart[0], torch.inf), torch.where(in_cart, cart[1], -torch.inf)
+    # the pole: u = cos * dx - sin * dy in [-w/2, w/2], v = sin * dx + cos * dy in
+    # [-w/2, L - w/2], with (dx, dy) from the axle (pygame's rotate_rad(-theta)).
+    dy = y + TRUNCATION - AXLE_HEIGHT  # [1, R]
+    u_lo, u_hi = _solve(cos * ones, -sin * dy, -POLE_WIDTH / 2, POLE_WIDTH / 2)
+    v_lo, v_hi = _solve(sin * ones, cos * dy, -POLE_WIDTH / 2, pole_length - POLE_WIDTH / 2)
+    pole = drawn_x + torch.maximum(u_lo, v_lo), drawn_x + torch.minimum(u_hi, v_hi)
+    axle_x = cart_x.floor()  # pygame's int() of a positive coordinate
+    axle_dy = y - int(AXLE_HEIGHT)
+    half = (AXLE_RADIUS**2 - axle_dy**2).clamp_min(0).sqrt()  # [1, R]
+    in_axle = axle_dy.abs() <= AXLE_RADIUS
+    axle = (
+        torch.where(in_axle, axle_x - half, torch.inf),
+        torch.where(in_axle, axle_x + half, -torch.inf),
+    )
+    cart, pole, axle = ((lo - 0.5, hi + 0.5) for lo, hi in (cart, pole, axle))
+    return cart, pole, axle
 
 
 def _crop_bounds(crop: Sequence[int | None]) -> tuple[int, int, int, int]:

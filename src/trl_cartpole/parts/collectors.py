@@ -179,19 +179,7 @@ def make_collector(
         workers or Ray actors).
     """
     if args:
-        raise TypeError(
-            "make_collector() takes create_env_fn and policy, then keywords (as Collector): "
-            + "make_collector(env, policy, "
-            + ", ".join(
-                f"{name}={value!r}"
-                for name, value in zip(
-                    ("frames_per_batch", "total_frames", "init_random_frames", "device"),
-                    args,
-                    strict=False,
-                )
-            )
-            + ")"
-        )
+        _refuse_positional(args)
     if backend not in BACKENDS:
         raise ConfigError(f"backend={backend!r}: choose one of {list(BACKENDS)}")
     frames_per_batch = resolve("make_collector", "frames_per_batch", frames_per_batch, tuned)
@@ -218,14 +206,7 @@ def make_collector(
                 "(callables), not a built env"
             )
         return Collector(create_env_fn, policy, **common)
-    if callable(create_env_fn):  # one Ray actor
-        create_env_fn = [create_env_fn]
-    if not isinstance(create_env_fn, Sequence) or not all(map(callable, create_env_fn)):
-        raise TypeError(
-            "create_env_fn: pass an env, a callable that builds one, or a list of such "
-            f"callables (one per worker), not {type(create_env_fn).__name__}"
-        )
-    create_env_fn = list(create_env_fn)
+    create_env_fn = _env_constructors(create_env_fn)
     if backend == "local":
         return Collector(
             create_env_fn,
@@ -235,6 +216,44 @@ def make_collector(
             sync=sync,
             **common,
         )
+    return _ray_collector(
+        create_env_fn, policy, sync, ray_address, remote_configs, ray_init_config, common
+    )
+
+
+def _refuse_positional(args: tuple[Any, ...]) -> None:
+    """The arguments after ``policy`` are keywords: name them for the call as written."""
+    names = ("frames_per_batch", "total_frames", "init_random_frames", "device")
+    keywords = ", ".join(f"{name}={value!r}" for name, value in zip(names, args, strict=False))
+    raise TypeError(
+        "make_collector() takes create_env_fn and policy, then keywords (as Collector): "
+        f"make_collector(env, policy, {keywords})"
+    )
+
+
+def _env_constructors(create_env_fn: Any) -> list[Callable[[], EnvBase]]:
+    """One env constructor per worker or Ray actor (a single callable is one)."""
+    if callable(create_env_fn):  # one Ray actor
+        create_env_fn = [create_env_fn]
+    if not isinstance(create_env_fn, Sequence) or not all(map(callable, create_env_fn)):
+        raise TypeError(
+            "create_env_fn: pass an env, a callable that builds one, or a list of such "
+            f"callables (one per worker), not {type(create_env_fn).__name__}"
+        )
+    return list(create_env_fn)
+
+
+def _ray_collector(
+    create_env_fn: list[Callable[[], EnvBase]],
+    policy: TensorDictModuleBase,
+    sync: bool,
+    ray_address: str | None,
+    remote_configs: dict[str, Any] | None,
+    ray_init_config: dict[str, Any] | None,
+    common: dict[str, Any],
+) -> BaseCollector:
+    """TorchRL's ``Collector(backend="ray")``: one Ray actor per env constructor, on the
+    cluster at ``ray_address`` or a Ray instance started on this machine."""
     if ray_address is not None:
         check_ray_address(ray_address)
     else:

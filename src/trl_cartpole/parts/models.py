@@ -390,14 +390,7 @@ def make_q_actor(
     :returns: TorchRL's ``QValueActor``, or its ``DistributionalQValueActor`` with ``support``.
     """
     if args:
-        earlier = ", ".join(
-            f"{name}={value!r}"
-            for name, value in zip(("num_cells", "activation", "head"), args, strict=False)
-        )
-        raise TypeError(
-            "make_q_actor() takes observation_spec and spec, then keywords: write "
-            f"make_q_actor(observation_spec, spec, {earlier})"
-        )
+        _refuse_positional(args)
     if isinstance(observation_spec, nn.Module):  # QValueActor's first argument is the module
         if module is not None:
             raise TypeError("a module passed first is QValueActor's module=; pass one of them")
@@ -407,14 +400,7 @@ def make_q_actor(
         raise TypeError("make_q_actor() needs spec= (the env's action_spec)")
     check_head(head)
     if activation is not None:
-        if activation not in ACTIVATIONS:
-            raise ValueError(
-                f"activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)} "
-                "or pass activation_class="
-            )
-        activation_class = resolve_alias(
-            "activation_class", activation_class, "activation", ACTIVATIONS[activation]
-        )
+        activation_class = _activation_class_named(activation, activation_class)
     mlp_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in _MLP_KEYWORDS}
     num_cells = resolve_alias("num_cells", num_cells, "hidden_sizes", hidden_sizes)
     given_cells, given_activation = num_cells, activation_class  # before defaults fill them
@@ -448,11 +434,44 @@ def make_q_actor(
             cnn_kwargs=(cnn_kwargs, None),
             activation=(activation, None),
         )
+    return _q_value_actor(module, spec, list(in_keys), support, device, kwargs)
+
+
+def _refuse_positional(args: tuple[Any, ...]) -> None:
+    """The arguments after ``spec`` are keywords: name them for the call as written."""
+    names = ("num_cells", "activation", "head")
+    earlier = ", ".join(f"{name}={value!r}" for name, value in zip(names, args, strict=False))
+    raise TypeError(
+        "make_q_actor() takes observation_spec and spec, then keywords: write "
+        f"make_q_actor(observation_spec, spec, {earlier})"
+    )
+
+
+def _activation_class_named(activation: str, activation_class: type[nn.Module] | None) -> type:
+    """The class of an activation given by its earlier name (``activation="relu"``)."""
+    if activation not in ACTIVATIONS:
+        raise ValueError(
+            f"activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)} "
+            "or pass activation_class="
+        )
+    return resolve_alias(
+        "activation_class", activation_class, "activation", ACTIVATIONS[activation]
+    )
+
+
+def _q_value_actor(
+    module: nn.Module,
+    spec: TensorSpec,
+    in_keys: list[str],
+    support: torch.Tensor | None,
+    device: str | torch.device | None,
+    kwargs: dict[str, Any],
+) -> QValueActor | DistributionalQValueActor:
+    """TorchRL's actor around the Q-network, on ``device`` (default: the spec's)."""
     if device is None:  # the spec's device, as documented
         device = getattr(spec, "device", None)
     if device is not None:
         module, spec = module.to(device), spec.to(device)
-    in_keys = list(in_keys)
     if support is None:
         return QValueActor(module, in_keys=in_keys, spec=spec, **kwargs)
     support = support if device is None else support.to(device)

@@ -280,13 +280,7 @@ def make_replay_buffer(
         ``tuned=True``).
     """
     _refuse_positional(args)
-    if n_steps < 1:
-        raise ValueError(f"n_steps={n_steps} must be >= 1 (1: one-step transitions)")
-    if gamma is not None and n_steps == 1:
-        raise ValueError(
-            f"gamma={gamma} discounts n-step returns, and n_steps=1 stores one-step "
-            "transitions; pass n_steps > 1 with it, or give gamma to the loss alone"
-        )
+    _check_n_steps(n_steps, gamma)
     if storage is None:
         max_size = resolve("make_replay_buffer", "max_size", max_size, tuned)
         storage = LazyTensorStorage(max_size, device=device)
@@ -327,16 +321,7 @@ def make_replay_buffer(
             transform=combined,
             **buffer_kwargs,
         )
-    given = [
-        name
-        for name, value in {"alpha": alpha, "beta": beta, "eps": eps}.items()
-        if value is not None
-    ]
-    if given:
-        raise ValueError(
-            f"{', '.join(given)}: the prioritized sampler's; pass prioritized=True with them, "
-            "or your own sampler=PrioritizedSampler(...)"
-        )
+    _refuse_sampler_arguments(alpha=alpha, beta=beta, eps=eps)
     return TensorDictReplayBuffer(
         storage=storage,
         sampler=RandomSampler() if sampler is None else sampler,
@@ -344,6 +329,26 @@ def make_replay_buffer(
         transform=combined,
         **buffer_kwargs,
     )
+
+
+def _check_n_steps(n_steps: int, gamma: float | None) -> None:
+    if n_steps < 1:
+        raise ValueError(f"n_steps={n_steps} must be >= 1 (1: one-step transitions)")
+    if gamma is not None and n_steps == 1:
+        raise ValueError(
+            f"gamma={gamma} discounts n-step returns, and n_steps=1 stores one-step "
+            "transitions; pass n_steps > 1 with it, or give gamma to the loss alone"
+        )
+
+
+def _refuse_sampler_arguments(**arguments: float | None) -> None:
+    """The prioritized sampler's arguments given to a buffer with another sampler: refused."""
+    given = [name for name, value in arguments.items() if value is not None]
+    if given:
+        raise ValueError(
+            f"{', '.join(given)}: the prioritized sampler's; pass prioritized=True with them, "
+            "or your own sampler=PrioritizedSampler(...)"
+        )
 
 
 def annealed_beta(beta_start: float, frames: int, anneal_frames: int) -> float:

@@ -261,13 +261,9 @@ def _assemble(
     on_error.callback(metrics.close)
     threshold = solve_threshold(cfg.env.id, cfg.eval.solve_threshold)
     evaluator = Evaluator(
-        partial(periodic.play, actor),
-        actor,
-        cfg.eval.interval_frames,
-        threshold,
-        cfg.eval.stop_when_solved,
-        candidates=cfg.eval.candidates,
-    )
+        partial(periodic.play, actor), actor, cfg.eval.interval_frames, threshold,
+        cfg.eval.stop_when_solved, candidates=cfg.eval.candidates,
+    )  # fmt: skip
     progress, history = Progress(), History()
     saved = {
         "policy": actor,
@@ -281,13 +277,7 @@ def _assemble(
         "evaluator": evaluator,
         "history": history,
         # last: its carrier replaces the one the collector's own state restored
-        "envs": EnvState(
-            None if is_distributed(cfg.collector.workers, cfg.collector.backend) else env,
-            periodic.env,
-            collector,
-            buffer,
-            trust_pickle=cfg.checkpoint.trust_pickled_envs,
-        ),
+        "envs": _env_state(cfg, env, periodic.env, collector, buffer),
     }
     return Components(
         cfg=cfg,
@@ -321,6 +311,24 @@ def _assemble(
         judge=judge,
         worker_log_dir=worker_log_dir(cfg, run_dir),
         facts=RunFacts.of(cfg, run_dir),
+    )
+
+
+def _env_state(
+    cfg: Config,
+    env: TransformedEnv,
+    eval_env: TransformedEnv,
+    collector: BaseCollector,
+    buffer: TensorDictReplayBuffer,
+) -> EnvState:
+    """What a checkpoint keeps of the envs (the training env's only where this process
+    steps it: workers and Ray actors hold their own)."""
+    return EnvState(
+        None if is_distributed(cfg.collector.workers, cfg.collector.backend) else env,
+        eval_env,
+        collector,
+        buffer,
+        trust_pickle=cfg.checkpoint.trust_pickled_envs,
     )
 
 

@@ -199,13 +199,7 @@ def run_study(
         raise ConfigError("tuning needs Optuna: pip install 'trl_cartpole[tune]'")
     cfg = compose_config(config_dir, list(overrides))
     preset = next((arg.split("=", 1)[1] for arg in overrides if arg.startswith("env=")), "cartpole")
-    if space_path is None:  # the preset's space: the package's, or a presets= directory's
-        candidates = [
-            Path(d) / "tune" / f"{preset}.yaml" for d in [config_dir, *preset_dirs(overrides)]
-        ]
-        space_path = next((path for path in candidates if path.exists()), candidates[0])
-    space_path = Path(space_path)
-    space = load_search_space(space_path)
+    space = load_search_space(space_path or _preset_space(config_dir, overrides, preset))
     study_name = study_name or preset
     storage = storage or f"sqlite:///{Path('runs') / 'tune' / study_name / 'study.db'}"
     if storage.startswith("sqlite:///"):  # the plots go beside the database
@@ -213,19 +207,7 @@ def run_study(
     else:
         study_dir = Path("runs") / "tune" / study_name
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    if objective not in OBJECTIVES:
-        raise ConfigError(f"objective={objective!r}; choose one of {', '.join(OBJECTIVES)}")
-    direction = OBJECTIVES[objective]
-    check_sqlite_storage(storage)
-    study = optuna.create_study(
-        study_name=study_name, storage=_storage(storage), direction=direction, load_if_exists=True
-    )
-    if study.direction.name.lower() != direction:
-        raise ConfigError(
-            f"study {study_name!r} in {storage} was made to {study.direction.name.lower()} its "
-            f"score; objective={objective} needs one that is to {direction}: name another study="
-        )
-    check_study_space(study, space, storage)
+    _open_study(study_name, storage, objective, space)
     spec = {
         "study_name": study_name,
         "storage": storage,
@@ -241,27 +223,7 @@ def run_study(
     }
     if not isinstance(pruner, str) and jobs > 1:
         raise ConfigError("a pruner object works with jobs=1 only; name one for several jobs")
-    if jobs <= 1:
-        _work(spec)
-    else:  # processes, not threads: each trains with its own interpreter and torch threads
-        context = multiprocessing.get_context("spawn")
-        workers = [context.Process(target=_work, args=(spec,)) for _ in range(jobs)]
-        try:
-            for worker in workers:
-                worker.start()
-            for worker in workers:
-                worker.join()
-        finally:  # a stopped study stops its workers too
-            for worker in workers:
-                if worker.is_alive():
-                    worker.terminate()
-                    worker.join()
-        failed = [worker.exitcode for worker in workers if worker.exitcode != 0]
-        if failed:
-            raise ConfigError(
-                f"{len(failed)} of {jobs} tuning workers exited with status {failed[0]}; "
-                "run with --jobs 1 to see the error"
-            )
+    _run_trials(spec, jobs)
     study = optuna.load_study(study_name=study_name, storage=_storage(storage))
     finished = _finished(study)
     pruned = sum(t.state == optuna.trial.TrialState.PRUNED for t in finished)
@@ -292,6 +254,58 @@ def run_study(
         f"plots: {study_dir / 'history.png'}, {study_dir / 'importances.png'}",
     ]
     return StudyResult(best.value, dict(best.params), len(finished), pruned, "\n".join(lines), path)
+
+
+def _preset_space(config_dir: str | Path, overrides: Sequence[str], preset: str) -> Path:
+    """The preset's search space: the package's ``tune/<preset>.yaml``, or a presets=
+    directory's."""
+    candidates = [
+        Path(d) / "tune" / f"{preset}.yaml" for d in [config_dir, *preset_dirs(overrides)]
+    ]
+    return next((path for path in candidates if path.exists()), candidates[0])
+
+
+def _open_study(study_name: str, storage: str, objective: str, space: dict[str, Any]) -> None:
+    """Create the study (or check the one stored: its direction and its search space)."""
+    if objective not in OBJECTIVES:
+        raise ConfigError(f"objective={objective!r}; choose one of {', '.join(OBJECTIVES)}")
+    direction = OBJECTIVES[objective]
+    check_sqlite_storage(storage)
+    study = optuna.create_study(
+        study_name=study_name, storage=_storage(storage), direction=direction, load_if_exists=True
+    )
+    if study.direction.name.lower() != direction:
+        raise ConfigError(
+            f"study {study_name!r} in {storage} was made to {study.direction.name.lower()} its "
+            f"score; objective={objective} needs one that is to {direction}: name another study="
+        )
+    check_study_space(study, space, storage)
+
+
+def _run_trials(spec: dict[str, Any], jobs: int) -> None:
+    """Run the study's trials in this process (``jobs=1``) or in ``jobs`` spawned processes
+    (each trains with its own interpreter and torch threads)."""
+    if jobs <= 1:
+        _work(spec)
+        return
+    context = multiprocessing.get_context("spawn")
+    workers = [context.Process(target=_work, args=(spec,)) for _ in range(jobs)]
+    try:
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join()
+    finally:  # a stopped study stops its workers too
+        for worker in workers:
+            if worker.is_alive():
+                worker.terminate()
+                worker.join()
+    failed = [worker.exitcode for worker in workers if worker.exitcode != 0]
+    if failed:
+        raise ConfigError(
+            f"{len(failed)} of {jobs} tuning workers exited with status {failed[0]}; "
+            "run with --jobs 1 to see the error"
+        )
 
 
 def _score_words(objective: str, total_frames: int) -> str:
