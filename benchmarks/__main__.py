@@ -14,16 +14,14 @@ from collections.abc import Sequence
 
 from benchmarks import (
     ablate,
-    docs,
     envs,
-    lock,
     memory,
     profile,
-    readme,
     run,
     scaling,
     update_cost,
     wall,
+    weight_sync,
 )
 from benchmarks.harness import sweep_arguments
 from trl_cartpole.report.console import quiet_libraries
@@ -37,9 +35,7 @@ SUBCOMMANDS = {
     "profile": profile,
     "wall": wall,
     "memory": memory,
-    "readme": readme,
-    "docs": docs,
-    "lock": lock,
+    "weight-sync": weight_sync,
 }
 
 

@@ -112,7 +112,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def write_record(path: Path, command: str, runs: list[dict]) -> None:
     """``path`` (docs/results/*.json): the command, when and where it ran, and every seed's
-    summary; ``python -m benchmarks docs`` renders the per-seed table from it."""
+    summary; ``python -m maintain docs`` renders the per-seed table from it."""
     record = {**provenance(), "command": command, "runs": runs}
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(record, indent=2) + "\n")

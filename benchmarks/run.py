@@ -112,7 +112,7 @@ def protocol_text(results: dict, algos: list[str], peers: list[str]) -> str:
 
 def write_record(path: Path, command: str, protocols: dict[int, dict]) -> None:
     """``path`` (docs/results/*.json): the command, when and where it ran, and per evaluation
-    interval every run's summary; ``python -m benchmarks docs`` renders the tables from it."""
+    interval every run's summary; ``python -m maintain docs`` renders the tables from it."""
     record = {
         **provenance(),
         "command": command,

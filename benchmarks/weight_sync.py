@@ -1,6 +1,6 @@
 """Do the collector's workers act with the learner's weights and epsilon? One line per batch.
 
-    python -m benchmarks.weight_sync --backend local|ray [--batches 6]
+    python -m benchmarks weight-sync --backend local|ray [--batches 6]
 
 Two workers of 4 CartPole envs. After every batch the learner moves its network's weights and,
 from the second batch on, sets epsilon to 0, then calls ``update_policy_weights_()`` as the
@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import argparse
 import copy
+from pathlib import Path
 
 import torch
 from tensordict.nn import TensorDictSequential
 
-from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.parts.collectors import (
     make_collector,
@@ -26,6 +27,9 @@ from trl_cartpole.parts.collectors import (
 )
 from trl_cartpole.run.envs import worker_env_constructors
 from trl_cartpole.run.from_config import build_actor, build_env, build_exploration
+
+SEEDS = [0]  # the config's seed: the harness's common arguments
+OUT = Path("runs/bench/weight_sync")
 
 
 def _source(batch, actors: list) -> str:
@@ -39,13 +43,14 @@ def _source(batch, actors: list) -> str:
     return "unknown"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", choices=["local", "ray"], default="local")
     parser.add_argument("--batches", type=int, default=6)
-    args = parser.parse_args()
+
+
+def main(args: argparse.Namespace) -> None:
     overrides = ["env.num_envs=4", "collector.workers=2", f"collector.backend={args.backend}"]
-    cfg = to_config(compose_config("configs", overrides))
+    cfg = to_config(compose_config("configs", [*overrides, *args.overrides]))
     env = build_env(cfg, cfg.seed)
     actor, exploration = build_actor(cfg, env), build_exploration(cfg, env)
     policy = TensorDictSequential(actor, exploration)
@@ -76,7 +81,3 @@ def main() -> None:
                 collector.update_policy_weights_()
     finally:
         shutdown_collector(collector)
-
-
-if __name__ == "__main__":
-    main()

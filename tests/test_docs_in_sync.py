@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import re
 
-from benchmarks import docs
+from maintain import docs
 
 from .conftest import ROOT
 
 
 def test_every_generated_block_matches_its_source():
-    """Each ``<!-- generated:NAME -->`` block is what ``python -m benchmarks docs`` writes."""
+    """Each ``<!-- generated:NAME -->`` block is what ``python -m maintain docs`` writes."""
     assert docs.stale_blocks(write=False) == []
 
 

@@ -27,7 +27,7 @@ def test_every_pinned_distribution_installed_here_has_its_pinned_version():
             drifted[name] = (pinned, found)
     assert not drifted, (
         f"installed versions differ from constraints.txt {drifted}: reinstall with "
-        "-c constraints.txt, or regenerate it after a green CI run (python -m benchmarks lock)"
+        "-c constraints.txt, or regenerate it after a green CI run (python -m maintain lock)"
     )
 
 

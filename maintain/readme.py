@@ -2,7 +2,7 @@
 
 Each command runs as the README writes it, one at a time from the repository root, timed from
 start to exit; the quick start's printed ending and its plots (``durations.png``,
-``dashboard.png``, copied to ``docs/images/``) become the README's. ``python -m benchmarks
+``dashboard.png``, copied to ``docs/images/``) become the README's. ``python -m maintain
 docs`` then regenerates the README's blocks from the results file. ``--check-run RUN_DIR``
 instead compares a run of the quick start (CI's) with the recorded one: on the same CPU model
 the frames to solve and the final return must be equal (a seed's run follows the CPU's float
@@ -24,8 +24,6 @@ from benchmarks.harness import provenance
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "docs" / "results" / "readme.json"
-SEEDS = [0]
-OUT = Path("runs/bench/readme")
 PYTHON = ".venv/bin/python"  # as the README writes it
 
 QUICK_START = f"{PYTHON} scripts/train.py"
@@ -120,7 +118,7 @@ def check_run(run_dir: Path) -> None:
     if same_cpu:
         print(
             f"error: the quick start no longer runs as the README says ({detail}); "
-            "python -m benchmarks readme && python -m benchmarks docs"
+            "python -m maintain readme && python -m maintain docs"
         )
         sys.exit(1)
     print(
@@ -142,4 +140,4 @@ def main(args: argparse.Namespace) -> None:
     results = record()
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(results, indent=2) + "\n")
-    print(f"wrote {RESULTS.relative_to(ROOT)}; now: python -m benchmarks docs")
+    print(f"wrote {RESULTS.relative_to(ROOT)}; now: python -m maintain docs")

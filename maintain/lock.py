@@ -16,13 +16,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 CONSTRAINTS = ROOT / "constraints.txt"
-SEEDS = [0]  # unused: the harness's common arguments
-OUT = Path("runs/bench/lock")
 HEADER = """\
 # The versions CI installs and tests, pinned so the README's commands resolve the same tomorrow
 # (pip install ... -c constraints.txt). torch is pinned by the commands themselves (its CPU
 # wheel); extras CI does not install (notebook, video, wandb) resolve freely. Regenerate after a
-# green CI run: .venv/bin/python -m benchmarks lock (docs/choices.md).
+# green CI run: .venv/bin/python -m maintain lock (docs/choices.md).
 """
 LEFT_OUT = ("torch", "pip", "setuptools", "wheel", "trl-cartpole", "trl_cartpole")
 
@@ -46,7 +44,7 @@ def main(args: argparse.Namespace) -> None:
     text = HEADER + "\n".join(pinned_lines()) + "\n"
     if args.check:
         if CONSTRAINTS.read_text() != text:
-            print("constraints.txt differs from this environment (python -m benchmarks lock)")
+            print("constraints.txt differs from this environment (python -m maintain lock)")
             sys.exit(1)
         print("constraints.txt is this environment")
         return

@@ -5,7 +5,7 @@ its text comes from the code, the schema, the presets or a results file that a b
 wrote, never from a hand copy:
 
 - ``readme-ending``, ``readme-next-steps`` (README.md): the quick start's printed ending and the
-  measured time of each next step, from ``docs/results/readme.json`` (``python -m benchmarks
+  measured time of each next step, from ``docs/results/readme.json`` (``python -m maintain
   readme`` writes it, with the date, commit and machine);
 - ``config-fields`` (docs/reference/config.md): every field of the schema with its type, default
   and meaning, the source ``--help`` prints;
@@ -18,7 +18,7 @@ wrote, never from a hand copy:
 - ``pixel-seeds`` (docs/environments.md): ``env=cartpole_pixels`` seed by seed, from
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
 - ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
-  and the class it returns, from the signatures (``benchmarks/reference.py``).
+  and the class it returns, from the signatures (``maintain/reference.py``).
 
 ``tests/test_docs_in_sync.py`` runs the check, so CI fails when a doc drifts from its source.
 """
@@ -44,8 +44,6 @@ PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
 RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in RACE_ENVS}
-SEEDS = [0]
-OUT = Path("runs/bench/docs")
 
 
 def _fenced(text: str, language: str = "") -> str:
@@ -73,7 +71,7 @@ def readme_next_steps() -> str:
     ]
     return (
         _fenced("\n".join(lines), "bash")
-        + "\n\nTimes: command to prompt, one command at a time (`python -m benchmarks readme`). "
+        + "\n\nTimes: command to prompt, one command at a time (`python -m maintain readme`). "
         + provenance_line(results)
         + "".join(apart)
     )
@@ -237,7 +235,7 @@ def train_listing() -> str:
 
 def factory_defaults() -> str:
     """Each factory's defaults beside TorchRL's, and what it returns, read off the signatures."""
-    from benchmarks.reference import defaults_table
+    from maintain.reference import defaults_table
 
     return defaults_table()
 
@@ -289,6 +287,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> None:
     stale = stale_blocks(write=not args.check)
     if args.check and stale:
-        print("stale generated docs (python -m benchmarks docs):", *stale, sep="\n  ")
+        print("stale generated docs (python -m maintain docs):", *stale, sep="\n  ")
         sys.exit(1)
     print("rewrote: " + ", ".join(stale) if stale else "every generated block is up to date")

@@ -1,7 +1,7 @@
 """The factories' defaults beside TorchRL's, read off the code for the API reference.
 
 ``docs/reference/factories.md`` holds :func:`defaults_table`, written into the file by
-``python -m benchmarks docs`` from the signatures of each factory and of the TorchRL class it
+``python -m maintain docs`` from the signatures of each factory and of the TorchRL class it
 builds (``tests/test_docs_in_sync.py`` fails when it drifts), so it reads on the repository
 page and on the site alike; it lives outside the package, since only the docs need it. A
 default that is ``None`` in a factory's signature because it depends on another argument is
