@@ -16,14 +16,9 @@ import argparse
 import json
 from pathlib import Path
 
-from benchmarks.harness import (
-    VARIANT_PRESETS,
-    markdown_table,
-    provenance,
-    provenance_line,
-    run_presets,
-)
+from benchmarks.harness import VARIANT_PRESETS, provenance, provenance_line, run_presets
 from trl_cartpole.report.plotting import plot_seed_groups
+from trl_cartpole.tools.comparison import markdown_table
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/ablations"
 BEGIN, END = "<!-- ablation:begin -->", "<!-- ablation:end -->"

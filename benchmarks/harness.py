@@ -22,23 +22,12 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from trl_cartpole.tools.comparison import (
-    expand_sweep_dirs,
-    group_runs,
-    load_runs,
-    markdown_table,
-    median_to_solve,
-)
+from trl_cartpole.tools.comparison import median_to_solve
 
 __all__ = [
     "ENV_MEDIAN_TARGETS",
     "ENV_TARGETS",
     "PEERS",
-    "expand_sweep_dirs",
-    "group_runs",
-    "load_runs",
-    "markdown_table",
-    "median_to_solve",
     "run_peer",
     "run_presets",
     "run_training",

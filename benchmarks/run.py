@@ -40,15 +40,8 @@ import math
 import sys
 from pathlib import Path
 
-from benchmarks.harness import (
-    PEERS,
-    markdown_table,
-    provenance,
-    run_presets,
-    seconds_per_frame,
-    speed_ratios,
-)
-from trl_cartpole.tools.comparison import iqm_to_solve
+from benchmarks.harness import PEERS, provenance, run_presets, seconds_per_frame, speed_ratios
+from trl_cartpole.tools.comparison import iqm_to_solve, markdown_table
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/benchmark"
 # env presets raced with --env: preset -> the Gymnasium id the peers play

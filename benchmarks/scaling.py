@@ -34,8 +34,8 @@ import torch
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase, ParallelEnv
 
-from benchmarks.harness import CONFIG_DIR, markdown_table, run_presets
-from trl_cartpole.cli.main import compose_config
+from benchmarks.harness import CONFIG_DIR, run_presets
+from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.parts.collectors import (
     is_distributed,
@@ -45,6 +45,7 @@ from trl_cartpole.parts.collectors import (
 )
 from trl_cartpole.run.envs import worker_env_constructors
 from trl_cartpole.run.from_config import build_actor, build_env, build_exploration
+from trl_cartpole.tools.comparison import markdown_table
 
 SEEDS, OUT = [0, 1, 2], "runs/scaling"
 WARMUP_BATCHES = 5  # batches left out of the timing: worker start-up, first allocations

@@ -30,7 +30,7 @@ from itertools import chain, pairwise
 import torch
 
 from benchmarks.harness import CONFIG_DIR, VARIANT_PRESETS
-from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.parts.optim import make_optimizer

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.compose import compose_config
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG_DIR = ROOT / "configs"

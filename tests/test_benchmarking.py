@@ -14,11 +14,12 @@ import pytest
 from benchmarks import harness
 from benchmarks.ablate import BEGIN, write_between_markers
 from benchmarks.envs import table as env_table
-from benchmarks.harness import markdown_table, median_to_solve, speed_ratios
+from benchmarks.harness import speed_ratios
 from benchmarks.profile import phase_table
 from benchmarks.run import iqm_ratio_lines, ratio_lines
 from benchmarks.wall import wall_table
 from trl_cartpole.report.plotting import hold_last, plot_seed_groups
+from trl_cartpole.tools.comparison import markdown_table, median_to_solve
 
 from .conftest import ROOT, SCRIPTS
 

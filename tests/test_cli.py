@@ -18,7 +18,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from tests.conftest import ROOT, SCRIPTS, SMOKE_OVERRIDES, run_script
-from trl_cartpole.cli.main import compose_run_config
+from trl_cartpole.config.compose import compose_run_config
 from trl_cartpole.config.help import field_help
 from trl_cartpole.config.schema import Config
 from trl_cartpole.report.console import DYNAMO_PROFILER_LOGGER, ending, quiet_libraries, verdict

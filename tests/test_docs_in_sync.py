@@ -72,7 +72,7 @@ def test_every_documented_command_line_is_one_the_code_accepts():
 
     from omegaconf import OmegaConf
 
-    from trl_cartpole.cli.main import compose_config
+    from trl_cartpole.config.compose import compose_config
     from trl_cartpole.config.schema import to_config
     from trl_cartpole.config.validation import validate
 

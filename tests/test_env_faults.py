@@ -18,7 +18,7 @@ from tensordict import TensorDict
 from torchrl.envs import GymWrapper, TransformedEnv
 
 from tests.conftest import CONFIG_DIR, SCRIPTS, SMOKE_OVERRIDES
-from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.compose import compose_config
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.run.env_faults import check_finite_batch, env_fault, worker_env_fault
 from trl_cartpole.run.training import train

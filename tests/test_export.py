@@ -14,7 +14,7 @@ from torchrl.envs import ExplorationType, set_exploration_type
 
 from tests.conftest import CONFIG_DIR, SMOKE_OVERRIDES, run_script_in_process
 from trl_cartpole.cli.commands import export as export_command
-from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.schema import Config, NetworkConfig
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.env import make_env

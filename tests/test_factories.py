@@ -14,8 +14,9 @@ from torchrl.envs import RewardSum, StepCounter, TransformedEnv
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
+from trl_cartpole.env_ids import solve_threshold
 from trl_cartpole.parts.collectors import make_collector
-from trl_cartpole.parts.env import make_env, solve_threshold
+from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import ExponentialEGreedyModule, make_exploration
 from trl_cartpole.parts.losses import FusedSoftUpdate, make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import make_q_actor

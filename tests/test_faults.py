@@ -349,7 +349,7 @@ def test_non_finite_loss_stops_with_the_update_named_and_keeps_the_last_good_che
 
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory) -> Path:
-    from trl_cartpole.cli.main import compose_config
+    from trl_cartpole.config.compose import compose_config
 
     from .conftest import CONFIG_DIR
 

@@ -17,7 +17,8 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
 from tests.conftest import SMOKE_OVERRIDES, run_script_in_process
-from trl_cartpole.cli.main import _one_line, compose_run_config
+from trl_cartpole.cli.main import _one_line
+from trl_cartpole.config.compose import compose_run_config
 from trl_cartpole.config.presets import PRESETS_DIR
 from trl_cartpole.config.schema import Config, flat_fields, to_config
 from trl_cartpole.config.validation import BOOLEAN_WORDS, validate

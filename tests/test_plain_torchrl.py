@@ -26,12 +26,12 @@ from torchrl.envs import Transform
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import SoftUpdate
 
-from trl_cartpole.config.validation import ACTIVATION_NAMES, HEAD_NAMES
+from trl_cartpole import defaults
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
-from trl_cartpole.parts.models import ACTIVATIONS, HEADS, make_q_actor
+from trl_cartpole.parts.models import ACTIVATIONS, HEADS, DuelingHead, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
 from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.run.learner import Learner
@@ -126,8 +126,16 @@ def test_num_cells_is_read_as_torchrls_mlp_reads_it(env):
     assert linear.state_dict()["module.0.module.0.weight"].equal(reference[0].weight)
 
 
-def test_the_head_and_activation_names_are_the_ones_the_config_accepts():
-    assert set(HEADS) == set(HEAD_NAMES) and set(ACTIVATIONS) == set(ACTIVATION_NAMES)
+def test_each_head_and_activation_the_config_accepts_builds_its_torch_module():
+    assert {"elu": nn.ELU, "gelu": nn.GELU, "relu": nn.ReLU, "tanh": nn.Tanh} == ACTIVATIONS
+    env = make_env("CartPole-v1")
+    built = {
+        head: make_q_actor(env.observation_spec, env.action_spec, num_cells=[8], head=head)
+        for head in defaults.HEADS
+    }
+    assert set(built) == set(HEADS) == {"plain", "dueling"}
+    assert any(isinstance(m, DuelingHead) for m in built["dueling"].modules())
+    assert not any(isinstance(m, DuelingHead) for m in built["plain"].modules())
 
 
 # --- nothing changed behind the user's back ------------------------------------------------------

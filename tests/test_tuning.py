@@ -7,7 +7,7 @@ import shutil
 import pytest
 import yaml
 
-from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.compose import compose_config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.tools.tuning import (
     QUIET_RUN,

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import torch
 
-from trl_cartpole.parts.env import make_sync_vector_env, solve_threshold
+from trl_cartpole.env_ids import solve_threshold
+from trl_cartpole.parts.env import make_sync_vector_env
 from trl_cartpole.run.evaluation import EvalResult, Evaluator, play_greedy_episodes
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.summary import run_summary

@@ -20,6 +20,8 @@ ENV_ID = "CartPole-v1"
 HIDDEN_SIZES = (128, 128)  # the MLP's hidden widths
 ACTIVATION = "relu"
 NOISY_STD = 0.5  # sigma_0 of NoisyLinear's factorised noise (Fortunato et al. 2018)
+# the CNN torso: the PyTorch DQN tutorial's first, pixel version (three 5x5, stride-2 convolutions)
+CNN_CHANNELS, CNN_KERNELS, CNN_STRIDES = (16, 32, 32), (5, 5, 5), (2, 2, 2)
 EPS_START, EPS_END, DECAY_FRAMES = 1.0, 0.05, 3000  # epsilon-greedy, linear
 BUFFER_SIZE, BATCH_SIZE = 50_000, 512
 ALPHA, BETA, PRIORITY_EPS = 0.6, 0.4, 1e-6  # prioritized replay; ALPHA is on |delta|

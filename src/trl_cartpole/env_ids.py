@@ -18,12 +18,17 @@ import gymnasium as gym
 from trl_cartpole.errors import ConfigError
 
 __all__ = [
+    "CARTPOLE_FRAME",
+    "cartpole_crop_bounds",
     "check_builtin_env_fits",
     "check_env_fits",
     "missing_dependency",
     "resolve_env_id",
     "solve_threshold",
 ]
+
+# CartPoleEnv.render()'s picture: rows, columns (screen_height, screen_width in Gymnasium)
+CARTPOLE_FRAME = (400, 600)
 
 # Gymnasium env families whose dependencies come with an extra of this project (pyproject.toml).
 OPTIONAL_EXTRAS = {"gymnasium.envs.box2d": "box2d"}
@@ -184,3 +189,12 @@ def check_builtin_env_fits(env_id: str, pixels: bool = False) -> None:
         check_env_fits(env.observation_space, env.action_space, env_id, pixels=pixels)
     finally:
         env.close()
+
+
+def cartpole_crop_bounds(crop: Sequence[int | None]) -> tuple[int, int, int, int]:
+    """``(top, bottom, left, right)``: ``env.pixels_crop`` read as Python slices of
+    :data:`CARTPOLE_FRAME` (``None``: up to the edge), as ``CropFrame`` reads it."""
+    rows, columns = CARTPOLE_FRAME
+    top, bottom, _ = slice(crop[0], crop[1]).indices(rows)
+    left, right, _ = slice(crop[2], crop[3]).indices(columns)
+    return top, bottom, left, right

@@ -29,11 +29,6 @@ from typing import Any, NoReturn
 from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
-from trl_cartpole.config.compose import (
-    changes_from_presets,
-    compose_config,
-    compose_run_config,
-)
 from trl_cartpole.config.messages import explain
 from trl_cartpole.errors import (
     ConfigError,
@@ -47,9 +42,6 @@ from trl_cartpole.run.signals import install_unbreakable_console
 
 __all__ = [
     "COMMANDS",
-    "changes_from_presets",
-    "compose_config",
-    "compose_run_config",
     "main",
     "run_cli",
     "run_script",

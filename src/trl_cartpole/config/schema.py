@@ -76,11 +76,17 @@ class AlgoConfig:
 
 @dataclass
 class NetworkConfig:
-    head: str = "plain"  # plain | dueling (Wang et al. 2016), see trl_cartpole.parts.models.HEADS
+    head: str = "plain"  # plain | dueling (Wang et al. 2016), see trl_cartpole.defaults.HEADS
     torso: str = "mlp"  # mlp (TorchRL MLP) | cnn (TorchRL ConvNet, then the MLP; for pixels)
-    cnn_channels: list[int] = field(default_factory=lambda: [16, 32, 32])  # cnn: channels
-    cnn_kernels: list[int] = field(default_factory=lambda: [5, 5, 5])  # cnn: kernel sizes
-    cnn_strides: list[int] = field(default_factory=lambda: [2, 2, 2])  # cnn: strides
+    cnn_channels: list[int] = field(
+        default_factory=lambda: list(defaults.CNN_CHANNELS)
+    )  # cnn: channels
+    cnn_kernels: list[int] = field(
+        default_factory=lambda: list(defaults.CNN_KERNELS)
+    )  # cnn: kernel sizes
+    cnn_strides: list[int] = field(
+        default_factory=lambda: list(defaults.CNN_STRIDES)
+    )  # cnn: strides
     hidden_sizes: list[int] = field(
         default_factory=lambda: list(defaults.HIDDEN_SIZES)
     )  # MLP torso widths

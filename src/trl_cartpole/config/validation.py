@@ -16,13 +16,16 @@ from typing import Any
 
 from trl_cartpole import defaults
 from trl_cartpole.config.schema import Config, flat_fields
-from trl_cartpole.env_ids import check_builtin_env_fits, resolve_env_id
+from trl_cartpole.env_ids import (
+    CARTPOLE_FRAME,
+    cartpole_crop_bounds,
+    check_builtin_env_fits,
+    resolve_env_id,
+)
 from trl_cartpole.errors import ConfigError
 
 __all__ = [
-    "ACTIVATION_NAMES",
     "BOOLEAN_WORDS",
-    "HEAD_NAMES",
     "MAX_ENVS_AT_ONCE",
     "MAX_INTEGER",
     "check_boolean_overrides",
@@ -33,9 +36,6 @@ __all__ = [
     "validate",
 ]
 
-# network.head and network.activation: the keys of trl_cartpole.parts.models.HEADS and ACTIVATIONS
-HEAD_NAMES = defaults.HEADS
-ACTIVATION_NAMES = defaults.ACTIVATIONS
 
 _CHOICES = {
     "exploration.schedule": defaults.SCHEDULES,
@@ -256,7 +256,8 @@ def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
             cfg.env.pixels_renderer != "drawn" or _drawn_crop_fits(cfg.env),
             f"env.pixels_crop={list(cfg.env.pixels_crop)} keeps less than one "
             f"{cfg.env.pixels_pool}x{cfg.env.pixels_pool} block (env.pixels_pool) of CartPole's "
-            "400x600 frame: keep more rows and columns, or a smaller pool",
+            f"{CARTPOLE_FRAME[0]}x{CARTPOLE_FRAME[1]} frame: keep more rows and columns, or a "
+            "smaller pool",
         ),
         (
             0.0 <= cfg.env.pixels_rendered_share <= 1.0,
@@ -338,13 +339,11 @@ def _run_rules(cfg: Config) -> list[tuple[bool, str]]:
 
 
 def _drawn_crop_fits(env: Any) -> bool:
-    """Whether ``env.pixels_crop`` keeps at least one pool block of CartPole's 400x600 frame."""
+    """Whether ``env.pixels_crop`` keeps at least one pool block of CartPole's frame."""
     if len(env.pixels_crop) != 4 or env.pixels_pool < 1:
         return True  # refused by their own checks
-    top, bottom, left, right = env.pixels_crop
-    rows = range(400)[slice(top, bottom)]
-    columns = range(600)[slice(left, right)]
-    return min(len(rows), len(columns)) >= env.pixels_pool
+    top, bottom, left, right = cartpole_crop_bounds(env.pixels_crop)
+    return min(bottom - top, right - left) >= env.pixels_pool
 
 
 def check_integer_size(key: str, value: Any) -> None:
@@ -374,14 +373,14 @@ def check_envs_at_once(key: str, value: int) -> None:
 
 def check_network_choices(head: str, activation: str | None) -> None:
     """Raise :class:`ConfigError` unless ``head`` and ``activation`` (if given) are known names."""
-    if head not in HEAD_NAMES:
+    if head not in defaults.HEADS:
         raise ConfigError(
-            f"network.head={head!r} is not a known head; choose one of {sorted(HEAD_NAMES)}"
+            f"network.head={head!r} is not a known head; choose one of {sorted(defaults.HEADS)}"
         )
-    if activation is not None and activation not in ACTIVATION_NAMES:
+    if activation is not None and activation not in defaults.ACTIVATIONS:
         raise ConfigError(
             f"network.activation={activation!r} is unknown; choose one of "
-            f"{sorted(ACTIVATION_NAMES)}"
+            f"{sorted(defaults.ACTIVATIONS)}"
         )
 
 

@@ -31,6 +31,8 @@ from torchrl.data.tensor_specs import Bounded, TensorSpec
 from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.functional import rgb_to_grayscale
 
+from trl_cartpole.env_ids import CARTPOLE_FRAME, cartpole_crop_bounds
+
 __all__ = [
     "SCREEN_HEIGHT",
     "SCREEN_WIDTH",
@@ -40,7 +42,7 @@ __all__ = [
     "render_cartpole",
 ]
 
-SCREEN_WIDTH, SCREEN_HEIGHT = 600, 400  # CartPoleEnv.render()'s frame
+SCREEN_HEIGHT, SCREEN_WIDTH = CARTPOLE_FRAME  # CartPoleEnv.render()'s frame
 CART_WIDTH, CART_HEIGHT, POLE_WIDTH = 50.0, 30.0, 10.0  # px
 CART_TOP = 100  # px above the bottom edge: also the track's row
 AXLE_HEIGHT = CART_TOP + CART_HEIGHT / 4  # the pole turns about (cart x, 107.5)
@@ -91,7 +93,7 @@ def draw_cartpole(
     :param x_threshold: the env's ``x_threshold`` (the screen spans twice it).
     :returns: ``[*B, 1, h // pool, w // pool]`` uint8 gray pixels.
     """
-    top, bottom, left, right = _crop_bounds(crop)
+    top, bottom, left, right = cartpole_crop_bounds(crop)
     if min(bottom - top, right - left) < pool:
         raise ValueError(f"crop {list(crop)} keeps less than one {pool}x{pool} block")
     height, width = (bottom - top) // pool, (right - left) // pool
@@ -181,13 +183,6 @@ def _shape_spans(
     )
     cart, pole, axle = ((lo - 0.5, hi + 0.5) for lo, hi in (cart, pole, axle))
     return cart, pole, axle
-
-
-def _crop_bounds(crop: Sequence[int | None]) -> tuple[int, int, int, int]:
-    """``crop`` read as Python slices of the 400x600 frame, as ``CropFrame`` reads it."""
-    top, bottom, _ = slice(crop[0], crop[1]).indices(SCREEN_HEIGHT)
-    left, right, _ = slice(crop[2], crop[3]).indices(SCREEN_WIDTH)
-    return top, bottom, left, right
 
 
 class CartPoleCanvas:
@@ -282,7 +277,7 @@ def render_cartpole(
     path), by :class:`CartPoleCanvas` (``canvas``: one to reuse).
     ``[*B, 4]`` -> ``[*B, 1, h // pool, w // pool]``."""
     canvas = canvas if canvas is not None else CartPoleCanvas()
-    bounds = _crop_bounds(crop)
+    bounds = cartpole_crop_bounds(crop)
     lead = state.shape[:-1]
     rows = state.reshape(-1, 4).double().tolist()
     frames = torch.stack([canvas.frame(row, bounds, pool, length, x_threshold) for row in rows])

@@ -1,12 +1,8 @@
 """Environment factory: a Gymnasium env wrapped in TorchRL transforms, and the fit check.
 
 DQN as built here needs a single observation vector and a finite set of actions. The check
-runs on the TorchRL specs of the built env, so the message names what the env really has.
-
-Env ids: any id Gymnasium has registered (``CartPole-v1``), ``module:Id`` (the module's import
-registers ``Id``, Gymnasium's own convention), ``module:EnvClass`` (a ``gymnasium.Env``
-subclass, registered here as ``module.EnvClass``), or an id registered by a module listed in
-``env.imports``. :func:`resolve_env_id` turns each into a registered id.
+runs on the TorchRL specs of the built env, so the message names what the env really has. The
+ids accepted are :mod:`trl_cartpole.env_ids`'s (:func:`~trl_cartpole.env_ids.resolve_env_id`).
 """
 
 from __future__ import annotations
@@ -27,17 +23,14 @@ from torchrl.envs import (
 )
 
 from trl_cartpole import defaults
-from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id, solve_threshold
+from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id
 from trl_cartpole.errors import ConfigError
 
 __all__ = [
     "GYM_WRAPPER_KEYWORDS",
     "OBSERVATION_KEY",
-    "check_env_fits",
     "make_env",
     "make_sync_vector_env",
-    "resolve_env_id",
-    "solve_threshold",
 ]
 
 OBSERVATION_KEY = "observation"

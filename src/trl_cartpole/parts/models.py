@@ -50,11 +50,10 @@ __all__ = [
     "reset_network_noise",
 ]
 
+# each of defaults.ACTIVATIONS: the torch.nn class of that name, case left aside (relu: ReLU)
 ACTIVATIONS: dict[str, type[nn.Module]] = {
-    "relu": nn.ReLU,
-    "tanh": nn.Tanh,
-    "elu": nn.ELU,
-    "gelu": nn.GELU,
+    name: next(cls for cls_name, cls in vars(nn).items() if cls_name.lower() == name)
+    for name in defaults.ACTIVATIONS
 }
 
 
@@ -106,7 +105,10 @@ def _dueling_head(
     )
 
 
-HEADS: dict[str, Callable[..., nn.Module]] = {"plain": _plain_head, "dueling": _dueling_head}
+# each of defaults.HEADS: the function _<name>_head above
+HEADS: dict[str, Callable[..., nn.Module]] = {
+    name: globals()[f"_{name}_head"] for name in defaults.HEADS
+}
 
 
 def check_head(head: str) -> None:
@@ -211,9 +213,9 @@ def _with_earlier_layout_readable(mlp: MLP) -> MLP:
 
 def make_cnn_features(
     image_shape: Sequence[int],
-    channels: Sequence[int] = (16, 32, 32),
-    kernel_sizes: Sequence[int] = (5, 5, 5),
-    strides: Sequence[int] = (2, 2, 2),
+    channels: Sequence[int] = defaults.CNN_CHANNELS,
+    kernel_sizes: Sequence[int] = defaults.CNN_KERNELS,
+    strides: Sequence[int] = defaults.CNN_STRIDES,
     activation_class: type[nn.Module] = nn.ReLU,
 ) -> tuple[nn.Module, int]:
     """``[*B, C, H, W]`` uint8 pixels -> ``[*B, F]`` features, and ``F``.

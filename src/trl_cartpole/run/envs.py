@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -80,14 +81,25 @@ def _env_from_config(
                 "(rgb_array); write a file instead (output=x.gif)"
             )
         return make_pixel_env(env_cfg, seed, device, num_envs)
-    return make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports),
+    return _configured_env(
+        env_cfg,
         device,
         seed=seed,
-        max_episode_steps=env_cfg.max_episode_steps,
         num_envs=env_cfg.num_envs if num_envs is None else num_envs,
         render_mode=render_mode,
         observation_norm=observation_norm if env_cfg.normalize_observations else None,
+    )
+
+
+def _configured_env(
+    env_cfg: EnvConfig, device: str | torch.device = "cpu", **make_env_kwargs: Any
+) -> TransformedEnv:
+    """:func:`make_env` of ``env_cfg``'s env (its id resolved) and step limit."""
+    return make_env(
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        device,
+        max_episode_steps=env_cfg.max_episode_steps,
+        **make_env_kwargs,
     )
 
 
@@ -129,13 +141,7 @@ def _drawn_pixel_env(
     """CartPole's state env (a Gymnasium ``SyncVectorEnv`` for ``count > 1``) drawn into the
     pixel preset's frames for the whole batch at once (:func:`drawn_pixel_transforms`), its
     first :func:`rendered_envs` envs painted by Gymnasium's own calls."""
-    env = make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports),
-        device,
-        seed=seed,
-        max_episode_steps=env_cfg.max_episode_steps,
-        num_envs=count,
-    )
+    env = _configured_env(env_cfg, device, seed=seed, num_envs=count)
     cartpole = gym_env(env)
     cartpole = (cartpole.envs[0] if hasattr(cartpole, "envs") else cartpole).unwrapped
     for transform in drawn_pixel_transforms(
@@ -151,13 +157,7 @@ def _drawn_pixel_env(
 
 
 def _one_pixel_env(env_cfg: EnvConfig, device: str | torch.device) -> TransformedEnv:
-    env = make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports),
-        device,
-        max_episode_steps=env_cfg.max_episode_steps,
-        from_pixels=True,
-        pixels_only=True,
-    )
+    env = _configured_env(env_cfg, device, from_pixels=True, pixels_only=True)
     for transform in pixel_transforms(
         env_cfg.pixels_crop, env_cfg.pixels_pool, env_cfg.pixels_frames
     ):
@@ -172,11 +172,7 @@ def estimate_observation_norm(env_cfg: EnvConfig, seed: int) -> dict[str, list[f
     RNG is forked, so estimating does not shift the run's random numbers. The scale is floored
     at ``MIN_OBSERVATION_SCALE``. Returns ``{"loc": [...], "scale": [...]}`` (JSON-ready).
     """
-    env = make_env(
-        resolve_env_id(env_cfg.id, env_cfg.imports),
-        seed=seed,
-        max_episode_steps=env_cfg.max_episode_steps,
-    )
+    env = _configured_env(env_cfg, seed=seed)
     norm = ObservationNorm(in_keys=[OBSERVATION_KEY], standard_normal=True)
     env.append_transform(norm)
     with torch.random.fork_rng():

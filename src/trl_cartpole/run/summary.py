@@ -184,16 +184,9 @@ def run_summary(
     """
     seconds_to_solve = evaluator.seconds_to_solve
     return {
-        "env_id": env_id,
-        "seed": seed,
-        "algo": algo,
-        "frames": frames,
-        "updates": updates,
+        **_where_the_run_stands(env_id, seed, algo, frames, updates, wall_start, evaluator),
         "train_seconds": round(train_seconds, 3),
-        "wall_seconds": round(time.perf_counter() - wall_start, 3),
-        "solved": evaluator.frames_to_solve is not None,
         "solve_threshold": threshold,
-        "frames_to_solve": evaluator.frames_to_solve,
         "seconds_to_solve": None if seconds_to_solve is None else round(seconds_to_solve, 3),
         "final_eval_return_mean": final.mean,
         "final_eval_return_std": final.std,
@@ -215,6 +208,28 @@ def run_summary(
     }
 
 
+def _where_the_run_stands(
+    env_id: str,
+    seed: int,
+    algo: str,
+    frames: int,
+    updates: int,
+    wall_start: float,
+    evaluator: Evaluator,
+) -> dict[str, Any]:
+    """The keys every ``summary.json`` starts with, finished or failed."""
+    return {
+        "env_id": env_id,
+        "seed": seed,
+        "algo": algo,
+        "frames": frames,
+        "updates": updates,
+        "wall_seconds": round(time.perf_counter() - wall_start, 3),
+        "solved": evaluator.frames_to_solve is not None,
+        "frames_to_solve": evaluator.frames_to_solve,
+    }
+
+
 def record_failure(run: Components, failure: TrainingFailed) -> TrainingFailed:
     """Write the failure to ``summary.json``; return the error to raise, naming that file.
 
@@ -222,15 +237,17 @@ def record_failure(run: Components, failure: TrainingFailed) -> TrainingFailed:
     """
     periodic = run.run_dir / "checkpoints" / "periodic"
     progress, evaluator = run.progress, run.evaluator
+    facts = run.facts
     summary = {
-        "env_id": run.facts.env_id,
-        "seed": run.facts.seed,
-        "algo": run.facts.algo,
-        "frames": progress.frames,
-        "updates": progress.updates,
-        "wall_seconds": round(time.perf_counter() - run.wall_start, 3),
-        "solved": evaluator.frames_to_solve is not None,
-        "frames_to_solve": evaluator.frames_to_solve,
+        **_where_the_run_stands(
+            facts.env_id,
+            facts.seed,
+            facts.algo,
+            progress.frames,
+            progress.updates,
+            run.wall_start,
+            evaluator,
+        ),
         "failed": True,
         "failure": str(failure),
         "best_eval_return_mean": evaluator.best_return if evaluator.best_state else None,

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from trl_cartpole.cli.main import compose_run_config, freeze_imported_objects, split_resume
+from trl_cartpole.cli.main import freeze_imported_objects, split_resume
+from trl_cartpole.config.compose import compose_run_config
 from trl_cartpole.config.help import print_train_help, wants_help
 from trl_cartpole.config.presets import PRESETS_DIR, preset_dirs
 from trl_cartpole.config.schema import Config, to_config

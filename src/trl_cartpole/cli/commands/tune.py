@@ -22,7 +22,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from trl_cartpole.cli.main import compose_config
+from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.config.presets import PRESETS_DIR, preset_dirs
 from trl_cartpole.config.schema import to_config
