@@ -15,7 +15,7 @@ wrote, never from a hand copy:
   ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
 - ``race-<env>`` (docs/performance.md): each other env preset against Stable-Baselines3, from
   ``docs/results/race_<env>.json`` (``python -m benchmarks run --env <env> ... --record``);
-- ``pixel-seeds`` (docs/environments.md): ``env=cartpole_pixels`` seed by seed, from
+- ``pixel-seeds`` (docs/environments-measured.md): ``env=cartpole_pixels`` seed by seed, from
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
 - ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
   and the class it returns, from the signatures (``maintain/reference.py``).
@@ -154,7 +154,7 @@ def _spaced(number: float) -> str:
 
 
 def pixel_seeds() -> str:
-    """docs/environments.md's per-seed table of ``env=cartpole_pixels``, from
+    """docs/environments-measured.md's per-seed table of ``env=cartpole_pixels``, from
     ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs --envs cartpole_pixels
     ... --record`` writes it), with the target's verdict."""
     from benchmarks.envs import target_met, target_text
@@ -247,7 +247,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "algo-presets": ("docs/guide.md", algo_presets),
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
-    "pixel-seeds": ("docs/environments.md", pixel_seeds),
+    "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
     **{
         f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
         for env, path in RACES.items()

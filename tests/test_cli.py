@@ -277,9 +277,9 @@ def test_a_typo_is_refused_before_torch_is_imported(argv, tmp_path):
 
 
 def test_an_error_whose_causes_loop_is_still_one_line():
-    """A cause chain that loops (found by tests/test_fuzz.py: the line never came)."""
-    from trl_cartpole.cli.main import _one_line
+    """A cause chain that loops (OmegaConf's errors can name each other) ends in one line."""
+    from trl_cartpole.cli.main import one_line
 
     first, second = ValueError("first"), KeyError("second")
     first.__cause__, second.__cause__ = second, first
-    assert _one_line(first) == "first: 'second'"
+    assert one_line(first) == "first: 'second'"

@@ -15,7 +15,7 @@ from trl_cartpole.config.presets import PRESETS_DIR
 from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.store.checkpoint import _config_metadata
+from trl_cartpole.store.checkpoint import save_policy
 
 from .conftest import SCRIPTS
 
@@ -164,10 +164,14 @@ def test_cli_bad_input_is_one_line_and_exit_2(python, tmp_path, override, expect
     ],
     ids=lambda overrides: overrides[0] if overrides else "default",
 )
-def test_the_config_a_checkpoint_stores_is_omegaconfs_tree_of_it(overrides):
+def test_the_config_a_checkpoint_stores_is_omegaconfs_tree_of_it(overrides, tmp_path):
     # checkpoints store dataclasses.asdict(cfg), the fast form of OmegaConf's container
+    import torch
+    from torchrl.checkpoint import Checkpoint
+
     cfg = to_config(compose_config(PRESETS_DIR, overrides))
-    stored = _config_metadata(cfg, "policy")["config"]
+    saved = save_policy(tmp_path / "policy", torch.nn.Linear(1, 1), cfg)
+    stored = Checkpoint.manifest(saved)["metadata"]["config"]
     expected = OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
     assert json.dumps(stored) == json.dumps(expected)  # same keys, values and their types
     assert to_config(stored) == cfg

@@ -5,6 +5,8 @@ Each case is listed with what it proves in docs/reliability.md.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import re
@@ -98,7 +100,7 @@ def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
     from torchrl.envs import ObservationNorm
 
     from trl_cartpole.run.build import build_components
-    from trl_cartpole.store.checkpoint import _write_integrity
+    from trl_cartpole.store.checkpoint import write_integrity
 
     overrides = ["env.normalize_observations=true", "env.normalization_frames=300"]
     train(compose(*RESUMABLE, *overrides, f"run_dir={tmp_path}"))
@@ -108,7 +110,7 @@ def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
     planted = {"loc": [v + 1.0 for v in stored["loc"]], "scale": [2.0] * len(stored["scale"])}
     manifest["metadata"]["observation_norm"] = planted
     (checkpoint / "manifest.json").write_text(json.dumps(manifest))
-    _write_integrity(checkpoint)
+    write_integrity(checkpoint)
     cfg = resume_config(checkpoint, [f"run_dir={tmp_path}"])
     with build_components(cfg, resume=checkpoint) as components:
         (norm,) = [t for t in components.eval_env.transform if isinstance(t, ObservationNorm)]
@@ -566,60 +568,92 @@ def _leftover_stages(run_dir: Path) -> list[Path]:
     return [path for path in run_dir.rglob(".*") if ".stage-" in path.name]
 
 
-@pytest.mark.parametrize("how", ["free space short", "ENOSPC mid-write"])
-def test_a_full_disk_stops_the_run_and_keeps_the_previous_checkpoint(monkeypatch, tmp_path, how):
+def _build_with_a_full_disk(how: str):
+    """A ``train(build=...)`` whose disk fills once the first training state is complete:
+    the free space reads short (``how="free space short"``), or it reads fine and the write
+    fails with ENOSPC inside TorchRL's staged write (``"ENOSPC mid-write"``: the progress
+    component, saved after the envs, evaluator, history, learner, loss, optimizer and policy,
+    cannot be written)."""
     import errno
 
-    import trl_cartpole.run.checkpointer as checkpoint_module
+    from trl_cartpole.run.build import build_components
     from trl_cartpole.store.checkpoint import find_complete_checkpoints
-    from trl_cartpole.store.files import free_bytes
+
+    def build(cfg, resume=None):
+        run = build_components(cfg, resume)
+
+        def disk_full() -> bool:
+            return bool(find_complete_checkpoints(run.run_dir))
+
+        if how == "free space short":
+            free_bytes = run.checkpointer.free_bytes
+            run.checkpointer.free_bytes = lambda path: 4096 if disk_full() else free_bytes(path)
+        else:
+            state_dict = run.progress.state_dict
+
+            def state_dict_or_enospc():
+                if disk_full():
+                    raise OSError(errno.ENOSPC, "No space left on device", str(run.run_dir))
+                return state_dict()
+
+            run.progress.state_dict = state_dict_or_enospc
+        return run
+
+    return build
+
+
+@pytest.mark.parametrize("how", ["free space short", "ENOSPC mid-write"])
+def test_a_full_disk_stops_the_run_and_keeps_the_previous_checkpoint(tmp_path, compose, how):
+    from trl_cartpole.errors import DiskFull
 
     run_dir = tmp_path / "run"
-
-    def disk_full_after_the_first_state() -> bool:
-        return bool(find_complete_checkpoints(run_dir))
-
-    if how == "free space short":  # the check before the write refuses it
-        monkeypatch.setattr(
-            checkpoint_module,
-            "free_bytes",
-            lambda path: 4096 if disk_full_after_the_first_state() else free_bytes(path),
-        )
-    else:  # the free space looks fine, but the write itself fails as a full disk's does
-        new_manifest = Checkpoint._new_manifest
-
-        def manifest_or_enospc(*args, **kwargs):
-            if disk_full_after_the_first_state():
-                raise OSError(errno.ENOSPC, "No space left on device", str(run_dir))
-            return new_manifest(*args, **kwargs)
-
-        monkeypatch.setattr(Checkpoint, "_new_manifest", staticmethod(manifest_or_enospc))
-    proc = run_script_in_process("train.py", *FULL_DISK, f"run_dir={run_dir}")
-    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
-    assert proc.returncode == 74 and len(lines) == 1, proc.stderr[-2000:]
-    assert "no space left for the checkpoint at" in lines[0] and "MB is free" in lines[0]
-    assert f"resume={run_dir}" in lines[0] or f"resume={run_dir.name}" in lines[0]
-    assert "Traceback" not in proc.stderr
+    with pytest.raises(DiskFull) as stopped:
+        train(compose(*FULL_DISK, f"run_dir={run_dir}"), build=_build_with_a_full_disk(how))
+    line = str(stopped.value)
+    assert "\n" not in line and "no space left for the checkpoint at" in line
+    assert "MB is free" in line
+    assert f"resume={run_dir}" in line or f"resume={run_dir.name}" in line
     assert _leftover_stages(run_dir) == []  # TorchRL's staged files are gone
     assert not (run_dir / "summary.json").exists()
     good = find_resume_checkpoint(run_dir)  # verified against its integrity record
     assert Checkpoint.manifest(good)["metadata"]["counters"]["frames"] == 200
-    monkeypatch.undo()  # space again: the resume finishes the run
+    # space again: the resume finishes the run
     resumed = run_script_in_process("train.py", f"resume={run_dir}")
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert json.loads((run_dir / "summary.json").read_text())["frames"] == 600
 
 
-def test_the_first_checkpoint_not_fitting_says_there_is_nothing_to_resume(monkeypatch, tmp_path):
-    import trl_cartpole.run.checkpointer as checkpoint_module
+def test_the_first_checkpoint_not_fitting_says_there_is_nothing_to_resume(tmp_path, compose):
+    from trl_cartpole.errors import DiskFull
+    from trl_cartpole.run.build import build_components
 
-    monkeypatch.setattr(checkpoint_module, "free_bytes", lambda path: 0)
+    def build_on_a_full_disk(cfg, resume=None):
+        run = build_components(cfg, resume)
+        run.checkpointer.free_bytes = lambda path: 0
+        return run
+
     run_dir = tmp_path / "run"
-    proc = run_script_in_process("train.py", *FULL_DISK, f"run_dir={run_dir}")
-    assert proc.returncode == 74, proc.stderr[-2000:]
-    assert "0.0 MB is free" in proc.stderr and "start the run again" in proc.stderr
+    with pytest.raises(DiskFull, match=r"0\.0 MB is free") as stopped:
+        train(compose(*FULL_DISK, f"run_dir={run_dir}"), build=build_on_a_full_disk)
+    assert "start the run again" in str(stopped.value)
     assert not (run_dir / "checkpoints").exists() or not any(
         (run_dir / "checkpoints").rglob("manifest.json")
+    )
+
+
+def test_a_full_disk_is_one_line_and_exit_status_74_at_the_command_line():
+    from trl_cartpole.cli.main import run_cli
+    from trl_cartpole.errors import DiskFull
+
+    def command(argv):
+        raise DiskFull("no space left for the checkpoint at runs/x: it needs about 2.0 MB")
+
+    stderr = io.StringIO()
+    with contextlib.redirect_stderr(stderr):
+        code = run_cli(command, [])
+    assert code == 74
+    assert stderr.getvalue() == (
+        "error: no space left for the checkpoint at runs/x: it needs about 2.0 MB\n"
     )
 
 
@@ -743,7 +777,7 @@ def test_plot_reads_no_metrics_csv_and_a_resume_drops_its_damaged_rows(
 
 
 def test_evaluate_refuses_a_checkpoint_of_another_env_in_one_line(tmp_path, finished_run):
-    from trl_cartpole.store.checkpoint import _write_integrity
+    from trl_cartpole.store.checkpoint import write_integrity
 
     # the manifest says Acrobot (6 observations, 3 actions), the weights are CartPole's, and the
     # integrity record is rewritten to match: the network built from the manifest does not fit
@@ -752,7 +786,7 @@ def test_evaluate_refuses_a_checkpoint_of_another_env_in_one_line(tmp_path, fini
     manifest = json.loads((foreign / "manifest.json").read_text())
     manifest["metadata"]["config"]["env"]["id"] = "Acrobot-v1"
     (foreign / "manifest.json").write_text(json.dumps(manifest))
-    _write_integrity(foreign)
+    write_integrity(foreign)
     proc = run_script_in_process("evaluate.py", f"checkpoint={foreign}", "episodes=2")
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-2000:]

@@ -17,7 +17,7 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
 from tests.conftest import SMOKE_OVERRIDES, run_script_in_process
-from trl_cartpole.cli.main import _one_line
+from trl_cartpole.cli.main import one_line
 from trl_cartpole.config.compose import compose_run_config
 from trl_cartpole.config.presets import PRESETS_DIR
 from trl_cartpole.config.schema import Config, flat_fields, to_config
@@ -71,7 +71,7 @@ def check(overrides: list[str]) -> str:
     try:
         validate(to_config(compose_run_config(PRESETS_DIR, [*overrides, "run_dir=unused"])))
     except REFUSALS as error:
-        message = _one_line(error)
+        message = one_line(error)
         assert message and "\n" not in message, (overrides, message)
         return "refused"
     for override in overrides:  # a switch is set by a yes or a no, not by any number

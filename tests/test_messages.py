@@ -105,8 +105,8 @@ def _run_in_a_fresh_interpreter(command: str, *args: str) -> subprocess.Complete
     torch had been imported by then."""
     script = (
         "import sys\n"
-        "from trl_cartpole.cli.main import run_cli, _command_main\n"
-        f"code = run_cli(_command_main({command!r}), {list(args)!r})\n"
+        "from trl_cartpole.cli.main import main\n"
+        f"code = main([{command!r}, *{list(args)!r}])\n"
         "print(code, 'torch' in sys.modules)\n"
     )
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)

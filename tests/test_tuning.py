@@ -35,7 +35,7 @@ def test_the_score_is_the_mean_of_the_curve_held_at_its_last_value():
 def test_the_frames_objective_reports_its_lower_bound_and_holds_a_solve():
     from types import SimpleNamespace
 
-    from trl_cartpole.tools.tuning import OBJECTIVES, _frames_score, _seed_reporter, frames_score
+    from trl_cartpole.tools.tuning import OBJECTIVES, frames_score, run_frames_score, seed_reporter
 
     assert OBJECTIVES == {"return": "maximize", "frames": "minimize", "seconds": "minimize"}
     assert frames_score(12288, 30000) == 12288.0 and frames_score(None, 30000) == 60000.0
@@ -50,19 +50,19 @@ def test_the_frames_objective_reports_its_lower_bound_and_holds_a_solve():
         return {"frames_to_solve": 2048}
 
     reports = []
-    assert _frames_score(solves_at_2048, cfg, lambda *step: reports.append(step)) == 2048.0
+    assert run_frames_score(solves_at_2048, cfg, lambda *step: reports.append(step)) == 2048.0
     # its frames so far, then the solve held at the steps the budget would still evaluate
     assert reports == [(1024, 1024.0), (2048, 2048.0), (3072, 2048.0), (4096, 2048.0)]
     # the second seed's steps follow the first's budget; its value is the mean with seed 0's
     seen = []
-    _seed_reporter(lambda *step: seen.append(step), 5000, [3000.0])(1024, 1024.0)
+    seed_reporter(lambda *step: seen.append(step), 5000, [3000.0])(1024, 1024.0)
     assert seen == [(6024, 2012.0)]
 
 
 def test_the_seconds_objective_reports_training_seconds_and_holds_a_solve():
     from types import SimpleNamespace
 
-    from trl_cartpole.tools.tuning import _seconds_score, seconds_score
+    from trl_cartpole.tools.tuning import run_seconds_score, seconds_score
 
     assert seconds_score(7.5, 30.0) == 7.5 and seconds_score(None, 30.0) == 60.0
     cfg = SimpleNamespace(
@@ -80,9 +80,9 @@ def test_the_seconds_objective_reports_training_seconds_and_holds_a_solve():
         return {"seconds_to_solve": None, "train_seconds": 4.0}
 
     reports = []
-    assert _seconds_score(solves_at_2048, cfg, lambda *step: reports.append(step)) == 3.25
+    assert run_seconds_score(solves_at_2048, cfg, lambda *step: reports.append(step)) == 3.25
     assert reports == [(1024, 1.5), (2048, 3.25), (3072, 3.25)]  # held at 3 072 (< 4 000 + 32)
-    assert _seconds_score(never_solves, cfg, lambda *step: None) == 8.0
+    assert run_seconds_score(never_solves, cfg, lambda *step: None) == 8.0
 
 
 def test_an_unknown_objective_or_a_study_of_the_other_direction_is_refused(tmp_path):

@@ -43,6 +43,7 @@ from trl_cartpole.run.signals import install_unbreakable_console
 __all__ = [
     "COMMANDS",
     "main",
+    "one_line",
     "run_cli",
     "run_script",
     "split_resume",
@@ -65,7 +66,7 @@ _NOISE = (
 )
 
 
-def _one_line(error: BaseException) -> str:
+def one_line(error: BaseException) -> str:
     """Join the informative lines of ``error`` and its causes into one line.
 
     A chain of causes may loop (OmegaConf's errors can name each other): each is read once.
@@ -103,7 +104,7 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     except (ConfigError, HydraException, OmegaConfBaseException) as error:
         if os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
-        line = _one_line(error)
+        line = one_line(error)
         if not isinstance(error, ConfigError):  # Hydra's words: the project's where it has them
             line = explain(line, command("train"), argv) or line
         print(f"error: {line}", file=sys.stderr)

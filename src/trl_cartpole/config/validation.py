@@ -51,7 +51,7 @@ _CHOICES = {
 
 
 # What a switch may be set to on the command line. OmegaConf would also take any integer (a
-# nonzero one as true): `checkpoint.save_best=512` was a run with the switch on.
+# nonzero one as true), so a number typed in the wrong key would turn a switch on unseen.
 # The largest integer setting: torch and numpy take 64-bit integers, and seeds and frame counts
 # are added together (seed + 2 * eval.seed_offset + env index), so there is room for sums.
 MAX_INTEGER = 2**62

@@ -65,6 +65,7 @@ class Checkpointer:
         self.components = dict(components)
         self.observation_norm = observation_norm
         self.metrics = metrics  # a MetricsLog: its W&B step goes into the counters
+        self.free_bytes = free_bytes  # the disk's free space at a path (a test may replace it)
         self.interval = cfg.checkpoint.interval_frames or math.inf
         self.last_saved_frame = 0
         self.state_size: int | None = None  # bytes of the last training state written
@@ -115,7 +116,7 @@ class Checkpointer:
         :class:`DiskFull` if it cannot fit: before the write when the free space is short,
         after it when the write fails with ENOSPC (TorchRL's staged files are then removed)."""
         needed = int(expected * (1 + DISK_MARGIN_FRACTION)) + DISK_MARGIN_BYTES
-        if free_bytes(path) < needed:
+        if self.free_bytes(path) < needed:
             raise self._disk_full(path, needed)
         try:
             return write()
@@ -125,7 +126,7 @@ class Checkpointer:
             raise self._disk_full(path, needed) from None
 
     def _disk_full(self, path: Path, needed: int) -> DiskFull:
-        free = free_bytes(path)
+        free = self.free_bytes(path)
         if find_complete_checkpoints(self.run_dir):
             then = f"then resume with: {self.resume_command()}"
         else:

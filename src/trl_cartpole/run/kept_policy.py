@@ -1,7 +1,7 @@
 """The policy a run keeps: its best periodic evaluation's, or the best of a few played again.
 
-The best of many noisy means is biased upward (the winner's curse): a policy chosen because its
-20 evaluation episodes averaged 486.7 played 461.2 over 100 new ones (docs/environments.md).
+The best of many noisy means is biased upward (the winner's curse): the policy chosen for its
+highest periodic mean plays worse on new episodes (docs/environments-measured.md).
 With ``eval.candidates=K`` the evaluator keeps the K policies with the highest periodic means;
 before the final evaluation each plays ``eval.candidate_episodes`` new episodes, the same
 episodes for every candidate (the judge's candidate seeds, neither the periodic evaluations'

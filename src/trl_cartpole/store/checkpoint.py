@@ -47,6 +47,7 @@ __all__ = [
     "save_training_state",
     "state_bytes",
     "verify_checkpoint",
+    "write_integrity",
 ]
 
 POLICY, TRAINING_STATE = "policy", "training_state"  # the two kinds of checkpoint
@@ -121,7 +122,7 @@ def save_policy(path: str | Path, actor: nn.Module, cfg: Config, **metadata: Any
     observation statistics (:func:`read_observation_norm`).
     """
     saved = Checkpoint(policy=actor).save(path, metadata=_config_metadata(cfg, POLICY, **metadata))
-    return _write_integrity(Path(saved))
+    return write_integrity(Path(saved))
 
 
 def save_training_state(
@@ -147,9 +148,9 @@ def save_training_state(
         observation_norm=observation_norm,
     )
     if keep_last is None:
-        return _write_integrity(Path(checkpoint.save(path, metadata=metadata)))
+        return write_integrity(Path(checkpoint.save(path, metadata=metadata)))
     rotation = CheckpointRotation(path, keep_last=keep_last)
-    return _write_integrity(
+    return write_integrity(
         Path(rotation.save(checkpoint, step=counters["frames"], metadata=metadata))
     )
 
@@ -229,7 +230,7 @@ def _file_digests(path: Path) -> dict[str, str]:
     }
 
 
-def _write_integrity(path: Path) -> Path:
+def write_integrity(path: Path) -> Path:
     """Record a SHA-256 of every file of the checkpoint at ``path`` (written atomically)."""
     write_json_atomic(path / INTEGRITY, _file_digests(path))
     return path

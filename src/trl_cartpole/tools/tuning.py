@@ -35,7 +35,11 @@ __all__ = [
     "frames_score",
     "load_search_space",
     "objective_overrides",
+    "run_frames_score",
+    "run_return_score",
+    "run_seconds_score",
     "seconds_score",
+    "seed_reporter",
     "suggest",
     "write_preset",
 ]
@@ -209,9 +213,11 @@ def trial_score(
     from trl_cartpole.config.compose import compose_config
     from trl_cartpole.run.training import train
 
-    score_run = {"return": _return_score, "frames": _frames_score, "seconds": _seconds_score}[
-        objective
-    ]
+    score_run = {
+        "return": run_return_score,
+        "frames": run_frames_score,
+        "seconds": run_seconds_score,
+    }[objective]
     scores: list[float] = []
     for index, seed in enumerate(seeds):
         run_overrides = [
@@ -222,12 +228,12 @@ def trial_score(
             *QUIET_RUN,
         ]
         cfg = compose_config(config_dir, run_overrides)
-        report_seed = _seed_reporter(report, index * cfg.collector.total_frames, list(scores))
+        report_seed = seed_reporter(report, index * cfg.collector.total_frames, list(scores))
         scores.append(score_run(train, cfg, report_seed))
     return sum(scores) / len(scores)
 
 
-def _seed_reporter(report: Any, first_step: int, done: list[float]) -> Any:
+def seed_reporter(report: Any, first_step: int, done: list[float]) -> Any:
     """``report_seed(frames, value)``: the mean of ``done`` and ``value`` at the seed's step."""
 
     def report_seed(frames: int, value: float) -> None:
@@ -237,7 +243,7 @@ def _seed_reporter(report: Any, first_step: int, done: list[float]) -> Any:
     return report_seed
 
 
-def _return_score(train: Any, cfg: Any, report_seed: Any) -> float:
+def run_return_score(train: Any, cfg: Any, report_seed: Any) -> float:
     """One run's :func:`curve_score`; each evaluation's running score reported at its frames."""
     expected = max(cfg.collector.total_frames // cfg.eval.interval_frames, 1)
     returns: list[float] = []
@@ -250,13 +256,13 @@ def _return_score(train: Any, cfg: Any, report_seed: Any) -> float:
     return curve_score(summary["eval_curve"]["returns"], expected)
 
 
-def _frames_score(train: Any, cfg: Any, report_seed: Any) -> float:
+def run_frames_score(train: Any, cfg: Any, report_seed: Any) -> float:
     """One run's :func:`frames_score`; its frames so far reported at each evaluation."""
     summary = _train_reporting_until_solved(train, cfg, report_seed, "frames")
     return frames_score(summary["frames_to_solve"], cfg.collector.total_frames)
 
 
-def _seconds_score(train: Any, cfg: Any, report_seed: Any) -> float:
+def run_seconds_score(train: Any, cfg: Any, report_seed: Any) -> float:
     """One run's :func:`seconds_score`; its training seconds so far reported at each evaluation."""
     summary = _train_reporting_until_solved(train, cfg, report_seed, "seconds")
     return seconds_score(summary["seconds_to_solve"], summary["train_seconds"])
