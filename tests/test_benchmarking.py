@@ -294,6 +294,7 @@ def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
     assert out.with_name("comparison-profiles.png").stat().st_size > 1000
 
 
+@pytest.mark.slow  # fresh interpreters
 def test_benchmark_refuses_a_bad_job_count_before_running_anything(python, tmp_path):
     proc = _benchmarks(python, "run", "--jobs", "0", "--out", str(tmp_path))
     assert proc.returncode == 2

@@ -209,6 +209,7 @@ def test_unpickling_during_a_load_is_refused_whatever_path_led_there(tmp_path):
     assert not marker.exists()
 
 
+@pytest.mark.slow  # a run resumed twice
 def test_pickled_env_state_is_not_loaded_unless_the_resuming_command_trusts_it(planted):
     run_dir, marker = planted
     last = run_dir / "checkpoints" / "last"

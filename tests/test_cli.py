@@ -36,6 +36,7 @@ def test_every_script_answers_help(name):
     assert "usage" in proc.stdout.lower() and proc.stderr == ""
 
 
+@pytest.mark.slow  # a fresh interpreter per subcommand
 def test_benchmarks_answer_help():
     proc = subprocess.run(
         [sys.executable, "-m", "benchmarks", "--help"],

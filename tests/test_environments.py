@@ -86,6 +86,7 @@ def test_env_preset_wins_over_the_algo_defaults_it_sets(compose):
     assert to_config(compose("env=acrobot", "algo=double")).loss.double_dqn
 
 
+@pytest.mark.slow  # a run in a fresh interpreter
 def test_custom_env_class_trains_from_the_command_line(tmp_path, examples_on_path, fresh_registry):
     proc = run_script(
         "train.py",
@@ -192,6 +193,7 @@ def test_missing_optional_dependency_names_the_extra(monkeypatch):
     assert "swig" not in str(caught.value).lower()  # not Gymnasium's advice beside ours
 
 
+@pytest.mark.slow  # thousands of random frames
 def test_observation_norm_stats_standardise_random_play_and_are_reproducible():
     cfg = EnvConfig(id="MountainCar-v0", normalize_observations=True, normalization_frames=2000)
     stats = estimate_observation_norm(cfg, seed=0)
@@ -216,6 +218,7 @@ def test_observation_norm_stats_standardise_random_play_and_are_reproducible():
     )
 
 
+@pytest.mark.slow  # a run, then its checkpoints
 def test_observation_norm_travels_with_the_checkpoints(compose, tmp_path):
     summary = train(
         compose(

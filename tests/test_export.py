@@ -127,6 +127,7 @@ def test_pt2_program_gives_the_actor_values(smoke_checkpoint, tmp_path):
     torch.testing.assert_close(program(observations[:1]), values[:1], atol=1e-5, rtol=0)
 
 
+@pytest.mark.slow  # a run, then its export
 def test_observation_normalisation_is_folded_in(normalized_run, tmp_path):
     path = tmp_path / "policy.onnx"
     _export_script(f"checkpoint={normalized_run}", f"output={path}")

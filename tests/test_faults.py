@@ -69,9 +69,12 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         ["algo=dqn"],
         pytest.param(["algo=rainbow"], marks=pytest.mark.slow),  # every Rainbow part: 17 s
         # The resumed run reads the observation statistics back from the checkpoint.
-        ["env.normalize_observations=true", "env.normalization_frames=300"],
+        pytest.param(
+            ["env.normalize_observations=true", "env.normalization_frames=300"],
+            marks=pytest.mark.slow,
+        ),
         # The learning rate's taper goes on from the frames, its value read back with Adam's.
-        ["optim.lr_end=0.0002", "optim.lr_decay_frames=500"],
+        pytest.param(["optim.lr_end=0.0002", "optim.lr_decay_frames=500"], marks=pytest.mark.slow),
     ],
     ids=["dqn", "rainbow", "observation-norm", "lr-taper"],
 )
@@ -92,6 +95,7 @@ def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     assert (whole / td_loss).read_text() == (resumed_dir / td_loss).read_text()
 
 
+@pytest.mark.slow  # a run resumed
 def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
     # Statistics written into the checkpoint's manifest (and its integrity record) that no
     # estimate would give: the resumed run must build its envs with exactly those. (The
@@ -544,6 +548,7 @@ def test_a_write_that_fails_halfway_leaves_the_previous_file(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["summary.json"]  # no temporary left
 
 
+@pytest.mark.slow  # a run resumed
 def test_an_env_pickled_as_constructor_arguments_is_reset_on_resume(compose, tmp_path):
     # LunarLander is a Gymnasium EzPickle env: unpickled, it is a fresh env never reset, so the
     # checkpoint records it as missing and the resumed run starts new episodes (it crashed in

@@ -80,6 +80,7 @@ def check(overrides: list[str]) -> str:
     return "accepted"
 
 
+@pytest.mark.slow  # 200 drawn command lines
 @drawn(200)  # about 25 s here
 @given(OVERRIDES)
 def test_every_drawn_command_line_is_accepted_or_refused_in_one_line(overrides):

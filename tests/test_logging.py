@@ -50,6 +50,7 @@ def test_tensorboard_backend_events_read_back(compose, tmp_path):
     assert not (tmp_path / "metrics" / "scalars").exists()  # no CSV files with TensorBoard
 
 
+@pytest.mark.slow  # a run resumed
 def test_tensorboard_events_after_the_checkpoint_are_not_doubled_by_a_resume(compose, tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

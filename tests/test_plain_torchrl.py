@@ -145,8 +145,9 @@ def test_each_head_and_activation_the_config_accepts_builds_its_torch_module():
     "first",
     [
         "import trl_cartpole.parts",
-        "from trl_cartpole import make_env",
-        "import trl_cartpole.run.build",
+        # the same in fresh interpreters entered by other doors (seconds each)
+        pytest.param("from trl_cartpole import make_env", marks=pytest.mark.slow),
+        pytest.param("import trl_cartpole.run.build", marks=pytest.mark.slow),
     ],
 )
 def test_a_users_own_prioritized_sampler_works_in_a_fresh_process(first):

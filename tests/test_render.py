@@ -13,6 +13,7 @@ from trl_cartpole.policy.video import write_video
 from .conftest import run_script
 
 
+@pytest.mark.slow  # a run, then its video
 def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, tmp_path):
     out = tmp_path / "agent.gif"
     proc = run_script(
@@ -42,6 +43,7 @@ def test_render_writes_a_gif_with_every_step_of_each_episode(smoke_checkpoint, t
     ], proc.stderr
 
 
+@pytest.mark.slow  # a fresh interpreter
 def test_human_mode_without_a_display_is_a_clear_error(smoke_checkpoint, tmp_path):
     proc = run_script(
         "render.py",

@@ -31,6 +31,7 @@ def _summary(run_dir) -> dict:
     return {key: value for key, value in summary.items() if key not in TIMING_KEYS}
 
 
+@pytest.mark.slow  # two runs
 def test_the_buffer_in_files_learns_what_the_buffer_in_memory_learns(tmp_path):
     in_memory, in_files = tmp_path / "memory", tmp_path / "memmap"
     assert run_script_in_process("train.py", *RUN, f"run_dir={in_memory}").returncode == 0

@@ -120,6 +120,7 @@ def test_a_local_ray_instance_is_started_apart_from_any_other_on_the_machine():
     assert default_ray_init_config("10.0.0.2:6379", 2)["address"] == "10.0.0.2:6379"
 
 
+@pytest.mark.slow  # worker processes
 @pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])
 def test_workers_act_with_the_learners_weights_after_each_sync(compose, sync):
     """Parameters and buffers (epsilon) reach the workers with each update_policy_weights_()."""

@@ -58,6 +58,7 @@ def _copied_at(updater, loss, steps: int) -> list[int]:
     return copied
 
 
+@pytest.mark.slow  # a fresh interpreter
 def test_train_imported_from_the_package_is_the_function_in_a_fresh_interpreter():
     code = "from trl_cartpole import train; import inspect; print(inspect.isfunction(train))"
     out = subprocess.run(

@@ -120,7 +120,14 @@ PRESET_CHANGES = {
 }
 
 
-@pytest.mark.parametrize("preset", sorted(PRESET_CHANGES))
+# the default tier trains the dueling and C51 presets (a head, a loss); the others in the slow tier
+@pytest.mark.parametrize(
+    "preset",
+    [
+        preset if preset in ("dueling", "c51") else pytest.param(preset, marks=pytest.mark.slow)
+        for preset in sorted(PRESET_CHANGES)
+    ],
+)
 def test_variant_presets_switch_only_their_features_and_train(compose, tmp_path, preset):
     cfg = flat_fields(to_config(compose(f"algo={preset}", f"run_dir={tmp_path}")))
     default = flat_fields(to_config(compose(f"run_dir={tmp_path}")))

@@ -9,6 +9,7 @@ next.
 
 from __future__ import annotations
 
+import pytest
 import torch
 from tensordict.nn import TensorDictSequential
 
@@ -30,6 +31,7 @@ def _collector(cfg, policy, init_random_frames: int = 0):
     )
 
 
+@pytest.mark.slow  # worker processes, twice
 def test_a_batch_after_restoring_the_workers_is_the_batch_they_would_have_collected(compose):
     cfg = compose("collector.workers=2", "env.num_envs=2", "seed=3")
     env = make_env_from_config(cfg.env, cfg.seed)
@@ -74,6 +76,7 @@ def test_a_collector_without_worker_processes_has_no_worker_state(compose):
         collector.shutdown()
 
 
+@pytest.mark.slow  # worker processes
 def test_worker_states_that_hold_no_env_are_not_restored(compose):
     cfg = compose("collector.workers=2", "env.num_envs=2", "seed=3")
     env = make_env_from_config(cfg.env, cfg.seed)
