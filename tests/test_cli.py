@@ -61,6 +61,7 @@ def test_train_help_lists_presets_and_every_field_with_a_meaning():
     assert "  network.hidden_sizes=[128,128] (list[int])" in proc.stdout
 
 
+@pytest.mark.slow  # a run in a fresh interpreter
 def test_a_run_prints_its_evaluations_and_ending_and_nothing_else(tmp_path):
     run_dir = tmp_path / "run"
     overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("logger.progress_bar")]

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 
+import pytest
+
 from maintain import docs
 
 from .conftest import ROOT
@@ -65,6 +67,7 @@ def _documented_commands() -> list[tuple[str, str, list[str]]]:
     return found
 
 
+@pytest.mark.slow  # every documented command composed
 def test_every_documented_command_line_is_one_the_code_accepts():
     """Each key of each documented command is a field its command knows, with a valid value."""
     import dataclasses

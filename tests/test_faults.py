@@ -607,7 +607,9 @@ def _build_with_a_full_disk(how: str):
     return build
 
 
-@pytest.mark.parametrize("how", ["free space short", "ENOSPC mid-write"])
+@pytest.mark.parametrize(
+    "how", [pytest.param("free space short", marks=pytest.mark.slow), "ENOSPC mid-write"]
+)
 def test_a_full_disk_stops_the_run_and_keeps_the_previous_checkpoint(tmp_path, compose, how):
     from trl_cartpole.errors import DiskFull
 

@@ -106,6 +106,7 @@ def test_impossible_pixel_configs_are_refused(compose, overrides, message):
         validate(to_config(compose(*overrides)))
 
 
+@pytest.mark.slow  # a pixel run resumed
 def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path):
     run_dir = tmp_path / "run"
     proc = run_script_in_process("train.py", *TINY_PIXEL_RUN, f"run_dir={run_dir}")

@@ -144,8 +144,8 @@ def test_each_head_and_activation_the_config_accepts_builds_its_torch_module():
 @pytest.mark.parametrize(
     "first",
     [
-        "import trl_cartpole.parts",
-        # the same in fresh interpreters entered by other doors (seconds each)
+        # fresh interpreters entered by three doors (seconds each)
+        pytest.param("import trl_cartpole.parts", marks=pytest.mark.slow),
         pytest.param("from trl_cartpole import make_env", marks=pytest.mark.slow),
         pytest.param("import trl_cartpole.run.build", marks=pytest.mark.slow),
     ],

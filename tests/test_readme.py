@@ -19,6 +19,7 @@ def _blocks(text: str, language: str) -> list[str]:
     return re.findall(rf"```{language}\n(.*?)```", text, re.DOTALL)
 
 
+@pytest.mark.slow  # a run in a fresh interpreter
 def test_readme_python_example_runs_on_its_own(capsys):
     (code,) = _blocks(README, "python")
     exec(compile(code, "README.md", "exec"), {})  # a fresh namespace: nothing defined before
