@@ -24,7 +24,6 @@ from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
-from trl_cartpole.run import envs
 from trl_cartpole.run.envs import make_pixel_env, rendered_envs
 from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.run.judging import Judge
@@ -167,24 +166,25 @@ def test_the_rendered_share_of_a_drawn_batch_is_gymnasiums_own_frames():
     assert torch.equal(render_cartpole(states, CROP, 10).reshape(12, 1, 20, 60), expected)
 
 
-def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_frames(
-    compose, monkeypatch
-):
+def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_frames(compose):
     cfg = validate(to_config(compose("env=cartpole_pixels", "env.pixels_renderer=drawn")))
     env = make_pixel_env(cfg.env, seed=0, num_envs=8)
     assert env.batch_size == (8,)
     assert "observation" not in env.observation_spec.keys()  # noqa: SIM118 (a spec)
     frames = env.reset()["pixels"]  # [8, 3, 20, 60]
     assert frames.shape == (8, 3, 20, 60) and frames.float().std() > 0
-    built = []
+    built = []  # (envs, envs painted by Gymnasium's calls) of each judging env
 
-    def spy(env_cfg, *args, **kwargs):
-        built.append((env_cfg.pixels_renderer, env_cfg.pixels_rendered_share))
-        return make_pixel_env(env_cfg, *args, **kwargs)
+    class RecordingJudge(Judge):
+        def make_envs(self, seed, count):
+            judged = super().make_envs(seed, count)
+            (draw,) = [t for t in judged.transform if isinstance(t, DrawCartPole)]
+            built.append((judged.batch_size.numel(), draw.rendered))
+            return judged
 
-    monkeypatch.setattr(envs, "make_pixel_env", spy)
-    result = Judge.from_config(cfg).play(build_actor(cfg, env), seed=3, episodes=2)
-    assert built == [("drawn", 1.0)] and len(result.returns) == 2  # every frame rendered
+    judge = RecordingJudge(**vars(Judge.from_config(cfg)))
+    result = judge.play(build_actor(cfg, env), seed=3, episodes=2)
+    assert built == [(2, 2)] and len(result.returns) == 2  # one drawn env, every frame rendered
 
 
 @pytest.mark.parametrize(
