@@ -20,13 +20,13 @@ import torch
 from trl_cartpole.env_ids import solve_threshold
 from trl_cartpole.parts.env import make_sync_vector_env
 from trl_cartpole.run.evaluation import EvalResult, Evaluator, play_greedy_episodes
+from trl_cartpole.run.judging import evaluation_seed
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.summary import run_summary
 from trl_cartpole.store.files import write_json_atomic
 
 __all__ = ["GreedyEvaluation", "PeerRun", "parse_peer_args"]
 
-SEED_OFFSET = 1_000_000  # as EvalConfig.seed_offset
 
 # observations [E, obs_dim] float32 -> action values [E, A]
 QValues = Callable[[torch.Tensor], torch.Tensor]
@@ -78,7 +78,7 @@ class PeerRun:
         """Evaluate ``network`` (``q_values``: its observations -> action values, if not itself)."""
         self.q_values = network if q_values is None else q_values
         evaluation = GreedyEvaluation(
-            self.args.env_id, self.args.eval_episodes, self.args.seed + SEED_OFFSET
+            self.args.env_id, self.args.eval_episodes, evaluation_seed(self.args.seed, "periodic")
         )
         self._periodic = evaluation
         self.evaluator = Evaluator(
@@ -96,7 +96,7 @@ class PeerRun:
         self._periodic.close()
         self.evaluator.load_best()
         final_evaluation = GreedyEvaluation(
-            self.args.env_id, self.args.final_episodes, self.args.seed + 2 * SEED_OFFSET
+            self.args.env_id, self.args.final_episodes, evaluation_seed(self.args.seed, "final")
         )
         final = final_evaluation(self.q_values)
         final_evaluation.close()

@@ -24,17 +24,23 @@ from dataclasses import dataclass
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import TransformedEnv
 
-from trl_cartpole.config.schema import Config, EnvConfig
+from trl_cartpole.config.schema import Config, EnvConfig, EvalConfig
 from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.envs import close_env, make_env_from_config
 from trl_cartpole.run.evaluation import EvalResult, evaluate
 
-__all__ = ["PIXEL_ENVS_AT_ONCE", "PURPOSES", "Judge", "PeriodicEvaluation"]
+__all__ = ["PIXEL_ENVS_AT_ONCE", "PURPOSES", "Judge", "PeriodicEvaluation", "evaluation_seed"]
 
 # k in seed + k * eval.seed_offset, for each evaluation's purpose.
 PURPOSES = {"periodic": 1, "final": 2, "candidates": 3}
 # Pixel envs one evaluation holds at once: each holds a Gymnasium renderer and its frames.
 PIXEL_ENVS_AT_ONCE = 20
+
+
+def evaluation_seed(seed: int, purpose: str, seed_offset: int = EvalConfig.seed_offset) -> int:
+    """The seed of the first episode of an evaluation for ``purpose`` (:data:`PURPOSES`) in a
+    run seeded ``seed``: ``seed + k * seed_offset`` (the benchmark's peers follow it too)."""
+    return seed + PURPOSES[purpose] * seed_offset
 
 
 @dataclass(frozen=True)
@@ -71,7 +77,7 @@ class Judge:
 
     def seed_for(self, purpose: str) -> int:
         """The seed of the first episode of an evaluation for ``purpose`` (:data:`PURPOSES`)."""
-        return self.seed + PURPOSES[purpose] * self.seed_offset
+        return evaluation_seed(self.seed, purpose, self.seed_offset)
 
     def envs_at_once(self, episodes: int) -> int:
         """How many of ``episodes`` envs are built and played at a time."""
