@@ -47,6 +47,7 @@ def test_torchrl_dqn_example_runs_on_the_factories():
     assert len(out["test_returns"]) == 1 and 1 <= out["test_returns"][0] <= 500
 
 
+@pytest.mark.slow  # an example run in a fresh interpreter
 def test_dueling_double_acrobot_example_runs_its_own_loop():
     out = _main("dueling_double_acrobot.py")(["--frames", "1600"])
     actor = out["actor"]

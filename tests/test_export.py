@@ -144,6 +144,7 @@ def test_observation_normalisation_is_folded_in(normalized_run, tmp_path):
     assert not torch.allclose(onnx_values, unnormalised, atol=1e-2)  # the statistics matter
 
 
+@pytest.mark.slow  # a noisy C51 run, then its export
 def test_noisy_distributional_network_exports_its_mean_expected_values(tmp_path):
     norm = {"loc": [0.1, -0.2, 0.0, 0.3], "scale": [2.0, 1.5, 0.2, 1.0]}
     env = make_env("CartPole-v1", observation_norm=norm)
