@@ -66,3 +66,17 @@ def test_no_function_of_the_package_is_longer_than_80_lines():
         and _code_lines(node) > LONGEST_FUNCTION
     ]
     assert too_long == []
+
+
+# What runs after the build gets its values from the builder, never from the config.
+AFTER_THE_BUILD = ("summary", "kept_policy", "checkpointer", "learner", "evaluation", "history")
+
+
+def test_nothing_after_the_build_reads_the_config():
+    readers = [
+        f"run/{name}.py:{number}"
+        for name in AFTER_THE_BUILD
+        for number, line in enumerate((PACKAGE / "run" / f"{name}.py").read_text().splitlines(), 1)
+        if re.search(r"\bcfg\b|\.cfg\b", line)
+    ]
+    assert readers == []

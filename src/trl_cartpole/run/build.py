@@ -127,7 +127,6 @@ class Components:
     the history keeps the curves, the checkpointer writes states and the best policy.
     """
 
-    cfg: Config
     run_dir: Path
     env: TransformedEnv
     eval_env: TransformedEnv
@@ -280,7 +279,6 @@ def _assemble(
         "envs": _env_state(cfg, env, periodic.env, collector, buffer),
     }
     return Components(
-        cfg=cfg,
         run_dir=run_dir,
         env=env,
         eval_env=periodic.env,
@@ -297,7 +295,7 @@ def _assemble(
         metrics=metrics,
         progress_bar=_progress_bar(cfg),
         live_plot=_live_plot(cfg, run_dir),
-        checkpointer=Checkpointer(run_dir, cfg, saved, observation_norm, metrics),
+        checkpointer=_checkpointer(cfg, run_dir, saved, observation_norm, metrics),
         lock=lock,
         threshold=threshold,
         learning_starts=first_update_frame(cfg),
@@ -311,6 +309,29 @@ def _assemble(
         judge=judge,
         worker_log_dir=worker_log_dir(cfg, run_dir),
         facts=RunFacts.of(cfg, run_dir),
+    )
+
+
+def _checkpointer(
+    cfg: Config,
+    run_dir: Path,
+    saved: dict[str, Any],
+    observation_norm: dict[str, list[float]] | None,
+    metrics: MetricsLog,
+) -> Checkpointer:
+    """The run's checkpointer: ``saved`` in every training state, ``cfg`` stored with each
+    checkpoint, its settings read here once."""
+    settings = cfg.checkpoint
+    return Checkpointer(
+        run_dir,
+        cfg,
+        saved,
+        observation_norm,
+        metrics,
+        interval_frames=settings.interval_frames,
+        keep_last=settings.keep_last,
+        save_best=settings.save_best,
+        save_last=settings.save_last,
     )
 
 

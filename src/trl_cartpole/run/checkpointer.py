@@ -56,17 +56,25 @@ class Checkpointer:
     def __init__(
         self,
         run_dir: Path,
-        cfg: Config,
+        stored_config: Config,
         components: Mapping[str, Any],
         observation_norm: dict[str, list[float]] | None = None,
         metrics: Any = None,
+        *,
+        interval_frames: int = 0,
+        keep_last: int | None = None,
+        save_best: bool = True,
+        save_last: bool = True,
     ) -> None:
-        self.run_dir, self.cfg = run_dir, cfg
+        self.run_dir = run_dir
+        self.stored_config = stored_config  # written with every checkpoint: what rebuilds it
         self.components = dict(components)
         self.observation_norm = observation_norm
         self.metrics = metrics  # a MetricsLog: its W&B step goes into the counters
         self.free_bytes = free_bytes  # the disk's free space at a path (a test may replace it)
-        self.interval = cfg.checkpoint.interval_frames or math.inf
+        self.interval = interval_frames or math.inf  # 0: no periodic state
+        self.keep_last = keep_last  # periodic states kept (None: all)
+        self.saves_best, self.saves_last = save_best, save_last
         self.last_saved_frame = 0
         self.state_size: int | None = None  # bytes of the last training state written
 
@@ -101,7 +109,7 @@ class Checkpointer:
             expected,
             lambda: save_training_state(
                 path,
-                self.cfg,
+                self.stored_config,
                 counters,
                 keep_last,
                 observation_norm=self.observation_norm,
@@ -173,9 +181,7 @@ class Checkpointer:
     def _save_periodic(self, progress: Progress) -> None:
         """Stop the training clock and save a state under ``checkpoints/periodic``."""
         progress.clock.pause()
-        self.save(
-            self.run_dir / "checkpoints" / "periodic", progress, self.cfg.checkpoint.keep_last
-        )
+        self.save(self.run_dir / "checkpoints" / "periodic", progress, self.keep_last)
         self.last_saved_frame = progress.frames
 
     def resume_command(self) -> str:
@@ -184,7 +190,7 @@ class Checkpointer:
 
     def save_best(self, policy: nn.Module, frames: int, eval_return_mean: float) -> None:
         """The best policy so far (``checkpoints/best``), if ``checkpoint.save_best``."""
-        if self.cfg.checkpoint.save_best:
+        if self.saves_best:
             path = self.run_dir / "checkpoints" / "best"
             self._write_or_stop(
                 path,
@@ -192,7 +198,7 @@ class Checkpointer:
                 lambda: save_policy(
                     path,
                     policy,
-                    self.cfg,
+                    self.stored_config,
                     frames=frames,
                     eval_return_mean=eval_return_mean,
                     observation_norm=self.observation_norm,
@@ -201,5 +207,5 @@ class Checkpointer:
 
     def save_last(self, progress: Progress) -> None:
         """The end-of-run state (``checkpoints/last``), if ``checkpoint.save_last``."""
-        if self.cfg.checkpoint.save_last:
+        if self.saves_last:
             self.save(self.run_dir / "checkpoints" / "last", progress)
