@@ -123,3 +123,14 @@ def run_script(
         timeout=timeout,
         **kwargs,
     )
+
+
+def summary_of(frames, seconds, final):
+    """The keys of a run's ``summary.json`` that comparisons read."""
+    return {
+        "solved": frames is not None,
+        "frames_to_solve": frames,
+        "seconds_to_solve": seconds,
+        "final_eval_return_mean": final,
+        "wall_seconds": 10.0,
+    }

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import threading
 import time
 
-import numpy as np
 import pytest
 
 from benchmarks import harness
@@ -18,61 +16,9 @@ from benchmarks.harness import speed_ratios
 from benchmarks.profile import phase_table
 from benchmarks.run import iqm_ratio_lines, ratio_lines
 from benchmarks.wall import wall_table
-from trl_cartpole.report.plotting import hold_last, plot_seed_groups
-from trl_cartpole.tools.comparison import markdown_table, median_to_solve
+from trl_cartpole.report.plotting import plot_seed_groups
 
-from .conftest import ROOT, SCRIPTS
-
-
-def test_median_to_solve_counts_unsolved_seeds_as_infinitely_slow():
-    assert median_to_solve([3000, 1000, 2000]) == 2000
-    assert median_to_solve([3000, None, 1000, 2000, None]) == 3000  # 3/5 solved: finite
-    assert math.isinf(median_to_solve([3000, None, None]))  # most seeds unsolved
-
-
-def test_hold_last_steps_through_evaluations_and_holds_after_the_run_ends():
-    grid = np.array([0, 500, 1000, 1500, 2000, 3000])
-    held = hold_last([1000, 2000], [10.0, 475.0], grid)
-    assert np.isnan(held[:2]).all()  # before the first evaluation
-    assert held[2:].tolist() == [10.0, 10.0, 475.0, 475.0]
-
-
-def _summary(frames, seconds, final):
-    return {
-        "solved": frames is not None,
-        "frames_to_solve": frames,
-        "seconds_to_solve": seconds,
-        "final_eval_return_mean": final,
-        "wall_seconds": 10.0,
-    }
-
-
-def test_markdown_table_rows():
-    results = {
-        "a": [_summary(1000, 2.0, 500.0), _summary(3000, 6.0, 490.0), _summary(None, None, 20)],
-        "b": [_summary(None, None, 10.0)],
-    }
-    results["a"][0] |= {"collect_frames_per_second": 900, "updates_per_second": 250.0}
-    results["a"][1] |= {"collect_frames_per_second": 1100, "updates_per_second": 150.0}
-    results["a"][2] |= {"collect_frames_per_second": 1000, "updates_per_second": 200.0}
-    for run, rss in zip(results["a"], (400.0, 500.0, 450.0), strict=True):
-        run["peak_rss_mb"] = rss
-    lines = markdown_table(results).splitlines()
-    # Frames and seconds: IQM (3 seeds: no cut, one unsolved: inf), median, slowest. Final
-    # return: IQM = mean of 500, 490, 20 = 336.7; each of 20 and 500 thrice drawn has p = 1/27
-    # > 2.5 %, so the bootstrap interval's ends are 20 and 500.
-    assert lines[2] == (
-        "| a | 2/3 | not solved | 3000 | not solved | not solved | 6.0 | not solved | "
-        "337 [20.0, 500] | 10.0 | 1000 | 200 | 450 |"
-    )
-    # A peer's summary has no throughput figures: dashes.
-    assert lines[3] == (
-        "| b | 0/1 | not solved | not solved | not solved | not solved | not solved | not solved "
-        "| 10.0 [10.0, 10.0] | 10.0 | - | - | - |"
-    )
-    # Each seed's figures in a table of their own, after a blank line.
-    assert lines[4] == ""
-    assert lines[7:] == ["| a | 1000, 3000, - | 2.0, 6.0, - |", "| b | - | - |"]
+from .conftest import ROOT, summary_of
 
 
 def test_env_table_needs_every_seed_at_the_target_and_lunarlanders_median():
@@ -115,9 +61,17 @@ def test_env_table_needs_every_seed_at_the_target_and_lunarlanders_median():
 
 def test_speed_ratios_divide_medians_and_name_the_unsolved():
     results = {
-        "ours": [_summary(1000, 2.0, 500.0), _summary(2000, 4.0, 500.0), _summary(None, None, 9)],
-        "peer": [_summary(9000, 30.0, 500.0), _summary(9000, 10.0, 500.0), _summary(1, 20.0, 1)],
-        "stuck": [_summary(None, None, 9.0)] * 3,
+        "ours": [
+            summary_of(1000, 2.0, 500.0),
+            summary_of(2000, 4.0, 500.0),
+            summary_of(None, None, 9),
+        ],
+        "peer": [
+            summary_of(9000, 30.0, 500.0),
+            summary_of(9000, 10.0, 500.0),
+            summary_of(1, 20.0, 1),
+        ],
+        "stuck": [summary_of(None, None, 9.0)] * 3,
     }
     ratios = speed_ratios(results, "ours", ["peer", "stuck"])
     assert ratios["peer"] == 20.0 / 4.0  # medians: 20 s vs 4 s (unsolved counts as slowest)
@@ -130,10 +84,10 @@ def test_speed_ratios_divide_medians_and_name_the_unsolved():
 
 
 def test_iqm_ratios_carry_their_intervals_and_say_whether_they_are_apart():
-    ours = [_summary(1000, float(s), 500.0) for s in (1, 2, 3, 4)]
-    peer = [_summary(9000, float(s), 500.0) for s in (10, 20, 30, 40)]
-    close = [_summary(9000, float(s), 500.0) for s in (2, 3, 4, 5)]
-    stuck = [_summary(None, None, 9.0)] * 4
+    ours = [summary_of(1000, float(s), 500.0) for s in (1, 2, 3, 4)]
+    peer = [summary_of(9000, float(s), 500.0) for s in (10, 20, 30, 40)]
+    close = [summary_of(9000, float(s), 500.0) for s in (2, 3, 4, 5)]
+    stuck = [summary_of(None, None, 9.0)] * 4
     results = {"ours": ours, "peer": peer, "close": close, "stuck": stuck}
     lines = iqm_ratio_lines(results, "ours", ["peer", "close", "stuck"])
     # IQM of 4 seeds: the middle two; (20 + 30) / 2 over (2 + 3) / 2 = 10
@@ -240,58 +194,6 @@ def test_update_cost_prints_a_row_per_preset(python, tmp_path):
     raw = [line for line in proc.stdout.splitlines() if line.startswith("| raw PyTorch")]
     assert len(raw) == 1 and float(raw[0].split("|")[-2]) > 0
     assert "framework tax (dqn / raw): " in proc.stdout
-
-
-def _fake_run(root, name, seed, lr, frames_to_solve):
-    from omegaconf import OmegaConf
-
-    from trl_cartpole.config.schema import Config
-
-    run_dir = root / name
-    run_dir.mkdir()
-    config = Config(seed=seed, run_dir=str(run_dir))
-    config.optim.lr = lr
-    OmegaConf.save(OmegaConf.structured(config), run_dir / "config.yaml")
-    summary = {
-        "solved": frames_to_solve is not None,
-        "frames_to_solve": frames_to_solve,
-        "seconds_to_solve": None if frames_to_solve is None else frames_to_solve / 1000,
-        "final_eval_return_mean": 500.0,
-        "wall_seconds": 3.0,
-        "solve_threshold": 475.0,
-        "eval_curve": {"frames": [1000, 2000], "seconds": [1.0, 2.0], "returns": [20.0, 480.0]},
-    }
-    (run_dir / "summary.json").write_text(json.dumps(summary))
-    return run_dir
-
-
-def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
-    for seed in (0, 1, 2):
-        _fake_run(tmp_path, f"a{seed}", seed, 1e-3, 1000 * (seed + 1))
-    for seed in (0, 1):
-        _fake_run(tmp_path, f"b{seed}", seed, 5e-4, None if seed else 4000)
-    (tmp_path / "unfinished").mkdir()
-    out = tmp_path / "cmp" / "comparison"
-    proc = subprocess.run(
-        [
-            python,
-            str(SCRIPTS / "plot.py"),
-            *map(str, sorted(tmp_path.iterdir())),
-            f"out={out}",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert proc.returncode == 0, proc.stderr
-    assert "skipped" in proc.stderr and "unfinished" in proc.stderr
-    table = out.with_suffix(".md").read_text()
-    # frames_to_solve 1000, 2000, 3000: IQM (nothing cut from 3) 2000, interval [1000, 3000]
-    # (each end thrice drawn: p = 1/27 > 2.5 %), median 2000, slowest 3000.
-    assert "| CartPole-v1 dqn optim.lr=0.001 | 3/3 | 2000 [1000, 3000] | 2000 | 3000 |" in table
-    assert "| CartPole-v1 dqn optim.lr=0.0005 | 1/2 | not solved |" in table
-    assert out.with_suffix(".png").stat().st_size > 1000
-    assert out.with_name("comparison-profiles.png").stat().st_size > 1000
 
 
 @pytest.mark.slow  # fresh interpreters
