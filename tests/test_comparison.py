@@ -60,10 +60,19 @@ def test_markdown_table_rows():
 
 
 def test_plot_script_groups_seeds_of_one_config(python, tmp_path):
+    # named as the project names runs with an override: "=" in a run directory's name
     for seed in (0, 1, 2):
-        _fake_run(tmp_path, f"a{seed}", seed, 1e-3, 1000 * (seed + 1))
+        _fake_run(
+            tmp_path, f"CartPole-v1-dqn-optim.lr=0.001-seed{seed}", seed, 1e-3, 1000 * (seed + 1)
+        )
     for seed in (0, 1):
-        _fake_run(tmp_path, f"b{seed}", seed, 5e-4, None if seed else 4000)
+        _fake_run(
+            tmp_path,
+            f"CartPole-v1-dqn-optim.lr=0.0005-seed{seed}",
+            seed,
+            5e-4,
+            None if seed else 4000,
+        )
     (tmp_path / "unfinished").mkdir()
     out = tmp_path / "cmp" / "comparison"
     proc = subprocess.run(

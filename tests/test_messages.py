@@ -123,3 +123,42 @@ def test_an_env_dqn_cannot_play_is_refused_before_torch_is_imported():
     done = _run_in_a_fresh_interpreter("train", "env.id=Pendulum-v1")
     assert done.stdout.split() == ["2", "False"], done.stderr
     assert "has continuous actions" in done.stderr
+
+
+def test_a_users_name_for_a_setting_suggests_the_schemas():
+    known = ["optim.lr", "optim.lr_end", "optim.eps", "loss.gamma", "seed"]
+    assert did_you_mean("optim.learning_rate", known) == " (did you mean 'optim.lr'?)"
+    assert did_you_mean("loss.discount", known) == " (did you mean 'loss.gamma'?)"
+    assert did_you_mean("optim.lr_ned", known) == " (did you mean 'optim.lr_end'?)"
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (
+            ["--checkpoint", "runs/x"],
+            "arguments are key=value here, without dashes: write checkpoint=runs/x",
+        ),
+        (["checkpont=runs/x"], "checkpont is not an argument of"),
+        (["runs/x", "runs/y"], "'runs/y' is not key=value"),
+    ],
+)
+def test_a_scripts_arguments_are_refused_in_the_projects_words(args, expected):
+    proc = run_script_in_process("evaluate.py", *args)
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+    assert expected in lines[0] and "EvaluateArgs" not in lines[0]
+    if args == ["checkpont=runs/x"]:
+        assert "(did you mean 'checkpoint'?)" in lines[0]
+
+
+def test_a_lone_argument_is_the_checkpoint(tmp_path):
+    from trl_cartpole.cli.commands.evaluate import EvaluateArgs
+    from trl_cartpole.config.help import parse_args
+
+    args = parse_args(
+        EvaluateArgs, [str(tmp_path), "episodes=3"], "usage: x", positional="checkpoint"
+    )
+    assert args.checkpoint == str(tmp_path) and args.episodes == 3
+    proc = run_script_in_process("evaluate.py", str(tmp_path / "nope"))
+    assert proc.returncode == 2 and "does not exist" in proc.stderr

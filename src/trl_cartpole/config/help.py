@@ -11,6 +11,7 @@ import ast
 import dataclasses
 import inspect
 import io
+import re
 import sys
 import textwrap
 import tokenize
@@ -22,6 +23,7 @@ from typing import Any, TypeVar
 import yaml
 from omegaconf import OmegaConf
 
+from trl_cartpole.config.messages import did_you_mean
 from trl_cartpole.errors import ConfigError
 
 __all__ = ["HELP_FLAGS", "field_help", "parse_args", "shown_value", "wants_help"]
@@ -129,19 +131,28 @@ def format_fields(rows: list[tuple[str, str, str, str]], width: int = 100) -> st
     return "\n".join(lines)
 
 
-def parse_args(schema: type[T], argv: Sequence[str], usage: str) -> T:
+def parse_args(
+    schema: type[T],
+    argv: Sequence[str],
+    usage: str,
+    command: str | None = None,
+    positional: str | None = None,
+) -> T:
     """``key=value`` arguments merged onto dataclass ``schema``; ``--help`` prints and exits 0.
 
-    ``usage`` (the script's docstring) is printed above the table of fields. A misspelt key or
-    a wrong type raises OmegaConf's error, which :func:`trl_cartpole.cli.main.run_cli` reports in
-    one line with exit status 2.
+    ``usage`` (the script's docstring) is printed above the table of fields. ``positional``
+    names the field a lone argument fills (``evaluate runs/latest`` is
+    ``checkpoint=runs/latest``). A dashed argument, a lone one, an unknown key or a wrong type
+    raises a one-line :class:`ConfigError` naming ``command`` (default: the usage line's) and
+    the form that works; :func:`trl_cartpole.cli.main.run_cli` reports it with exit status 2.
     """
     if wants_help(argv):
         print(f"{usage.strip()}\n\narguments (key=default (type) meaning):")
         print(format_fields(field_help(schema)))
         raise SystemExit(0)
+    command = command or _usage_command(usage)
     given = OmegaConf.create()
-    for arg in argv:
+    for arg in _key_value_arguments(argv, schema, command, positional):
         try:
             given.merge_with_dotlist([arg])
         except (yaml.YAMLError, ValueError) as error:  # YAML cannot read the value
@@ -151,6 +162,46 @@ def parse_args(schema: type[T], argv: Sequence[str], usage: str) -> T:
                 "that holds YAML's signs (\"'text, with signs'\")"
             ) from None
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), given))
+
+
+def _usage_command(usage: str) -> str:
+    """The command a usage docstring names (``trl-cartpole evaluate``)."""
+    found = re.search(r"usage: (\S+ \S+)", usage)
+    return found.group(1) if found else "this command"
+
+
+def _key_value_arguments(
+    argv: Sequence[str], schema: type, command: str, positional: str | None
+) -> list[str]:
+    """``argv`` as ``key=value`` arguments of ``schema``'s fields, or a one-line refusal."""
+    keys = [field.name for field in dataclasses.fields(schema)]
+    lone_taken = positional is None or any(arg.startswith(f"{positional}=") for arg in argv)
+    arguments = []
+    for index, arg in enumerate(argv):
+        if arg.startswith("-"):
+            key, _, value = arg.lstrip("-").partition("=")
+            following = argv[index + 1] if index + 1 < len(argv) else ""
+            value = value or ("" if "=" in following else following)
+            raise ConfigError(
+                f"arguments are key=value here, without dashes: write {key}={value or 'VALUE'}"
+            )
+        if "=" not in arg:
+            if lone_taken:
+                raise ConfigError(
+                    f"{arg!r} is not key=value; write KEY={arg} with one of the keys of "
+                    f"`{command} --help`"
+                )
+            arguments.append(f"{positional}={arg}")
+            lone_taken = True
+            continue
+        key = arg.split("=", 1)[0]
+        if key.split(".")[0] not in keys:
+            raise ConfigError(
+                f"{key} is not an argument of {command}{did_you_mean(key, keys)}; "
+                f"`{command} --help` lists them"
+            )
+        arguments.append(arg)
+    return arguments
 
 
 def preset_lines(config_dirs: Sequence[Path], group: str, width: int = 100) -> list[str]:

@@ -20,10 +20,34 @@ __all__ = ["did_you_mean", "explain"]
 _COMMAND_KEYS = ("algo", "env", "presets", "resume")
 
 
+# Names users reach for that the schema calls otherwise (the leaf of a dotted key).
+SYNONYMS = {
+    "learning_rate": "lr",
+    "discount": "gamma",
+    "epsilon": "eps",
+    "buffer_size": "size",
+    "replay_size": "size",
+    "frames": "total_frames",
+    "steps": "total_frames",
+}
+
+
 def did_you_mean(word: str, known: Iterable[str]) -> str:
-    """``" (did you mean 'seed'?)"`` for the closest of ``known``, or ``""``."""
-    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    """``" (did you mean 'seed'?)"`` for the closest of ``known``, or ``""``.
+
+    A dotted key is matched first by its synonym (:data:`SYNONYMS`: ``optim.learning_rate`` is
+    ``optim.lr``), then among the keys of its own section, then among all."""
+    known = list(known)
+    section, _, leaf = word.rpartition(".")
+    synonym = f"{section}.{SYNONYMS[leaf]}" if section and leaf in SYNONYMS else SYNONYMS.get(leaf)
+    if synonym in known:
+        return f" (did you mean {synonym!r}?)"
+    same_section = [key for key in known if section and key.rpartition(".")[0] == section]
+    for candidates in (same_section, known):
+        close = difflib.get_close_matches(word, candidates, n=1, cutoff=0.6)
+        if close:
+            return f" (did you mean {close[0]!r}?)"
+    return ""
 
 
 def _keys() -> list[str]:

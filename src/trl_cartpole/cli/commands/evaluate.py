@@ -1,6 +1,6 @@
 """Evaluate a trained policy greedily over many episodes.
 
-usage: trl-cartpole evaluate checkpoint=RUN_DIR [episodes=100] [seed=N] [epsilon=0.05]
+usage: trl-cartpole evaluate [checkpoint=]RUN_DIR [episodes=100] [seed=N] [epsilon=0.0]
 
 RUN_DIR is the directory training printed (its best policy is evaluated) or one checkpoint
 in it (runs/.../checkpoints/last). Prints mean, std, min and max of the episode returns and
@@ -15,6 +15,7 @@ from pathlib import Path
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.config.validation import check_envs_at_once, check_seed
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.report.console import command
 from trl_cartpole.store.files import check_checkpoint_exists
 
 
@@ -28,7 +29,7 @@ class EvaluateArgs:
 
 
 def main(argv: list[str]) -> None:
-    args = parse_args(EvaluateArgs, argv, __doc__)
+    args = parse_args(EvaluateArgs, argv, __doc__, command("evaluate"), positional="checkpoint")
     check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy.load import evaluate_checkpoint, policy_checkpoint

@@ -1,6 +1,6 @@
 """Export a trained policy as an ONNX model or a torch.export program.
 
-usage: trl-cartpole export checkpoint=RUN_DIR output=policy.onnx
+usage: trl-cartpole export [checkpoint=]RUN_DIR output=policy.onnx
 
 RUN_DIR is the directory training printed (its best policy is exported) or one checkpoint in
 it. The suffix of output picks the format: .onnx (needs pip install -e '.[export]') or .pt2.
@@ -15,6 +15,7 @@ from pathlib import Path
 
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.report.console import command
 from trl_cartpole.store.files import check_checkpoint_exists
 
 FORMATS = {
@@ -30,7 +31,7 @@ class ExportArgs:
 
 
 def main(argv: list[str]) -> None:
-    args = parse_args(ExportArgs, argv, __doc__)
+    args = parse_args(ExportArgs, argv, __doc__, command("export"), positional="checkpoint")
     check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy import export

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.report.console import command
 
 
 @dataclass
@@ -27,9 +28,18 @@ class PlotArgs:
     out: str = "comparison"  # output prefix: OUT.png, OUT-profiles.png, OUT.md
 
 
+def _is_option(arg: str) -> bool:
+    """``out=...`` or a dashed flag; a path is a run directory, ``=`` in its name or not (a
+    run with an override is named ``...-double_dqn=true-...``)."""
+    if arg.startswith("-"):
+        return True
+    key = arg.split("=", 1)[0]
+    return "=" in arg and "/" not in key and not Path(arg).exists()
+
+
 def main(argv: list[str]) -> None:
-    run_dirs = [Path(arg) for arg in argv if "=" not in arg and not arg.startswith("-")]
-    args = parse_args(PlotArgs, [arg for arg in argv if "=" in arg or arg.startswith("-")], __doc__)
+    run_dirs = [Path(arg) for arg in argv if not _is_option(arg)]
+    args = parse_args(PlotArgs, [arg for arg in argv if _is_option(arg)], __doc__, command("plot"))
     if not run_dirs:
         raise ConfigError(
             "name the run or sweep directories to compare (trl-cartpole plot DIR ...)"

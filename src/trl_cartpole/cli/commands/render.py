@@ -1,6 +1,6 @@
 """Watch a trained agent: greedy episodes as a GIF/MP4, or live in a window.
 
-usage: trl-cartpole render checkpoint=RUN_DIR [episodes=3] [output=agent.gif] [human=true]
+usage: trl-cartpole render [checkpoint=]RUN_DIR [episodes=3] [output=agent.gif] [human=true]
 
 RUN_DIR is the directory training printed (its best policy plays) or one checkpoint in it.
 Every frame is captioned with the episode, step and return so far and written to ``output``
@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.config.validation import check_seed
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.report.console import command
 from trl_cartpole.store.files import check_checkpoint_exists
 
 
@@ -30,7 +31,7 @@ class RenderArgs:
 
 
 def main(argv: list[str]) -> None:
-    args = parse_args(RenderArgs, argv, __doc__)
+    args = parse_args(RenderArgs, argv, __doc__, command("render"), positional="checkpoint")
     check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
     # imported after the arguments are read, so that --help answers at once
     from trl_cartpole.policy.load import load_trained_policy
