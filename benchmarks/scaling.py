@@ -1,4 +1,4 @@
-"""How collection and training scale with envs and workers on this machine (docs/scaling.md).
+"""How collection and training scale with envs and workers here (docs/scaling-measured.md).
 
     python -m benchmarks scaling [--seeds 0 1 2] [--frames 16384] [--train-frames 8192]
         [--out runs/scaling] [--parts collect train solve] [--solve-layouts one sync async ray]

@@ -1,7 +1,7 @@
 """Random input at volume: Hypothesis draws command lines of ``key=value`` overrides.
 
 Every draw is composed and checked as ``train`` does before it imports torch
-(``cli.compose_run_config`` and ``validation.validate``): it is either accepted or refused by
+(``config.compose.compose_run_config``, ``validation.validate``): it is accepted or refused by
 one of the errors the command line turns into one line and exit status 2. Any other exception
 would reach the user as a traceback, and fails the test with the draw that made it. A switch
 (a boolean field) is accepted only with a yes or a no: OmegaConf alone took any integer.

@@ -250,7 +250,7 @@ def test_a_run_with_synchronous_workers_repeats_itself(compose, tmp_path, backen
     assert first == second
 
 
-@pytest.mark.slow  # 30 s; the recorded runs of docs/scaling.md solve 6/6, the Ray test below
+@pytest.mark.slow  # 30 s; the recorded runs of docs/scaling-measured.md solve 6/6, Ray below
 def test_two_worker_processes_solve_cartpole(compose, tmp_path):
     summary = train(
         compose(

@@ -61,10 +61,10 @@ class Checkpointer:
         observation_norm: dict[str, list[float]] | None = None,
         metrics: Any = None,
         *,
-        interval_frames: int = 0,
-        keep_last: int | None = None,
-        save_best: bool = True,
-        save_last: bool = True,
+        interval_frames: int,
+        keep_last: int | None,
+        save_best: bool,
+        save_last: bool,
     ) -> None:
         self.run_dir = run_dir
         self.stored_config = stored_config  # written with every checkpoint: what rebuilds it
