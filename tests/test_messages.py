@@ -162,3 +162,21 @@ def test_a_lone_argument_is_the_checkpoint(tmp_path):
     assert args.checkpoint == str(tmp_path) and args.episodes == 3
     proc = run_script_in_process("evaluate.py", str(tmp_path / "nope"))
     assert proc.returncode == 2 and "does not exist" in proc.stderr
+
+
+def test_a_warning_on_the_console_is_one_line_once_without_colour_codes():
+    # a fresh interpreter: pytest records warnings instead of printing them
+    script = (
+        "import warnings\n"
+        "from trl_cartpole.report.console import quiet_libraries\n"
+        "with quiet_libraries():\n"
+        "    for _ in range(4):  # Gymnasium's deprecation, once per env\n"
+        "        warnings.warn('\\x1b[33mCartPole-v0 is old\\nmore\\x1b[0m', stacklevel=1)\n"
+        "    warnings.warn('collector.total_frames=3000 ends before the first update')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stdout == ""
+    assert proc.stderr == (
+        "warning: CartPole-v0 is old\n"
+        "warning: collector.total_frames=3000 ends before the first update\n"
+    )

@@ -10,6 +10,7 @@ pasted.
 from __future__ import annotations
 
 import logging
+import re
 import shlex
 import shutil
 import sys
@@ -45,6 +46,26 @@ DYNAMO_PROFILER_MESSAGE = "Profiler record function"
 TENSORDICT_DYNAMO_WARNING = r".*inline_inbuilt_nn_modules is deprecated"
 
 
+# the colour codes Gymnasium puts around its warnings (raw in a redirected log)
+ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def one_line_warnings() -> Any:
+    """A ``warnings.formatwarning`` that shows a warning as ``warning: <its first line>``,
+    colour codes removed, each text once: no file, line number, category or source line."""
+    shown: set[str] = set()
+
+    def format_warning(message: Any, category: type, filename: str, lineno: int, line=None) -> str:
+        text = ANSI_ESCAPE.sub("", str(message)).strip()
+        text = text.splitlines()[0].strip() if text else category.__name__
+        if text in shown:
+            return ""
+        shown.add(text)
+        return f"warning: {text}\n"
+
+    return format_warning
+
+
 def _not_profiler_note(record: logging.LogRecord) -> bool:
     return not str(record.msg).startswith(DYNAMO_PROFILER_MESSAGE)
 
@@ -52,7 +73,8 @@ def _not_profiler_note(record: logging.LogRecord) -> bool:
 @contextmanager
 def quiet_libraries(verbose: bool = False) -> Iterator[None]:
     """Inside the block, TorchRL's and tensordict's loggers show warnings only (all if verbose),
-    and the two habitual notes of a compiled update are not shown (unless verbose)."""
+    the two habitual notes of a compiled update are not shown, and a warning is one line
+    (:func:`one_line_warnings`) (each unless verbose)."""
     loggers = [logging.getLogger(name) for name in LIBRARY_LOGGERS]
     levels = [logger.level for logger in loggers]
     for logger in loggers:
@@ -62,6 +84,9 @@ def quiet_libraries(verbose: bool = False) -> Iterator[None]:
     dynamo = logging.getLogger(DYNAMO_PROFILER_LOGGER)
     was_filtered = _not_profiler_note in dynamo.filters
     (dynamo.addFilter if not verbose else dynamo.removeFilter)(_not_profiler_note)
+    format_warning = warnings.formatwarning
+    if not verbose:  # a recording warnings.catch_warnings (pytest's) formats nothing: unaffected
+        warnings.formatwarning = one_line_warnings()
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings(
@@ -71,6 +96,7 @@ def quiet_libraries(verbose: bool = False) -> Iterator[None]:
             )
             yield
     finally:
+        warnings.formatwarning = format_warning
         (dynamo.addFilter if was_filtered else dynamo.removeFilter)(_not_profiler_note)
         for logger, level in zip(loggers, levels, strict=True):
             logger.setLevel(level)
