@@ -15,7 +15,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from trl_cartpole.errors import ConfigError
+from trl_cartpole.errors import ConfigError, install_hint
 
 __all__ = [
     "CARTPOLE_FRAME",
@@ -114,8 +114,7 @@ def missing_dependency(env_id: str, error: Exception) -> ConfigError:
     if extra:  # the project's extra: the command to type, with the README's torch pin
         return ConfigError(
             f"env {env_id!r} needs the {extra} extra, which is not installed; install it with "
-            f'pip install torch==2.13.0 -e ".[{extra}]" (from a clone; '
-            f'pip install "trl_cartpole[{extra}]" otherwise)'
+            f"{install_hint(extra)}"
         )
     reason = str(error).splitlines()[0] if str(error) else type(error).__name__
     return ConfigError(

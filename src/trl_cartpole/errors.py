@@ -2,12 +2,42 @@
 
 They live in a module of their own, which imports nothing of the package, so that the schema
 (``config``), the factories and the training loop can all raise them without importing one
-another.
+another. :func:`install_hint` is the command their messages give for a missing extra.
 """
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "DiskFull", "TrainingFailed", "TrainingInterrupted", "WorkerLost"]
+import sys
+from importlib import metadata
+from pathlib import Path
+
+__all__ = [
+    "ConfigError",
+    "DiskFull",
+    "TrainingFailed",
+    "TrainingInterrupted",
+    "WorkerLost",
+    "install_hint",
+]
+
+
+def install_hint(extra: str) -> str:
+    """The command that installs the project's ``extra`` as the README installs: this
+    interpreter's pip, the torch version installed here pinned (its CPU wheel stays), the
+    clone's ``constraints.txt``; and the form for an install from PyPI."""
+    pip = Path(sys.executable).with_name("pip")
+    try:
+        shown = str(pip.absolute().relative_to(Path.cwd()))
+    except ValueError:  # not under the current directory
+        shown = str(pip.absolute())
+    try:
+        torch = f"torch=={metadata.version('torch').split('+')[0]} "
+    except metadata.PackageNotFoundError:
+        torch = ""
+    return (
+        f'{shown} install {torch}-e ".[{extra}]" -c constraints.txt (from a clone; '
+        f'pip install "trl_cartpole[{extra}]" otherwise)'
+    )
 
 
 class ConfigError(ValueError):

@@ -22,7 +22,7 @@ from trl_cartpole.env_ids import (
     check_builtin_env_fits,
     resolve_env_id,
 )
-from trl_cartpole.errors import ConfigError
+from trl_cartpole.errors import ConfigError, install_hint
 
 __all__ = [
     "BOOLEAN_WORDS",
@@ -116,6 +116,7 @@ def validate(cfg: Config) -> Config:
     if cfg.compile:
         check_compiler(cfg.device)
     _check_combination(cfg)
+    _check_logger_installed(cfg.logger.backend)
     check_network_choices(cfg.network.head, cfg.network.activation)
     check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
     return cfg
@@ -338,6 +339,21 @@ def _run_rules(cfg: Config) -> list[tuple[bool, str]]:
     ]
 
 
+# logger.backend -> (the package it needs, the extra that installs it)
+LOGGER_PACKAGES = {"tensorboard": ("tensorboard", "tensorboard"), "wandb": ("wandb", "wandb")}
+
+
+def _check_logger_installed(backend: str) -> None:
+    """A logger whose package is missing is refused before the run directory is made."""
+    if backend in LOGGER_PACKAGES:
+        package, extra = LOGGER_PACKAGES[backend]
+        if importlib.util.find_spec(package) is None:
+            raise ConfigError(
+                f"logger.backend={backend} needs {package}, which is not installed: "
+                f"{install_hint(extra)}"
+            )
+
+
 def _drawn_crop_fits(env: Any) -> bool:
     """Whether ``env.pixels_crop`` keeps at least one pool block of CartPole's frame."""
     if len(env.pixels_crop) != 4 or env.pixels_pool < 1:
@@ -488,7 +504,7 @@ def _check_combination(cfg: Config) -> None:
     if collector.backend == "ray" and importlib.util.find_spec("ray") is None:
         raise ConfigError(
             "collector.backend=ray needs Ray, which is not installed: "
-            'pip install -e ".[distributed]"'
+            f"{install_hint('distributed')}"
         )
     if not collector.sync and collector.workers > 1 and cfg.buffer.n_steps > 1:
         raise ConfigError(

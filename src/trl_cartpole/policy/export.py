@@ -24,7 +24,7 @@ from torch import nn
 from torchrl.envs import EnvBase, ObservationNorm, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 
-from trl_cartpole.errors import ConfigError
+from trl_cartpole.errors import ConfigError, install_hint
 from trl_cartpole.parts.pixels import PIXELS_KEY
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.store.files import write_atomic
@@ -207,7 +207,7 @@ def export_onnx(module: nn.Module, obs_dim: int | tuple[int, ...], path: str | P
     if missing:
         raise ConfigError(
             f"ONNX export needs the {' and '.join(missing)} package(s), which are not "
-            "installed; pip install -e '.[export]'"
+            f"installed; {install_hint('export')}"
         )
 
     def write(tmp: Path) -> None:

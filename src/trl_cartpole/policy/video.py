@@ -21,7 +21,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
-from trl_cartpole.errors import ConfigError
+from trl_cartpole.errors import ConfigError, install_hint
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.pixels import PIXELS_KEY
 from trl_cartpole.policy.load import load_trained_policy
@@ -120,7 +120,7 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Pa
             import imageio.v3 as iio
         except ImportError:
             raise ConfigError(
-                "writing .mp4 needs imageio[ffmpeg]: pip install -e '.[video]' (or use .gif)"
+                f"writing .mp4 needs imageio[ffmpeg]: {install_hint('video')} (or use .gif)"
             ) from None
         return write_atomic(
             path, lambda tmp: iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")

@@ -14,7 +14,7 @@ from typing import Any
 
 from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLogger
 
-from trl_cartpole.errors import ConfigError
+from trl_cartpole.errors import ConfigError, install_hint
 from trl_cartpole.store.files import write_text_atomic
 
 __all__ = ["MetricsLog", "make_logger", "truncate_csv_metrics"]
@@ -79,7 +79,7 @@ def make_logger(
             import tensorboard  # noqa: F401
         except ImportError:
             raise ConfigError(
-                "logger.backend=tensorboard needs tensorboard: pip install -e '.[tensorboard]'"
+                f"logger.backend=tensorboard needs tensorboard: {install_hint('tensorboard')}"
             ) from None
         if resumed_at is not None:
             return ResumedTensorboardLogger("metrics", str(run_dir), purge_step=resumed_at)
@@ -89,7 +89,7 @@ def make_logger(
             import wandb  # noqa: F401
         except ImportError:
             raise ConfigError(
-                "logger.backend=wandb needs wandb: pip install -e '.[wandb]'"
+                f"logger.backend=wandb needs wandb: {install_hint('wandb')}"
             ) from None
         run_id = wandb_run_id(run_dir, resumed=resumed_at is not None)
         # A resumed run continues its W&B run, rewound (W&B's resume_from) to the W&B step the

@@ -27,7 +27,7 @@ from typing import Any
 
 from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.presets import preset_dirs
-from trl_cartpole.errors import ConfigError, TrainingFailed
+from trl_cartpole.errors import ConfigError, TrainingFailed, install_hint
 from trl_cartpole.tools.tuning import (
     OBJECTIVES,
     load_search_space,
@@ -196,7 +196,7 @@ def run_study(
 ) -> StudyResult:
     """Run (or continue) a study to ``trials`` finished trials; write the best as a preset."""
     if optuna is None:
-        raise ConfigError("tuning needs Optuna: pip install 'trl_cartpole[tune]'")
+        raise ConfigError(f"tuning needs Optuna: {install_hint('tune')}")
     cfg = compose_config(config_dir, list(overrides))
     preset = next((arg.split("=", 1)[1] for arg in overrides if arg.startswith("env=")), "cartpole")
     space = load_search_space(space_path or _preset_space(config_dir, overrides, preset))

@@ -30,6 +30,7 @@ from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.presets import with_search_path
 from trl_cartpole.config.schema import register_configs, to_config
 from trl_cartpole.config.validation import validate
+from trl_cartpole.errors import install_hint
 
 __all__ = ["MULTIRUN_FLAGS", "expand_grid", "is_multirun", "run_sweep", "sweep_job"]
 
@@ -87,7 +88,7 @@ def run_sweep(config_dir: str | Path, overrides: Sequence[str]) -> list[dict[str
         else:
             print(
                 "sweep jobs run one after another: Hydra's joblib launcher is not installed "
-                '(pip install -e ".[sweeps]" runs them in parallel)',
+                f"({install_hint('sweeps')} runs them in parallel)",
                 file=sys.stderr,
             )
     if not any(arg.startswith("logger.progress_bar=") for arg in overrides):
