@@ -78,13 +78,44 @@ def _summary(env_id: str, solved: bool) -> dict:
 def test_a_run_that_ends_short_of_its_target_says_what_to_try():
     from trl_cartpole.report.console import ending
 
-    short = ending(_summary("MountainCar-v0", solved=False)).splitlines()
-    tries = short[short.index("try:") + 1 : short.index("next:")]
-    assert "env=mountaincar algo=dqn" in tries[0]
-    assert "this run's command with collector.total_frames=100032" in tries[1]
+    def tries(summary, *args, **kwargs):
+        lines = ending(summary, *args, **kwargs).splitlines()
+        return lines[lines.index("try:") + 1 : lines.index("next:")]
+
+    overrides = ["env.id=MountainCar-v0", "seed=0", "collector.total_frames=50000"]
+    short = tries(_summary("MountainCar-v0", solved=False), overrides)
+    assert short[0].endswith("train env=mountaincar algo=dqn   # tuned for MountainCar-v0")
+    # the run's own command line, its budget doubled: a command, runnable as printed
+    assert short[1].endswith(
+        "train env.id=MountainCar-v0 seed=0 collector.total_frames=100032   # twice the frames"
+    )
+    # a run that used the preset, or learnt from pixels, is not sent to the state preset
+    assert len(tries(_summary("MountainCar-v0", solved=False), ["env=mountaincar"])) == 1
+    assert len(tries(_summary("MountainCar-v0", solved=False), (), pixels=True)) == 1
     no_preset = ending(_summary("Taxi-v3", solved=False)).splitlines()
     assert not any("env=" in line for line in no_preset)  # no preset to point at: more frames
     assert "try:" not in ending(_summary("MountainCar-v0", solved=True))
+
+
+def test_a_run_that_saved_its_last_state_is_told_to_continue_it(tmp_path):
+    from trl_cartpole.report.console import ending
+
+    (tmp_path / "checkpoints" / "last").mkdir(parents=True)
+    summary = _summary("MountainCar-v0", solved=False) | {"run_dir": str(tmp_path)}
+    lines = ending(summary, ["env=mountaincar"]).splitlines()
+    assert lines[lines.index("try:") + 1].endswith(
+        f"train resume={tmp_path} collector.total_frames=100032"
+        "   # this run, on to twice the frames"
+    )
+
+
+def test_the_ending_lists_the_plots_only_when_the_run_drew_them():
+    from trl_cartpole.report.console import ending
+
+    drawn = ending(_summary("MountainCar-v0", solved=True)).splitlines()[1]
+    assert drawn.endswith("(durations.png, dashboard.png, summary.json, checkpoints/)")
+    none = ending(_summary("MountainCar-v0", solved=True), plots=False).splitlines()[1]
+    assert none.endswith("(summary.json, checkpoints/)")
 
 
 def test_a_preset_of_ones_own_without_its_header_is_told_to_add_it(tmp_path):

@@ -65,3 +65,13 @@ def env_presets_for(env_id: str) -> list[str]:
         if re.search(rf"^\s+id:\s*{re.escape(env_id)}\s*$", path.read_text(), re.MULTILINE)
     ]
     return sorted(found, key=lambda name: "pixels" in name)
+
+
+def preset_of_run(group: str, overrides: Sequence[str]) -> str | None:
+    """The ``group`` preset a run of ``overrides`` used: its ``group=NAME`` override, else the
+    root config's default (``configs/config.yaml``: ``algo: dqn``, ``env: cartpole``)."""
+    chosen = [arg.split("=", 1)[1] for arg in overrides if arg.startswith(f"{group}=")]
+    if chosen:
+        return chosen[-1]
+    found = re.search(rf"^\s+- {group}: (\S+)", (PRESETS_DIR / "config.yaml").read_text(), re.M)
+    return found.group(1) if found else None

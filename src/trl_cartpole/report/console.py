@@ -15,12 +15,12 @@ import shlex
 import shutil
 import sys
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from trl_cartpole.config.presets import env_presets_for
+from trl_cartpole.config.presets import env_presets_for, preset_of_run
 
 __all__ = [
     "command",
@@ -190,31 +190,50 @@ def _outcome(summary: dict[str, Any]) -> str:
     )
 
 
-def _what_to_try(summary: dict[str, Any]) -> list[str]:
-    """For a run that ended short of its target: the env's tuned preset, and more frames."""
-    presets = env_presets_for(summary["env_id"])
+def _what_to_try(summary: dict[str, Any], overrides: Sequence[str], pixels: bool) -> list[str]:
+    """For a run that ended short of its target, commands that run as printed: the env's tuned
+    preset (when the run used another, and learnt from the same observations), then the same
+    run continued to twice its frames (resumed from its last state where it saved one)."""
+    presets = [] if pixels else env_presets_for(summary["env_id"])
+    algo = preset_of_run("algo", overrides) or summary["algo"]
     lines = ["try:"]
-    if presets:
+    if presets and preset_of_run("env", overrides) not in presets:
         lines.append(
-            f"  {command('train')} env={presets[0]} algo={summary['algo']}   # tuned for "
-            f"{summary['env_id']}, if this run did not use it"
+            f"  {command('train')} env={presets[0]} algo={algo}   # tuned for {summary['env_id']}"
         )
-    lines.append(
-        f"  this run's command with collector.total_frames={2 * summary['frames']}   # twice "
-        "the frames"
-    )
+    frames = f"collector.total_frames={2 * summary['frames']}"
+    run_dir = Path(summary["run_dir"])
+    if (run_dir / "checkpoints" / "last").is_dir():
+        again = f"resume={shlex.quote(shown_path(run_dir))} {frames}"
+        lines.append(f"  {command('train')} {again}   # this run, on to twice the frames")
+    else:
+        kept = [
+            shlex.quote(arg)
+            for arg in overrides
+            if not arg.startswith(("collector.total_frames=", "run_dir=", "resume="))
+        ]
+        lines.append(f"  {' '.join([command('train'), *kept, frames])}   # twice the frames")
     return lines
 
 
-def ending(summary: dict[str, Any]) -> str:
-    """The lines a finished run prints: the verdict, the run directory and what to try next."""
+def ending(
+    summary: dict[str, Any],
+    overrides: Sequence[str] = (),
+    plots: bool = True,
+    pixels: bool = False,
+) -> str:
+    """The lines a finished run prints: the verdict, the run directory and what to try next.
+
+    ``overrides`` is the run's command line (the commands to try are built from it), ``plots``
+    whether it drew its plots (``logger.plots``), ``pixels`` whether it learnt from pixels."""
     run = shlex.quote(shown_path(summary["run_dir"]))
+    files = ["durations.png", "dashboard.png"] if plots else []
     lines = [
         verdict(summary),
-        f"run directory: {run} (durations.png, dashboard.png, summary.json, checkpoints/)",
+        f"run directory: {run} ({', '.join([*files, 'summary.json', 'checkpoints/'])})",
     ]
     if summary.get("solve_threshold") is not None and not summary["solved"]:
-        lines += _what_to_try(summary)
+        lines += _what_to_try(summary, overrides, pixels)
     if summary.get("checkpoint"):
         lines += [
             "next:",

@@ -53,7 +53,8 @@ def main(argv: list[str]) -> None:
 
     freeze_imported_objects()
     summary = train(cfg, resume=checkpoint)
-    print(ending(summary))
+    run_cfg = to_config(cfg)
+    print(ending(summary, overrides, run_cfg.logger.plots, run_cfg.env.from_pixels))
 
 
 def _sweep(argv: list[str]) -> None:
