@@ -211,3 +211,26 @@ def test_a_warning_on_the_console_is_one_line_once_without_colour_codes():
         "warning: CartPole-v0 is old\n"
         "warning: collector.total_frames=3000 ends before the first update\n"
     )
+
+
+def test_the_next_commands_carry_the_pythonpath_the_run_needed(monkeypatch):
+    from trl_cartpole.report.console import ending
+
+    monkeypatch.setenv("PYTHONPATH", "examples")  # where a user's env module lives
+    lines = ending(_summary("MountainCar-v0", solved=False)).splitlines()
+    commands = [line for line in lines if line.startswith("  ")]
+    assert commands and all(line.startswith("  PYTHONPATH=examples ") for line in commands)
+    monkeypatch.delenv("PYTHONPATH")
+    assert "PYTHONPATH" not in ending(_summary("MountainCar-v0", solved=False))
+
+
+def test_an_episode_cut_at_eval_max_steps_is_said():
+    from trl_cartpole.run.evaluation import EvalResult
+    from trl_cartpole.run.judging import cut_episodes_note
+
+    whole = EvalResult(returns=[9.0, 20.0], lengths=[9, 20], initial_values=[0.0, 0.0])
+    assert cut_episodes_note(whole, max_steps=50) is None
+    cut = EvalResult(returns=[9707.3, 20.0, 50.0], lengths=[50, 20, 50], initial_values=[0.0] * 3)
+    note = cut_episodes_note(cut, max_steps=50, what="final episodes")
+    assert note.startswith("2 of 3 final episodes ran 50 steps and were cut there")
+    assert "eval.max_steps" in note and "env.max_episode_steps" in note and "\n" not in note

@@ -87,6 +87,7 @@ def test_the_readmes_expected_ending_is_what_a_run_prints(monkeypatch):
         "checkpoint": "best",
     }
     monkeypatch.chdir(ROOT)
+    monkeypatch.delenv("PYTHONPATH", raising=False)  # the README's run had none
     monkeypatch.setattr(console, "python_command", lambda: ".venv/bin/python")
     console.set_scripts_dir(ROOT / "scripts")
     try:

@@ -8,6 +8,7 @@ run's observation statistics and loads the weights.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,7 +96,11 @@ def load_trained_policy(
 
 
 def evaluate_checkpoint(
-    checkpoint: str | Path, episodes: int = 100, seed: int | None = None, epsilon: float = 0.0
+    checkpoint: str | Path,
+    episodes: int = 100,
+    seed: int | None = None,
+    epsilon: float = 0.0,
+    on_turn: Callable[[int], None] | None = None,
 ) -> tuple[EvalResult, dict]:
     """Evaluate the policy of ``checkpoint`` greedily (or epsilon-greedily) over ``episodes``.
 
@@ -107,5 +112,5 @@ def evaluate_checkpoint(
     judge = Judge.from_config(cfg, read_observation_norm(trained.checkpoint))
     seed = judge.seed_for("final") if seed is None else seed
     with quiet_libraries():
-        result = judge.play(trained.actor, seed, episodes, epsilon)
+        result = judge.play(trained.actor, seed, episodes, epsilon, on_turn=on_turn)
     return result, OmegaConf.to_container(OmegaConf.structured(cfg))

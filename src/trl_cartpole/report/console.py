@@ -10,6 +10,7 @@ pasted.
 from __future__ import annotations
 
 import logging
+import os
 import re
 import shlex
 import shutil
@@ -199,20 +200,21 @@ def _what_to_try(summary: dict[str, Any], overrides: Sequence[str], pixels: bool
     lines = ["try:"]
     if presets and preset_of_run("env", overrides) not in presets:
         lines.append(
-            f"  {command('train')} env={presets[0]} algo={algo}   # tuned for {summary['env_id']}"
+            f"  {_run_with_env('train')} env={presets[0]} algo={algo}   # tuned for "
+            f"{summary['env_id']}"
         )
     frames = f"collector.total_frames={2 * summary['frames']}"
     run_dir = Path(summary["run_dir"])
     if (run_dir / "checkpoints" / "last").is_dir():
         again = f"resume={shlex.quote(shown_path(run_dir))} {frames}"
-        lines.append(f"  {command('train')} {again}   # this run, on to twice the frames")
+        lines.append(f"  {_run_with_env('train')} {again}   # this run, on to twice the frames")
     else:
         kept = [
             shlex.quote(arg)
             for arg in overrides
             if not arg.startswith(("collector.total_frames=", "run_dir=", "resume="))
         ]
-        lines.append(f"  {' '.join([command('train'), *kept, frames])}   # twice the frames")
+        lines.append(f"  {' '.join([_run_with_env('train'), *kept, frames])}   # twice the frames")
     return lines
 
 
@@ -237,8 +239,15 @@ def ending(
     if summary.get("checkpoint"):
         lines += [
             "next:",
-            f"  {command('evaluate')} checkpoint={run}   # 100 greedy episodes",
-            f"  {command('render')} checkpoint={run}     # a GIF of the agent",
-            f"  {command('export')} checkpoint={run} output=policy.pt2  # or .onnx",
+            f"  {_run_with_env('evaluate')} checkpoint={run}   # 100 greedy episodes",
+            f"  {_run_with_env('render')} checkpoint={run}     # a GIF of the agent",
+            f"  {_run_with_env('export')} checkpoint={run} output=policy.pt2  # or .onnx",
         ]
     return "\n".join(lines)
+
+
+def _run_with_env(name: str) -> str:
+    """:func:`command` with this process's ``PYTHONPATH`` before it, when one is set: a user's
+    own env module (``env.id=module:Class``) is found the way the run found it."""
+    path = os.environ.get("PYTHONPATH")
+    return f"PYTHONPATH={shlex.quote(path)} {command(name)}" if path else command(name)

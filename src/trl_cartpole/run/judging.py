@@ -29,7 +29,14 @@ from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.envs import close_env, make_env_from_config
 from trl_cartpole.run.evaluation import EvalResult, evaluate
 
-__all__ = ["PIXEL_ENVS_AT_ONCE", "PURPOSES", "Judge", "PeriodicEvaluation", "evaluation_seed"]
+__all__ = [
+    "PIXEL_ENVS_AT_ONCE",
+    "PURPOSES",
+    "Judge",
+    "PeriodicEvaluation",
+    "cut_episodes_note",
+    "evaluation_seed",
+]
 
 # k in seed + k * eval.seed_offset, for each evaluation's purpose.
 PURPOSES = {"periodic": 1, "final": 2, "candidates": 3}
@@ -41,6 +48,19 @@ def evaluation_seed(seed: int, purpose: str, seed_offset: int = EvalConfig.seed_
     """The seed of the first episode of an evaluation for ``purpose`` (:data:`PURPOSES`) in a
     run seeded ``seed``: ``seed + k * seed_offset`` (the benchmark's peers follow it too)."""
     return seed + PURPOSES[purpose] * seed_offset
+
+
+def cut_episodes_note(result: EvalResult, max_steps: int, what: str = "episodes") -> str | None:
+    """One line when episodes of ``result`` ran to ``max_steps`` and were cut there (an env
+    with no time limit of its own): their returns are not whole episodes. None otherwise."""
+    cut = sum(length >= max_steps for length in result.lengths)
+    if not cut:
+        return None
+    return (
+        f"{cut} of {len(result.lengths)} {what} ran {max_steps} steps and were cut there "
+        "(eval.max_steps): their returns are not whole episodes; raise eval.max_steps or give "
+        "the env a time limit (env.max_episode_steps)"
+    )
 
 
 @dataclass(frozen=True)
@@ -122,6 +142,10 @@ class Judge:
     def periodic(self) -> PeriodicEvaluation:
         """The periodic evaluations' env and player (:class:`PeriodicEvaluation`)."""
         return PeriodicEvaluation(self)
+
+    def cut_note(self, result: EvalResult, what: str = "episodes") -> str | None:
+        """:func:`cut_episodes_note` of ``result`` at this judge's ``max_steps``."""
+        return cut_episodes_note(result, self.max_steps, what)
 
     def final(
         self, actor: TensorDictModuleBase, on_turn: Callable[[int], None] | None = None

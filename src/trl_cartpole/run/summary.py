@@ -13,6 +13,7 @@ from __future__ import annotations
 import resource
 import shutil
 import time
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -129,6 +130,9 @@ def _final_evaluation(run: Components) -> EvalResult:
             run.progress_bar.status(f"{say} ({played} played)")
 
     final = run.judge.final(run.actor, on_turn=show_played)
+    cut = run.judge.cut_note(final, "final episodes")
+    if cut is not None:
+        warnings.warn(cut, stacklevel=1)
     run.metrics.log({"eval/final_return_mean": final.mean}, run.progress.frames)
     run.metrics.close()
     return final

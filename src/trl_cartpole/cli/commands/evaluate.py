@@ -41,8 +41,23 @@ def main(argv: list[str]) -> None:
     check_seed("seed", args.seed)
     if not 0.0 <= args.epsilon <= 1.0:
         raise ConfigError(f"epsilon={args.epsilon} must lie in [0, 1]")
+    from trl_cartpole.report.progress_bar import clear_status, show_status
+    from trl_cartpole.run.judging import cut_episodes_note
+
     checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
-    result, cfg = evaluate_checkpoint(checkpoint, args.episodes, args.seed, args.epsilon)
+    playing = f"playing {args.episodes} episodes of {checkpoint}"
+
+    def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
+        if played < args.episodes:
+            show_status(f"{playing} ({played} played)")
+
+    show_status(playing)
+    try:
+        result, cfg = evaluate_checkpoint(
+            checkpoint, args.episodes, args.seed, args.epsilon, on_turn=show_played
+        )
+    finally:
+        clear_status()
     returns = result.returns
     report = {
         "checkpoint": str(checkpoint.resolve()),  # the one evaluated (runs/latest moves on)
@@ -56,6 +71,9 @@ def main(argv: list[str]) -> None:
         "returns": returns,
         "lengths": result.lengths,
     }
+    cut = cut_episodes_note(result, cfg["eval"]["max_steps"])
+    if cut is not None:
+        print(f"note: {cut}")
     output = Path(args.output or checkpoint.parent / f"evaluation-{checkpoint.name}.json")
     write_json_atomic(output, report)
     print(
