@@ -234,3 +234,20 @@ def test_an_episode_cut_at_eval_max_steps_is_said():
     note = cut_episodes_note(cut, max_steps=50, what="final episodes")
     assert note.startswith("2 of 3 final episodes ran 50 steps and were cut there")
     assert "eval.max_steps" in note and "env.max_episode_steps" in note and "\n" not in note
+
+
+@pytest.mark.parametrize(
+    ("command", "args", "expected"),
+    [
+        ("evaluate", ["episodes=0"], "episodes=0 must be >= 1"),
+        ("export", ["output=policy.tflite"], "end it in .onnx (ONNX) or .pt2"),
+        ("render", ["episodes=0"], "episodes and fps must be >= 1"),
+        ("render", ["output=agent.avi"], "choose a .gif or .mp4 file name"),
+    ],
+)
+def test_a_bad_argument_of_a_policy_command_is_refused_before_torch_is_imported(
+    command, args, expected, tmp_path
+):
+    done = _run_in_a_fresh_interpreter(command, f"checkpoint={tmp_path}", *args)
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert expected in done.stderr

@@ -12,7 +12,6 @@ over its support. The greedy action is the arg-max of those values. :func:`expor
 from __future__ import annotations
 
 import copy
-import importlib.util
 import logging
 import warnings
 from collections.abc import Iterator
@@ -24,8 +23,9 @@ from torch import nn
 from torchrl.envs import EnvBase, ObservationNorm, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 
-from trl_cartpole.errors import ConfigError, install_hint
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.pixels import PIXELS_KEY
+from trl_cartpole.policy.formats import check_onnx_installed
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.store.files import write_atomic
 
@@ -39,7 +39,6 @@ __all__ = [
 
 INPUT_NAME = "observation"
 OUTPUT_NAME = "action_values"
-ONNX_PACKAGES = ("onnx", "onnxscript")  # torch.onnx.export's (dynamo) exporter needs both
 
 
 class GreedyQNetwork(nn.Module):
@@ -203,12 +202,7 @@ def export_onnx(module: nn.Module, obs_dim: int | tuple[int, ...], path: str | P
     ``[batch, num_actions]``. Raises a one-line ``ConfigError`` when the ``onnx`` or
     ``onnxscript`` package is missing or too old for this torch's exporter.
     """
-    missing = [name for name in ONNX_PACKAGES if importlib.util.find_spec(name) is None]
-    if missing:
-        raise ConfigError(
-            f"ONNX export needs the {' and '.join(missing)} package(s), which are not "
-            f"installed; {install_hint('export')}"
-        )
+    check_onnx_installed()
 
     def write(tmp: Path) -> None:
         try:

@@ -24,6 +24,7 @@ from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 from trl_cartpole.errors import ConfigError, install_hint
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.pixels import PIXELS_KEY
+from trl_cartpole.policy.formats import check_video_arguments
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.report.console import quiet_libraries, shown_path
 from trl_cartpole.report.progress_bar import clear_status, show_status
@@ -146,11 +147,6 @@ class Recording:
         )
 
 
-# Frames are kept until the file is written: a 500-step CartPole episode at scale 0.5 is
-# 500 x 300 x 200 x 3 bytes = 90 MB.
-MAX_EPISODES_IN_A_VIDEO = 20
-
-
 def record_agent(
     run_dir_or_checkpoint: str | Path,
     episodes: int = 1,
@@ -165,13 +161,7 @@ def record_agent(
     ``seed`` defaults to the run's final evaluation seeds and ``output`` to ``video.gif``
     beside the checkpoint; frames are scaled by ``scale``.
     """
-    if episodes < 1 or fps < 1 or not 0 < scale <= 4:
-        raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
-    if episodes > MAX_EPISODES_IN_A_VIDEO:
-        raise ConfigError(
-            f"episodes={episodes}: a video holds at most {MAX_EPISODES_IN_A_VIDEO} episodes (their "
-            "frames are kept in memory until the file is written); make several"
-        )
+    check_video_arguments(episodes, fps, scale, None if output is None else str(output))
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only, no window
     frames, returns = [], []
     with quiet_libraries():  # no TorchRL INFO lines (spec checks), as in the scripts

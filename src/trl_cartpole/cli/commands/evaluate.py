@@ -30,19 +30,18 @@ class EvaluateArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(EvaluateArgs, argv, __doc__, command("evaluate"), positional="checkpoint")
-    check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
-    # imported after the arguments are read, so that --help answers at once
-    from trl_cartpole.policy.load import evaluate_checkpoint, policy_checkpoint
-    from trl_cartpole.store.files import write_json_atomic
-
+    check_checkpoint_exists(args.checkpoint)  # every check before the heavy imports below
     if args.episodes < 1:
         raise ConfigError(f"episodes={args.episodes} must be >= 1")
     check_envs_at_once("episodes", args.episodes)  # the episodes are stepped together
     check_seed("seed", args.seed)
     if not 0.0 <= args.epsilon <= 1.0:
         raise ConfigError(f"epsilon={args.epsilon} must lie in [0, 1]")
+    # imported after the arguments are checked: a refusal comes before torch is loaded
+    from trl_cartpole.policy.load import evaluate_checkpoint, policy_checkpoint
     from trl_cartpole.report.progress_bar import clear_status, show_status
     from trl_cartpole.run.judging import cut_episodes_note
+    from trl_cartpole.store.files import write_json_atomic
 
     checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
     playing = f"playing {args.episodes} episodes of {checkpoint}"

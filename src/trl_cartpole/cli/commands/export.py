@@ -15,13 +15,9 @@ from pathlib import Path
 
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.policy.formats import FORMATS, check_onnx_installed
 from trl_cartpole.report.console import command
 from trl_cartpole.store.files import check_checkpoint_exists
-
-FORMATS = {
-    ".onnx": ("ONNX model", "export_onnx"),
-    ".pt2": ("torch.export program", "export_program"),
-}
 
 
 @dataclass
@@ -32,10 +28,7 @@ class ExportArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(ExportArgs, argv, __doc__, command("export"), positional="checkpoint")
-    check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
-    # imported after the arguments are read, so that --help answers at once
-    from trl_cartpole.policy import export
-
+    check_checkpoint_exists(args.checkpoint)  # every check before the heavy imports below
     output = Path(args.output)
     if output.suffix not in FORMATS:
         raise ConfigError(
@@ -47,6 +40,10 @@ def main(argv: list[str]) -> None:
             f"output={args.output!r}: directory {str(output.parent)!r} does not exist"
         )
     kind, exporter = FORMATS[output.suffix]
+    if output.suffix == ".onnx":
+        check_onnx_installed()
+    # imported after the arguments are checked: a refusal comes before torch is loaded
+    from trl_cartpole.policy import export
     from trl_cartpole.report.progress_bar import clear_status, show_status
 
     try:

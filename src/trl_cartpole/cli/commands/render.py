@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from trl_cartpole.config.help import parse_args
 from trl_cartpole.config.validation import check_seed
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.policy.formats import check_video_arguments
 from trl_cartpole.report.console import command
 from trl_cartpole.store.files import check_checkpoint_exists
 
@@ -32,12 +33,13 @@ class RenderArgs:
 
 def main(argv: list[str]) -> None:
     args = parse_args(RenderArgs, argv, __doc__, command("render"), positional="checkpoint")
-    check_checkpoint_exists(args.checkpoint)  # before the heavy imports below
-    # imported after the arguments are read, so that --help answers at once
+    check_checkpoint_exists(args.checkpoint)  # every check before the heavy imports below
+    check_seed("seed", args.seed)
+    if not args.human:
+        check_video_arguments(args.episodes, args.fps, args.scale, args.output)
+    # imported after the arguments are checked: a refusal comes before torch is loaded
     from trl_cartpole.policy.load import load_trained_policy
     from trl_cartpole.policy.video import record_agent
-
-    check_seed("seed", args.seed)
 
     if not args.human:
         print(
