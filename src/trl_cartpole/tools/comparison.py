@@ -93,7 +93,7 @@ def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "prese
         seconds = [r["seconds_to_solve"] for r in runs]
         final = interval_estimate([r["final_eval_return_mean"] for r in runs])
         lines.append(
-            f"| {algo} | {sum(r['solved'] for r in runs)}/{len(runs)} | "
+            f"| {algo} | {_solved_cell(runs)} | "
             f"{' | '.join(_estimate(frames, 0))} | {' | '.join(_estimate(seconds, 1))} | "
             f"{final} | "
             f"{statistics.median(r['wall_seconds'] for r in runs):.1f} | "
@@ -105,6 +105,20 @@ def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "prese
             f"{', '.join('-' if s is None else f'{s:.1f}' for s in seconds)} |"
         )
     return "\n".join(lines) + "\n\n" + "\n".join(per_seed)
+
+
+def _solved_cell(runs: list[dict[str, Any]]) -> str:
+    """``solved/runs``, and how many of the solved did not hold it: a final evaluation below the
+    threshold (the run's own verdict: "not reliably solved")."""
+    solved = [r for r in runs if r["solved"]]
+    not_held = [
+        r
+        for r in solved
+        if r.get("solve_threshold") is not None
+        and r["final_eval_return_mean"] < r["solve_threshold"]
+    ]
+    cell = f"{len(solved)}/{len(runs)}"
+    return f"{cell} ({len(not_held)} not held)" if not_held else cell
 
 
 # Fields that differ between seeds of one config, not between configs.
