@@ -251,3 +251,23 @@ def test_a_bad_argument_of_a_policy_command_is_refused_before_torch_is_imported(
     done = _run_in_a_fresh_interpreter(command, f"checkpoint={tmp_path}", *args)
     assert done.stdout.split() == ["2", "False"], done.stderr
     assert expected in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("overrides", "label"),
+    [
+        ([], "dqn"),
+        (["env=cartpole_pixels"], "dqn + double DQN, dueling head"),  # its env preset's switches
+        (["loss.double_dqn=true"], "dqn + double DQN"),
+        (["algo=rainbow"], "rainbow"),
+        (["algo=dueling", "buffer.n_steps=1"], "dueling + 1-step returns"),
+    ],
+)
+def test_the_ending_names_the_variant_the_run_trained(overrides, label):
+    from trl_cartpole.config.compose import compose_config, variant_label
+    from trl_cartpole.config.schema import to_config
+    from trl_cartpole.report.console import verdict
+
+    assert variant_label(to_config(compose_config(overrides=overrides))) == label
+    summary = _summary("MountainCar-v0", solved=True) | {"variant": label}
+    assert verdict(summary).startswith(f"MountainCar-v0 [{label}, seed 0]: ")

@@ -12,10 +12,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from trl_cartpole.config.help import shown_value
 from trl_cartpole.config.presets import PRESETS_DIR, with_search_path
-from trl_cartpole.config.schema import flat_fields, register_configs, to_config
+from trl_cartpole.config.schema import Config, flat_fields, register_configs, to_config
 from trl_cartpole.config.validation import check_boolean_overrides
 
-__all__ = ["changes_from_presets", "compose_config", "compose_run_config"]
+__all__ = ["changes_from_presets", "compose_config", "compose_run_config", "variant_label"]
 
 
 def compose_config(
@@ -78,3 +78,30 @@ def compose_run_config(
         pattern = OmegaConf.to_container(cfg)["run_dir"]  # unresolved: runs/${env.id}-...
         cfg.run_dir = pattern.replace("-seed${seed}", f"-{changes}-seed${{seed}}")
     return cfg
+
+
+# The variant switches a run's label names when they differ from its algo preset's.
+_VARIANT_WORDS = {
+    "loss.double_dqn": lambda on: "double DQN" if on else "no double DQN",
+    "network.head": lambda head: f"{head} head",
+    "network.noisy": lambda on: "noisy layers" if on else "no noisy layers",
+    "network.distributional": lambda on: "C51" if on else "no C51",
+    "buffer.prioritized": lambda on: "prioritized replay" if on else "uniform replay",
+    "buffer.n_steps": lambda steps: f"{steps}-step returns",
+}
+
+
+def variant_label(cfg: Config) -> str:
+    """The run's algorithm as its ending names it: the algo preset's name, and the variant
+    switches where the run differs from that preset (``dqn + double DQN, dueling head`` for the
+    pixel preset, whose env preset turns them on). A preset of the user's own directory is
+    compared with the schema's defaults."""
+    path = PRESETS_DIR / "algo" / f"{cfg.algo.name}.yaml"
+    preset = OmegaConf.structured(Config)
+    if path.is_file():
+        preset = OmegaConf.merge(preset, OmegaConf.load(path))
+    ours, theirs = flat_fields(cfg), flat_fields(to_config(preset))
+    changed = [
+        words(ours[key]) for key, words in _VARIANT_WORDS.items() if ours[key] != theirs[key]
+    ]
+    return f"{cfg.algo.name} + {', '.join(changed)}" if changed else cfg.algo.name

@@ -156,8 +156,10 @@ def shown_path(path: str | Path) -> str:
 
 
 def verdict(summary: dict[str, Any]) -> str:
-    """One line: env, preset and seed, then solved or not and the best policy's final check."""
-    return f"{summary['env_id']} [{summary['algo']}, seed {summary['seed']}]: {_outcome(summary)}"
+    """One line: env, the algorithm (its preset and the switches the run changed) and seed, then
+    solved or not and the kept policy's final check."""
+    label = summary.get("variant") or summary["algo"]
+    return f"{summary['env_id']} [{label}, seed {summary['seed']}]: {_outcome(summary)}"
 
 
 def _outcome(summary: dict[str, Any]) -> str:

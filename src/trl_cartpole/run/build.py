@@ -31,6 +31,7 @@ from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs import TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
+from trl_cartpole.config.compose import variant_label
 from trl_cartpole.config.schema import Config
 from trl_cartpole.env_ids import solve_threshold, time_limit
 from trl_cartpole.parts.collectors import (
@@ -94,6 +95,7 @@ class RunFacts:
     env_id: str
     seed: int
     algo: str
+    variant: str  # the algo preset and the switches the run changed (:func:`variant_label`)
     title: str  # the plots' title (:func:`run_title`)
     plots: bool  # logger.plots: draw durations.png and dashboard.png
     replay_files: Path | None  # buffer.storage=memmap's files, deleted once the state is saved
@@ -108,6 +110,7 @@ class RunFacts:
             env_id=cfg.env.id,
             seed=cfg.seed,
             algo=cfg.algo.name,
+            variant=variant_label(cfg),
             title=run_title(cfg),
             plots=cfg.logger.plots,
             replay_files=run_dir / REPLAY_FILES if cfg.buffer.storage == "memmap" else None,

@@ -67,6 +67,7 @@ def finish(run: Components) -> dict[str, Any]:
         evaluator=run.evaluator,
         final=final,
         run_dir=run.run_dir,
+        variant=facts.variant,
         episodes=len(run.history.episode_returns),
         # Throughput of the two halves of the loop.
         collect_frames_per_second=round(progress.frames / max(phases["collect"], 1e-9)),
