@@ -202,8 +202,10 @@ def test_render_and_export_take_the_agents_frames(tmp_path):
         "render.py", f"checkpoint={run_dir}", f"output={gif}", "episodes=1", "scale=0.5"
     )
     assert shown.returncode == 0, shown.stderr[-2000:]
-    # the scene (300 x 200 at scale 0.5) above what the agent saw (20 rows, enlarged 5 times)
-    assert Image.open(gif).size == (300, 200 + 5 * 20)
+    from trl_cartpole.policy.video import VIEW_CAPTION_HEIGHT
+
+    # the scene (300 x 200 at scale 0.5), a caption, then what the agent saw (20 rows, x5)
+    assert Image.open(gif).size == (300, 200 + VIEW_CAPTION_HEIGHT + 5 * 20)
     onnx_file = tmp_path / "policy.onnx"
     exported = run_script_in_process("export.py", f"checkpoint={run_dir}", f"output={onnx_file}")
     assert exported.returncode == 0, exported.stderr[-2000:]

@@ -65,7 +65,7 @@ def test_duration_plot_names_each_curve_and_shows_the_final_evaluation():
     assert labels[1].startswith("mean of the last 100 training episodes") and "lags" in labels[1]
     assert labels[2] == "greedy evaluation (mean of 20 episodes, no exploration)"
     assert "solved (475)" in labels
-    assert "final: best policy, 100 new episodes: 499.5 +/- 1.2" in labels
+    assert "final: kept policy, 100 new episodes: 499.5 +/- 1.2" in labels
     assert ax.get_xlabel() and ax.get_ylabel()
 
 
@@ -102,7 +102,7 @@ def test_dashboard_has_labels_everywhere_and_its_reference_lines(tmp_path, monke
         assert ax.get_xlabel() == "Frames" and ax.get_ylabel() and ax.get_title()
     exploration, loss, value, gradient = axes
     assert "epsilon" in exploration.get_title()
-    assert "normal for DQN" in loss.get_title()
+    assert "is normal" in loss.get_title()
     assert any("200.0" in text for text in _legend_texts(value))
     assert [line.get_ydata()[0] for line in value.get_lines()][-1] == 200.0
     assert "clipped to 10" in _legend_texts(gradient)
@@ -116,3 +116,28 @@ def test_dashboard_without_epsilon_or_updates_says_so(tmp_path, monkeypatch):
     assert "noisy layers explore" in exploration.texts[0].get_text()
     assert loss.texts[0].get_text() == "no update yet"
     assert gradient.get_legend() is None
+
+
+def test_the_duration_plot_names_its_axis_by_the_env_and_keeps_its_legend_off_the_curves():
+    from matplotlib.figure import Figure
+
+    from trl_cartpole.report.plotting import DURATIONS_MARGINS, LearningCurves, draw_durations
+
+    curves = LearningCurves([10, 20], [-200.0, -150.0], [20], [-120.0], threshold=-100.0)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = Figure(figsize=(8, 5.6))
+    canvas = FigureCanvasAgg(fig)
+    fig.subplots_adjust(**DURATIONS_MARGINS)
+    ax = fig.subplots()
+    draw_durations(ax, curves, "Acrobot-v1 dqn seed 0")
+    assert ax.get_ylabel() == "Episode return"  # no CartPole words on another env
+    canvas.draw()
+    legend = ax.get_legend().get_window_extent(canvas.get_renderer())
+    axes = ax.get_window_extent(canvas.get_renderer())
+    assert legend.y1 <= axes.y0  # under the axes: never over the threshold line
+    assert legend.y0 >= 0 and legend.x0 >= 0 and legend.x1 <= fig.bbox.x1  # inside the image
+    cartpole = LearningCurves([10], [9.0], [10], [9.0], return_label="Episode return (its length)")
+    ax = Figure().subplots()
+    draw_durations(ax, cartpole)
+    assert ax.get_ylabel() == "Episode return (its length)"

@@ -58,15 +58,22 @@ def _captioned(frame: np.ndarray, text: str, scale: float) -> np.ndarray:
     return np.asarray(image)
 
 
+# the white band that names the agent's view under the scene, in pixels
+VIEW_CAPTION_HEIGHT = 14
+
+
 @torch.no_grad()
 def _with_agent_view(scene: np.ndarray, pixels: torch.Tensor) -> np.ndarray:
-    """``scene`` ``[H, W, 3]`` above the agent's newest patch (``pixels`` ``[frames, h, w]``
-    uint8), enlarged to the scene's width by whole pixels and shown in gray."""
+    """``scene`` ``[H, W, 3]`` above a caption band and the agent's newest patch (``pixels``
+    ``[frames, h, w]`` uint8), enlarged to the scene's width by whole pixels, in gray."""
     patch = pixels[-1].numpy()  # [h, w]
     factor = max(scene.shape[1] // patch.shape[1], 1)
     view = np.repeat(np.repeat(patch, factor, axis=0), factor, axis=1)  # [h * f, w * f]
     view = np.pad(view, ((0, 0), (0, scene.shape[1] - view.shape[1])), constant_values=255)
-    return np.concatenate([scene, np.repeat(view[..., None], 3, axis=-1)], axis=0)
+    band = Image.new("RGB", (scene.shape[1], VIEW_CAPTION_HEIGHT), (255, 255, 255))
+    caption = f"what the network sees: its last {patch.shape[0]}x{patch.shape[1]} patch, x{factor}"
+    ImageDraw.Draw(band).text((6, 1), caption, fill=(0, 0, 0))
+    return np.concatenate([scene, np.asarray(band), np.repeat(view[..., None], 3, axis=-1)], axis=0)
 
 
 def render_episodes(

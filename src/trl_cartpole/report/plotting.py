@@ -49,6 +49,10 @@ def moving_average(values: Sequence[float], window: int) -> np.ndarray:
     return (cumsum[index] - cumsum[start]) / (index - start)
 
 
+# the duration plot's margins: its legend sits under the axes (two columns, up to 3 rows)
+DURATIONS_MARGINS = {"left": 0.09, "right": 0.97, "top": 0.93, "bottom": 0.3}
+
+
 def _atomic_savefig(fig: Figure, path: Path) -> None:
     write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
 
@@ -73,7 +77,8 @@ class LearningCurves:
     eval_returns: Sequence[float]  # its mean return over eval.episodes episodes
     threshold: float | None = None  # the solve threshold (475 on CartPole-v1), if any
     eval_episodes: int | None = None  # episodes per periodic evaluation, for the label
-    final: FinalEvaluation | None = None  # the best policy's final evaluation, once run
+    final: FinalEvaluation | None = None  # the kept policy's final evaluation, once run
+    return_label: str = "Episode return"  # the y axis (CartPole's: "its length")
 
 
 def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
@@ -118,7 +123,7 @@ def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
             capsize=5,
             color="tab:red",
             zorder=5,
-            label=f"final: best policy, {final.episodes} new episodes: "
+            label=f"final: kept policy, {final.episodes} new episodes: "
             f"{final.mean:.1f} +/- {final.std:.1f}",
         )
     if curves.threshold is not None:
@@ -126,16 +131,27 @@ def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
             curves.threshold, color="green", linestyle="--", label=f"solved ({curves.threshold:g})"
         )
     ax.set_xlabel("Frames (environment steps, all envs)")
-    ax.set_ylabel("Episode return (on CartPole: its length)")
+    ax.set_ylabel(curves.return_label)
     ax.set_title(title or "Training episodes and greedy evaluations")
-    ax.legend(loc="best", fontsize="small")
+    # under the axes, two columns: never over the curves or the threshold line
+    ax.legend(
+        loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize="small", frameon=False
+    )
     ax.grid(alpha=0.3)
+
+
+def _durations_figure() -> Figure:
+    """The duration plot's figure, its bottom margin holding the legend (fixed: no layout pass
+    on each live redraw)."""
+    fig = Figure(figsize=(8, 5.6))
+    fig.subplots_adjust(**DURATIONS_MARGINS)
+    return fig
 
 
 def plot_durations(curves: LearningCurves, path: str | Path, title: str = "") -> Path:
     """:func:`draw_durations` as a PNG file (written atomically)."""
     path = Path(path)
-    fig = Figure(figsize=(8, 4.5))
+    fig = _durations_figure()
     draw_durations(fig.subplots(), curves, title)
     _atomic_savefig(fig, path)
     return path
@@ -216,7 +232,7 @@ class LiveDurationPlot:
         elif self.target == "notebook":
             from IPython import display
 
-            fig = Figure(figsize=(8, 4.5))
+            fig = _durations_figure()
             draw_durations(fig.subplots(), curves, self.title)
             buffer = io.BytesIO()
             fig.savefig(buffer, format="png", dpi=80)
@@ -227,8 +243,9 @@ class LiveDurationPlot:
 
             if self._window is None:
                 plt.ion()
-                self._window = plt.figure(figsize=(8, 4.5))
+                self._window = plt.figure(figsize=(8, 5.6))
             self._window.clf()
+            self._window.subplots_adjust(**DURATIONS_MARGINS)
             draw_durations(self._window.subplots(), curves, self.title)
             plt.pause(0.001)
 
@@ -310,8 +327,7 @@ def plot_dashboard(
         loss,
         data.update_frames,
         moving_average(data.td_losses, smoothing),
-        f"TD loss (mean of {smoothing} updates)\n"
-        "rising while the values grow toward the return is normal for DQN",
+        f"TD loss (mean of {smoothing} updates)\nrising while the values grow is normal",
         "TD loss",
         empty_note="no update yet",
     )

@@ -97,6 +97,7 @@ class RunFacts:
     algo: str
     variant: str  # the algo preset and the switches the run changed (:func:`variant_label`)
     title: str  # the plots' title (:func:`run_title`)
+    return_label: str  # the duration plot's y axis: CartPole's return is its episode's length
     plots: bool  # logger.plots: draw durations.png and dashboard.png
     replay_files: Path | None  # buffer.storage=memmap's files, deleted once the state is saved
     gamma: float  # the discount the dashboard's value reference uses
@@ -112,6 +113,9 @@ class RunFacts:
             algo=cfg.algo.name,
             variant=variant_label(cfg),
             title=run_title(cfg),
+            return_label="Episode return (its length: +1 a step)"
+            if cfg.env.id.startswith("CartPole")
+            else "Episode return",
             plots=cfg.logger.plots,
             replay_files=run_dir / REPLAY_FILES if cfg.buffer.storage == "memmap" else None,
             gamma=cfg.loss.gamma,

@@ -88,6 +88,7 @@ class History:
         threshold: float | None,
         eval_episodes: int | None = None,
         final: FinalEvaluation | None = None,
+        return_label: str = "Episode return",
     ) -> LearningCurves:
         """The training episodes so far, with ``evaluations`` (the evaluator's curve)."""
         return LearningCurves(
@@ -98,6 +99,7 @@ class History:
             threshold,
             eval_episodes=eval_episodes,
             final=final,
+            return_label=return_label,
         )
 
     def state_dict(self) -> dict[str, Any]:

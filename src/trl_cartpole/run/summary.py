@@ -146,7 +146,9 @@ def _draw_plots(run: Components, final: EvalResult) -> None:
     frames = run.progress.frames
     final_point = FinalEvaluation(frames, final.mean, final.std, len(final.returns))
     plot_durations(
-        history.curves(curve, run.threshold, run.judge.periodic_episodes, final_point),
+        history.curves(
+            curve, run.threshold, run.judge.periodic_episodes, final_point, facts.return_label
+        ),
         run.run_dir / "durations.png",
         facts.title,
     )

@@ -183,8 +183,12 @@ def _record_evaluation(
     if evaluation.new_best:
         run.checkpointer.save_best(run.actor, evaluation.frames, result.mean)
     if run.live_plot is not None:
-        run.live_plot.update(
-            run.history.curves(run.evaluator.curve, run.threshold, run.judge.periodic_episodes)
+        curves = run.history.curves(
+            run.evaluator.curve,
+            run.threshold,
+            run.judge.periodic_episodes,
+            return_label=run.facts.return_label,
         )
+        run.live_plot.update(curves)
     if on_evaluation is not None:
         on_evaluation(evaluation)
