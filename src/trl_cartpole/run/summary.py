@@ -123,7 +123,9 @@ def _choose_kept_policy(run: Components) -> tuple[Candidate | None, list[Candida
 def _final_evaluation(run: Components) -> EvalResult:
     """The kept policy over the judge's final episodes, logged; the metrics log closed."""
     episodes = run.judge.final_episodes
-    say = f"final evaluation: the kept policy over {episodes} new episodes"
+    # the verdict's words: the best policy, or with candidates the kept one of them
+    policy = "the kept policy" if run.evaluator.max_candidates > 1 else "the best policy"
+    say = f"final evaluation: {policy} over {episodes} new episodes"
     run.progress_bar.status(say)
 
     def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
