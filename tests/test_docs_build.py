@@ -62,7 +62,7 @@ def _copy_of_the_docs(tmp_path: Path) -> Path:
 @pytest.mark.parametrize(
     "link, said",
     [
-        ("[a page](no-such-page.md)", "no-such-page.md"),
+        pytest.param("[a page](no-such-page.md)", "no-such-page.md", marks=pytest.mark.slow),
         ("[an anchor](guide.md#no-such-anchor)", "#no-such-anchor"),
     ],
 )

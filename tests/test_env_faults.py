@@ -108,7 +108,11 @@ FAULTY_ENVS = textwrap.dedent(
             r"HangingCartPole\.step\(\) did not return within 0\.5 s \(env\.step_timeout\), at "
             r"frame \d+",
         ),
-        ("HangingResetCartPole", r"HangingResetCartPole\.reset\(\) did not return within 0\.5 s"),
+        pytest.param(
+            "HangingResetCartPole",
+            r"HangingResetCartPole\.reset\(\) did not return within 0\.5 s",
+            marks=pytest.mark.slow,  # a hang: seconds of waiting
+        ),
     ],
 )
 def test_a_misbehaving_env_is_named_in_one_line(env_class, expected, tmp_path, monkeypatch):

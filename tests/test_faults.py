@@ -123,6 +123,7 @@ def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
         assert components.observation_norm == planted
 
 
+@pytest.mark.slow  # a run resumed
 def test_a_state_saved_before_the_nstep_buffer_holds_anything_resumes(compose, tmp_path):
     # 2 steps of each of 4 envs: a 3-step buffer has no complete window yet, so it is empty.
     overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("collector.total_frames")]

@@ -112,7 +112,7 @@ def test_candidates_survive_a_checkpoint_and_a_state_from_before_them(tmp_path):
     assert _numbers(loaded) == [1] and loaded.candidates[0].frames == 20
 
 
-@pytest.mark.parametrize("candidates", [1, 2])
+@pytest.mark.parametrize("candidates", [pytest.param(1, marks=pytest.mark.slow), 2])
 def test_a_run_records_the_kept_policy_and_saves_it_as_best(compose, tmp_path, candidates):
     overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("eval.interval_frames")]
     cfg = compose(

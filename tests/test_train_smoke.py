@@ -113,6 +113,7 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
     assert set(summary["versions"]) == {"torch", "torchrl", "tensordict", "gymnasium"}
 
 
+@pytest.mark.slow  # evaluates the smoke run twice
 def test_best_checkpoint_loads_and_evaluates(smoke_run):
     run_dir, _ = smoke_run
     env = make_env("CartPole-v1")
@@ -135,6 +136,7 @@ def test_best_checkpoint_loads_and_evaluates(smoke_run):
     assert "greedy return over 7 episodes" in proc.stdout
 
 
+@pytest.mark.slow  # two runs
 def test_same_seed_same_figures(compose, tmp_path):
     summaries = []
     for name in ("a", "b"):

@@ -100,7 +100,7 @@ def test_the_learning_rate_tapers_linearly_then_holds(frames, expected):
     assert tapered_lr(1e-3, 1e-4, frames, decay_frames=10_000) == pytest.approx(expected)
 
 
-@pytest.mark.parametrize("lr_end", [None, 2e-4])
+@pytest.mark.parametrize("lr_end", [None, pytest.param(2e-4, marks=pytest.mark.slow)])
 def test_a_run_updates_at_the_learning_rate_of_the_frames_collected(compose, tmp_path, lr_end):
     """Each update uses the lr set after the batch before it: 1e-3 until the first batch's
     schedules have run, then 1e-3 + (lr_end - 1e-3) * frames / 400 (none: 1e-3 throughout)."""
