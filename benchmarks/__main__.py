@@ -23,7 +23,7 @@ from benchmarks import (
     wall,
     weight_sync,
 )
-from benchmarks.harness import sweep_arguments
+from benchmarks.harness import command_parser, sweep_arguments
 from trl_cartpole.report.console import quiet_libraries
 
 SUBCOMMANDS = {
@@ -40,23 +40,12 @@ SUBCOMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+    return command_parser(
+        "python -m benchmarks",
+        __doc__,
+        SUBCOMMANDS,
+        parents=lambda module: [sweep_arguments(module.SEEDS, module.OUT)],
     )
-    subparsers = parser.add_subparsers(dest="subcommand", required=True, metavar="SUBCOMMAND")
-    for name, module in SUBCOMMANDS.items():
-        subparser = subparsers.add_parser(
-            name,
-            parents=[sweep_arguments(module.SEEDS, module.OUT)],
-            help=module.__doc__.splitlines()[0],
-            description=module.__doc__,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
-        )
-        module.add_arguments(subparser)
-        subparser.set_defaults(main=module.main)
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -17,7 +17,7 @@ import statistics
 import subprocess
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -247,3 +247,29 @@ def speed_ratios(
         else:
             ratios[peer] = theirs / mine
     return ratios
+
+
+def command_parser(
+    prog: str,
+    description: str,
+    modules: dict[str, Any],
+    parents: Callable[[Any], list[argparse.ArgumentParser]] = lambda module: [],
+) -> argparse.ArgumentParser:
+    """``prog <command>``: one subcommand per module of ``modules`` (its docstring the help, its
+    ``add_arguments`` the options, its ``main`` what runs), with ``parents(module)``'s arguments
+    (``python -m benchmarks`` and ``python -m maintain``)."""
+    parser = argparse.ArgumentParser(
+        prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    subparsers = parser.add_subparsers(dest="subcommand", required=True, metavar="COMMAND")
+    for name, module in modules.items():
+        subparser = subparsers.add_parser(
+            name,
+            parents=parents(module),
+            help=module.__doc__.splitlines()[0],
+            description=module.__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        module.add_arguments(subparser)
+        subparser.set_defaults(main=module.main)
+    return parser

@@ -13,6 +13,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from benchmarks.harness import command_parser
 from maintain import docs, lock, readme
 from trl_cartpole.report.console import quiet_libraries
 
@@ -20,22 +21,7 @@ COMMANDS = {"docs": docs, "readme": readme, "lock": lock}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m maintain",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, module in COMMANDS.items():
-        subparser = subparsers.add_parser(
-            name,
-            help=module.__doc__.splitlines()[0],
-            description=module.__doc__,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
-        )
-        module.add_arguments(subparser)
-        subparser.set_defaults(main=module.main)
-    return parser
+    return command_parser("python -m maintain", __doc__, COMMANDS)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
