@@ -31,6 +31,7 @@ __all__ = [
     "check_boolean_overrides",
     "check_envs_at_once",
     "check_integer_size",
+    "check_logger_installed",
     "check_network_choices",
     "check_seed",
     "validate",
@@ -116,7 +117,7 @@ def validate(cfg: Config) -> Config:
     if cfg.compile:
         check_compiler(cfg.device)
     _check_combination(cfg)
-    _check_logger_installed(cfg.logger.backend)
+    check_logger_installed(cfg.logger.backend)
     check_network_choices(cfg.network.head, cfg.network.activation)
     check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
     return cfg
@@ -343,11 +344,14 @@ def _run_rules(cfg: Config) -> list[tuple[bool, str]]:
 LOGGER_PACKAGES = {"tensorboard": ("tensorboard", "tensorboard"), "wandb": ("wandb", "wandb")}
 
 
-def _check_logger_installed(backend: str) -> None:
-    """A logger whose package is missing is refused before the run directory is made."""
+def check_logger_installed(backend: str) -> None:
+    """Refuse a logger whose package is missing, in one line naming the extra (``validate``
+    calls it before the run directory is made, ``make_logger`` for a caller of its own)."""
     if backend in LOGGER_PACKAGES:
         package, extra = LOGGER_PACKAGES[backend]
-        if importlib.util.find_spec(package) is None:
+        # a module already imported counts as it stands (None: its import was blocked)
+        loaded = sys.modules.get(package, ...)
+        if loaded is None or (loaded is ... and importlib.util.find_spec(package) is None):
             raise ConfigError(
                 f"logger.backend={backend} needs {package}, which is not installed: "
                 f"{install_hint(extra)}"

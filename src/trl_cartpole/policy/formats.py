@@ -14,6 +14,7 @@ __all__ = [
     "ONNX_PACKAGES",
     "check_onnx_installed",
     "check_video_arguments",
+    "check_video_output",
 ]
 
 # output suffix -> (what it is, the function of trl_cartpole.policy.export that writes it)
@@ -35,6 +36,17 @@ def check_onnx_installed() -> None:
         )
 
 
+def check_video_output(output: str) -> None:
+    """Refuse a video file that cannot be written: a ``.gif``, or an ``.mp4`` with imageio
+    installed."""
+    if not output.endswith((".gif", ".mp4")):
+        raise ConfigError(f"output={output!r}: choose a .gif or .mp4 file name")
+    if output.endswith(".mp4") and importlib.util.find_spec("imageio") is None:
+        raise ConfigError(
+            f"writing .mp4 needs imageio[ffmpeg]: {install_hint('video')} (or use .gif)"
+        )
+
+
 # A video keeps its frames in memory until it is written: 20 CartPole episodes of up to 500
 # frames of 300 x 200 x 3 bytes = 90 MB.
 MAX_EPISODES_IN_A_VIDEO = 20
@@ -42,17 +54,9 @@ MAX_EPISODES_IN_A_VIDEO = 20
 
 def check_video_arguments(episodes: int, fps: int, scale: float, output: str | None = None) -> None:
     """Raise a one-line :class:`ConfigError` for a video that cannot be recorded (``output``:
-    a ``.gif``, or an ``.mp4`` with imageio installed; None: the default GIF)."""
-    if output is not None and not output.endswith((".gif", ".mp4")):
-        raise ConfigError(f"output={output!r}: choose a .gif or .mp4 file name")
-    if (
-        output is not None
-        and output.endswith(".mp4")
-        and importlib.util.find_spec("imageio") is None
-    ):
-        raise ConfigError(
-            f"writing .mp4 needs imageio[ffmpeg]: {install_hint('video')} (or use .gif)"
-        )
+    :func:`check_video_output`; None: the default GIF)."""
+    if output is not None:
+        check_video_output(output)
     if episodes < 1 or fps < 1 or not 0 < scale <= 4:
         raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
     if episodes > MAX_EPISODES_IN_A_VIDEO:

@@ -21,10 +21,10 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
-from trl_cartpole.errors import ConfigError, install_hint
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.pixels import PIXELS_KEY
-from trl_cartpole.policy.formats import check_video_arguments
+from trl_cartpole.policy.formats import check_video_arguments, check_video_output
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.report.console import quiet_libraries, shown_path
 from trl_cartpole.report.progress_bar import clear_status, show_status
@@ -115,6 +115,7 @@ def render_episodes(
 def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Path:
     """Write ``frames`` to ``path`` (``.gif`` or ``.mp4``) under a temporary name, then rename."""
     path = Path(path)
+    check_video_output(str(path))
     if path.suffix == ".gif":
         images = [Image.fromarray(frame) for frame in frames]
         return write_atomic(
@@ -123,17 +124,11 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Pa
                 tmp, save_all=True, append_images=images[1:], duration=1000 / fps, loop=0
             ),
         )
-    if path.suffix == ".mp4":
-        try:
-            import imageio.v3 as iio
-        except ImportError:
-            raise ConfigError(
-                f"writing .mp4 needs imageio[ffmpeg]: {install_hint('video')} (or use .gif)"
-            ) from None
-        return write_atomic(
-            path, lambda tmp: iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")
-        )
-    raise ConfigError(f"output={str(path)!r}: choose a .gif or .mp4 file name")
+    import imageio.v3 as iio  # an .mp4: check_video_output found imageio
+
+    return write_atomic(
+        path, lambda tmp: iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264")
+    )
 
 
 @dataclass

@@ -14,7 +14,8 @@ from typing import Any
 
 from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger, WandbLogger
 
-from trl_cartpole.errors import ConfigError, install_hint
+from trl_cartpole.config.validation import check_logger_installed
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.store.files import write_text_atomic
 
 __all__ = ["MetricsLog", "make_logger", "truncate_csv_metrics"]
@@ -74,23 +75,12 @@ def make_logger(
         return None
     if backend == "csv":
         return CSVLogger(exp_name="metrics", log_dir=str(run_dir))
+    check_logger_installed(backend)
     if backend == "tensorboard":
-        try:
-            import tensorboard  # noqa: F401
-        except ImportError:
-            raise ConfigError(
-                f"logger.backend=tensorboard needs tensorboard: {install_hint('tensorboard')}"
-            ) from None
         if resumed_at is not None:
             return ResumedTensorboardLogger("metrics", str(run_dir), purge_step=resumed_at)
         return TensorboardLogger(exp_name="metrics", log_dir=str(run_dir))
     if backend == "wandb":
-        try:
-            import wandb  # noqa: F401
-        except ImportError:
-            raise ConfigError(
-                f"logger.backend=wandb needs wandb: {install_hint('wandb')}"
-            ) from None
         run_id = wandb_run_id(run_dir, resumed=resumed_at is not None)
         # A resumed run continues its W&B run, rewound (W&B's resume_from) to the W&B step the
         # checkpoint recorded, so the rows the stopped run logged after it are replaced.

@@ -143,10 +143,6 @@ class Judge:
         """The periodic evaluations' env and player (:class:`PeriodicEvaluation`)."""
         return PeriodicEvaluation(self)
 
-    def cut_note(self, result: EvalResult, what: str = "episodes") -> str | None:
-        """:func:`cut_episodes_note` of ``result`` at this judge's ``max_steps``."""
-        return cut_episodes_note(result, self.max_steps, what)
-
     def final(
         self, actor: TensorDictModuleBase, on_turn: Callable[[int], None] | None = None
     ) -> EvalResult:

@@ -33,6 +33,7 @@ from trl_cartpole.report.plotting import (
 )
 from trl_cartpole.run.build import Components
 from trl_cartpole.run.evaluation import Candidate, EvalResult, Evaluator
+from trl_cartpole.run.judging import cut_episodes_note
 from trl_cartpole.run.kept_policy import CandidateScore, choose_kept_policy
 from trl_cartpole.store.files import write_json_atomic
 
@@ -133,7 +134,7 @@ def _final_evaluation(run: Components) -> EvalResult:
             run.progress_bar.status(f"{say} ({played} played)")
 
     final = run.judge.final(run.actor, on_turn=show_played)
-    cut = run.judge.cut_note(final, "final episodes")
+    cut = cut_episodes_note(final, run.judge.max_steps, "final episodes")
     if cut is not None:
         warnings.warn(cut, stacklevel=1)
     run.metrics.log({"eval/final_return_mean": final.mean}, run.progress.frames)
