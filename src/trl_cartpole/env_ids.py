@@ -18,11 +18,14 @@ import gymnasium as gym
 from trl_cartpole.errors import ConfigError, install_hint
 
 __all__ = [
+    "ATARI_NAMESPACE",
     "CARTPOLE_FRAME",
     "cartpole_crop_bounds",
     "check_builtin_env_fits",
     "check_env_fits",
+    "is_atari_id",
     "missing_dependency",
+    "register_atari_games",
     "resolve_env_id",
     "solve_threshold",
 ]
@@ -31,7 +34,35 @@ __all__ = [
 CARTPOLE_FRAME = (400, 600)
 
 # Gymnasium env families whose dependencies come with an extra of this project (pyproject.toml).
-OPTIONAL_EXTRAS = {"gymnasium.envs.box2d": "box2d"}
+OPTIONAL_EXTRAS = {"gymnasium.envs.box2d": "box2d", "ale_py": "atari"}
+# The namespace of the Atari games ale-py registers (ALE/Breakout-v5, ALE/Pong-v5...)
+ATARI_NAMESPACE = "ALE/"
+
+
+def is_atari_id(env_id: str) -> bool:
+    """Whether ``env_id`` names an Atari game of ALE's: ``ALE/<Game>-v5``, or an id whose
+    registered entry point is ale-py's (its ``Breakout-v4`` family)."""
+    if str(env_id).startswith(ATARI_NAMESPACE):
+        return True
+    spec = gym.registry.get(str(env_id))
+    return spec is not None and str(spec.entry_point).startswith("ale_py")
+
+
+def register_atari_games() -> None:
+    """Register ale-py's games with Gymnasium (``gym.register_envs(ale_py)``: its wheel holds
+    the ROMs) and keep ALE's C++ banner off the console.
+
+    :raises ConfigError: when ale-py is not installed, naming the extra that brings it.
+    """
+    try:
+        ale_py = importlib.import_module("ale_py")
+    except ImportError:
+        raise ConfigError(
+            "Atari games need the atari extra (ale-py and OpenCV), which is not installed; "
+            f"install it with {install_hint('atari')}"
+        ) from None
+    ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Error)
+    gym.register_envs(ale_py)
 
 
 def _import_module(name: str, field: str) -> Any:
@@ -58,6 +89,8 @@ def resolve_env_id(
     """
     for module_name in imports:
         _import_module(module_name, imports_field)
+    if str(env_id).startswith(ATARI_NAMESPACE) and env_id not in gym.registry:
+        register_atari_games()
     if ":" in env_id:
         module_name, name = env_id.split(":", 1)
         module = _import_module(module_name, f"{field}={env_id!r}")

@@ -23,6 +23,7 @@ from trl_cartpole import defaults
 
 __all__ = [
     "AlgoConfig",
+    "AtariConfig",
     "BufferConfig",
     "CheckpointConfig",
     "CollectorConfig",
@@ -38,6 +39,20 @@ __all__ = [
     "register_configs",
     "to_config",
 ]
+
+
+@dataclass
+class AtariConfig:
+    """The standard Atari preprocessing (Mnih et al. 2015; Machado et al. 2018), for an
+    ``env.id`` of ALE's (``ALE/Breakout-v5``): trl_cartpole.parts.atari, docs/atari.md."""
+
+    noop_max: int = 30  # NOOP frames after a reset: 1 to noop_max, drawn per game (0: none)
+    frame_skip: int = 4  # frames each action is held; the max of the last two is seen
+    screen_size: int = 84  # the screen resized to screen_size x screen_size gray (INTER_AREA)
+    frames: int = 4  # the last N screens stacked (CatFrames)
+    fire_on_reset: bool = True  # one FIRE step after a reset, where the game has FIRE
+    life_loss_ends: bool = True  # a lost life ends the learner's episode (never the game)
+    clip_rewards: bool = True  # the learner's rewards clipped to their sign (the score is not)
 
 
 @dataclass
@@ -67,6 +82,11 @@ class EnvConfig:
     # up) shows Gymnasium's own picture instead (its pygame calls, about 0.4 ms a frame), so
     # the network also learns the frames it is judged on; 1.0: every frame Gymnasium's
     pixels_rendered_share: float = 0.0
+    # An Atari game (env.id=ALE/...) is learnt from its screen, preprocessed as configured here
+    atari: AtariConfig = field(default_factory=AtariConfig)
+    # keywords given to gymnasium.make as they are: an env's own options (ALE's
+    # repeat_action_probability, full_action_space, mode, difficulty...)
+    make_kwargs: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -251,8 +271,8 @@ if not OmegaConf.has_resolver("now"):
 
 def _run_env(_root_: Any) -> str:
     """``${run_env:}``: the env id a run directory is named after, ``-pixels`` added for a
-    pixel run."""
-    return f"{_root_.env.id}{'-pixels' if _root_.env.from_pixels else ''}"
+    pixel run, a namespace's ``/`` written ``-`` (``ALE-Breakout-v5``: one directory)."""
+    return f"{_root_.env.id}{'-pixels' if _root_.env.from_pixels else ''}".replace("/", "-")
 
 
 if not OmegaConf.has_resolver("run_env"):
@@ -269,7 +289,11 @@ def register_configs() -> None:
     from hydra.core.config_store import ConfigStore
 
     schema = OmegaConf.structured(Config)
-    for open_dict in (schema.collector.ray_resources, schema.collector.ray_runtime_env):
+    for open_dict in (
+        schema.collector.ray_resources,
+        schema.collector.ray_runtime_env,
+        schema.env.make_kwargs,
+    ):
         OmegaConf.set_struct(open_dict, False)
     ConfigStore.instance().store(name="base_config", node=schema)
 

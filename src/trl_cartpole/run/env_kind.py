@@ -1,11 +1,12 @@
 """The kind of observation a run learns from, decided once from the config's ``env`` section.
 
-Three kinds today: the env's state vector; pixels drawn from CartPole's state
-(``env.pixels_renderer=drawn``, a share of the envs painted by Gymnasium's own calls); and
-pixels Gymnasium renders. What differs between them is asked of :class:`EnvKind`, nowhere
+Four kinds: the env's state vector; pixels drawn from CartPole's state
+(``env.pixels_renderer=drawn``, a share of the envs painted by Gymnasium's own calls); pixels
+Gymnasium renders; and an Atari game's screen (an ``ALE/...`` id, preprocessed as
+``env.atari`` says: :mod:`trl_cartpole.parts.atari`). What differs between them is asked of :class:`EnvKind`, nowhere
 else: the env a policy is judged on and the one a video records, the run's title, whether the
 collector's own state is saved with a checkpoint, how many envs one evaluation holds at once.
-A new kind (Atari frames) is one more case here.
+A new kind is one more case here.
 """
 
 from __future__ import annotations
@@ -13,10 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from trl_cartpole.config.schema import EnvConfig
+from trl_cartpole.env_ids import is_atari_id
 
 __all__ = ["KINDS", "EnvKind"]
 
-KINDS = ("state", "drawn pixels", "rendered pixels")
+KINDS = ("state", "drawn pixels", "rendered pixels", "atari frames")
 
 
 @dataclass(frozen=True)
@@ -28,9 +30,16 @@ class EnvKind:
     @property
     def name(self) -> str:
         """One of :data:`KINDS`."""
+        if is_atari_id(self.env.id):
+            return "atari frames"
         if not self.env.from_pixels:
             return "state"
         return "drawn pixels" if self.env.pixels_renderer == "drawn" else "rendered pixels"
+
+    @property
+    def atari(self) -> bool:
+        """Whether the env is an Atari game (``env.atari`` preprocesses its screen)."""
+        return self.name == "atari frames"
 
     @property
     def pixels(self) -> bool:
@@ -39,8 +48,11 @@ class EnvKind:
 
     @property
     def title(self) -> str:
-        """The env as a run's title names it: ``CartPole-v1``, ``CartPole-v1 from pixels``."""
-        return f"{self.env.id} from pixels" if self.pixels else str(self.env.id)
+        """The env as a run's title names it: ``CartPole-v1``, ``CartPole-v1 from pixels``,
+        ``ALE/Breakout-v5`` (a game is always seen from its screen)."""
+        if self.name in ("state", "atari frames"):
+            return str(self.env.id)
+        return f"{self.env.id} from pixels"
 
     @property
     def collector_state_saved(self) -> bool:
@@ -58,7 +70,8 @@ class EnvKind:
         return self.env
 
     def recorded(self) -> EnvConfig:
-        """The env a video records: Gymnasium's own ``render()`` for every kind."""
+        """The env a video records: Gymnasium's own ``render()`` for every kind (a game's
+        colour screen, for Atari)."""
         return replace(self.env, pixels_renderer="gymnasium", pixels_rendered_share=0.0)
 
     def envs_at_once(self, episodes: int, pixel_envs_at_once: int) -> int:

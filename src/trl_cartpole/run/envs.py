@@ -11,7 +11,7 @@ import math
 import os
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -23,6 +23,7 @@ from torchrl.envs import Compose, EnvBase, ObservationNorm, SerialEnv, Transform
 from trl_cartpole.config.schema import Config, EnvConfig
 from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.atari import ATARI_DEFAULTS, make_atari_env
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
 from trl_cartpole.parts.pixels import drawn_pixel_transforms, pixel_transforms
@@ -34,6 +35,7 @@ __all__ = [
     "WorkerEnvFactory",
     "estimate_observation_norm",
     "make_env_from_config",
+    "make_game_env",
     "make_pixel_env",
     "rendered_envs",
     "worker_env_constructors",
@@ -74,6 +76,8 @@ def _env_from_config(
 ) -> EnvBase:
     if env_cfg.normalize_observations and observation_norm is None:
         raise ValueError("env.normalize_observations=true needs the run's observation_norm stats")
+    if EnvKind(env_cfg).atari:
+        return make_game_env(env_cfg, seed, device, num_envs, render_mode)
     if EnvKind(env_cfg).pixels:
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(
@@ -123,6 +127,38 @@ def make_pixel_env(
         return _drawn_pixel_env(env_cfg, seed, device, count)
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only: no window, no display
     build = partial(_one_pixel_env, env_cfg, device)
+    env = build() if count == 1 else SerialEnv(count, build, device=device)
+    if seed is not None:
+        env.set_seed(seed)
+    return env
+
+
+def make_game_env(
+    env_cfg: EnvConfig,
+    seed: int | None = None,
+    device: str | torch.device = "cpu",
+    num_envs: int | None = None,
+    render_mode: str | None = None,
+) -> EnvBase:
+    """The Atari game of ``env_cfg`` (:func:`~trl_cartpole.parts.atari.make_atari_env`, its
+    preprocessing ``env.atari``, ``env.make_kwargs`` given to ``gymnasium.make``); ``num_envs
+    > 1``: TorchRL's ``SerialEnv`` of such games, seeded ``seed``, ``seed + 1``, ...
+    ``render_mode="rgb_array"`` lets a video read the game's colour screen (one env)."""
+    count = env_cfg.num_envs if num_envs is None else num_envs
+    make_kwargs = dict(env_cfg.make_kwargs)
+    if render_mode is not None:
+        make_kwargs["render_mode"] = render_mode
+    if env_cfg.max_episode_steps is not None:
+        make_kwargs["max_episode_steps"] = env_cfg.max_episode_steps
+    build = partial(
+        make_atari_env,
+        resolve_env_id(env_cfg.id, env_cfg.imports),
+        device,
+        preprocessing={  # the env's part of env.atari (the learner's is LearnerView's)
+            key: value for key, value in asdict(env_cfg.atari).items() if key in ATARI_DEFAULTS
+        },
+        **make_kwargs,
+    )
     env = build() if count == 1 else SerialEnv(count, build, device=device)
     if seed is not None:
         env.set_seed(seed)

@@ -11,10 +11,11 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector
 from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
-from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.envs import Compose, EnvBase, Transform, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
 from trl_cartpole.config.schema import Config
+from trl_cartpole.parts.atari import EOL_KEY, LearnerView
 from trl_cartpole.parts.collectors import (
     RAY_ACTOR_OPTIONS,
     is_distributed,
@@ -52,11 +53,12 @@ __all__ = [
 ]
 
 
-def transition_keys(observation_key: str = "observation") -> tuple[Any, ...]:
+def transition_keys(observation_key: str = "observation", atari: bool = False) -> tuple[Any, ...]:
     """What the replay buffer stores of a collected frame: the observation the network reads
     (``"observation"``, or ``"pixels"``), the action, and the next step's observation, reward
-    and flags. The rest (Q-values, counters) is dropped."""
-    return (
+    and flags (an Atari game's ``("next", "end-of-life")`` too, which the buffer's
+    :class:`LearnerView` folds into them). The rest (Q-values, counters) is dropped."""
+    keys = (
         observation_key,
         "action",
         ("next", observation_key),
@@ -65,6 +67,7 @@ def transition_keys(observation_key: str = "observation") -> tuple[Any, ...]:
         ("next", "terminated"),
         ("next", "truncated"),
     )
+    return (*keys, ("next", EOL_KEY)) if atari else keys
 
 
 def run_title(cfg: Config) -> str:
@@ -175,10 +178,25 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         ),
         n_steps=buffer.n_steps,
         **({"gamma": cfg.loss.gamma} if buffer.n_steps > 1 else {}),
-        transform=RandomShift(buffer.pixels_shift) if buffer.pixels_shift else None,
+        transform=_buffer_transform(cfg),
     )
     save_filled_part(replay_buffer.storage)  # a checkpoint holds the transitions, not capacity
     return replay_buffer
+
+
+def _buffer_transform(cfg: Config) -> Transform | None:
+    """What the buffer does to what it stores and samples, besides n-step returns: an Atari
+    game's learner view (a lost life ends the learner's episode, rewards clipped:
+    :class:`LearnerView`) when a batch is stored; DrQ's random shift of sampled frames."""
+    transforms: list[Transform] = []
+    if EnvKind(cfg.env).atari:
+        atari = cfg.env.atari
+        transforms.append(LearnerView(atari.life_loss_ends, atari.clip_rewards))
+    if cfg.buffer.pixels_shift:
+        transforms.append(RandomShift(cfg.buffer.pixels_shift))
+    if len(transforms) > 1:
+        return Compose(*transforms)
+    return transforms[0] if transforms else None
 
 
 def torchrl_priority_exponent(alpha: float, distributional: bool) -> float:
