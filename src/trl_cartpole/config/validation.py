@@ -17,10 +17,10 @@ from typing import Any
 from trl_cartpole import defaults
 from trl_cartpole.config.schema import Config, flat_fields
 from trl_cartpole.env_ids import (
-    is_atari_id,
     CARTPOLE_FRAME,
     cartpole_crop_bounds,
     check_builtin_env_fits,
+    is_atari_id,
     resolve_env_id,
 )
 from trl_cartpole.errors import ConfigError, install_hint

@@ -82,8 +82,9 @@ ATARI_DEFAULTS: dict[str, Any] = {
 
 class NoopStarts(Transform):
     """After each reset, NOOP (action 0) for a number of frames drawn uniformly from
-    ``[1, noop_max]`` (Mnih et al. 2015: up to 30; Gymnasium's and Baselines' range), so games do not all start alike. The
-    count is drawn from the torch RNG; a game that ends during them is reset again."""
+    ``[1, noop_max]`` (Mnih et al. 2015: up to 30; Gymnasium's and Baselines' range), so
+    games do not all start alike. The count is drawn from the torch RNG; a game that ends
+    during them is reset again."""
 
     def __init__(self, noop_max: int = 30) -> None:
         super().__init__()
@@ -233,7 +234,7 @@ class LearnerView(Transform):
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
         out = tensordict.clone(False)
         following = out.get("next").clone(False)
-        if self.life_loss_ends and (EOL_KEY in following.keys()):
+        if self.life_loss_ends and EOL_KEY in following.keys():  # noqa: SIM118 (a TensorDict)
             lost = following.get(EOL_KEY)
             for key in ("terminated", "done"):
                 following.set(key, following.get(key) | lost)
