@@ -4,8 +4,9 @@ Four kinds: the env's state vector; pixels drawn from CartPole's state
 (``env.pixels_renderer=drawn``, a share of the envs painted by Gymnasium's own calls); pixels
 Gymnasium renders; and an Atari game's screen (an ``ALE/...`` id, preprocessed as
 ``env.atari`` says: :mod:`trl_cartpole.parts.atari`). What differs between them is asked of
-:class:`EnvKind`, nowhere else: the env a policy is judged on and the one a video records, the run's title, whether the
-collector's own state is saved with a checkpoint, how many envs one evaluation holds at once.
+:class:`EnvKind`, nowhere else: the env a policy is judged on and the one a video records,
+the run's title, whether the collector's own state is saved with a checkpoint, how many envs
+one evaluation holds at once.
 A new kind is one more case here.
 """
 
