@@ -132,7 +132,8 @@ class ExplorationConfig:
 class BufferConfig:
     size: int = defaults.BUFFER_SIZE  # transitions kept (the oldest are overwritten)
     # memory: TorchRL's LazyTensorStorage, in RAM | memmap: its LazyMemmapStorage, files in
-    # RUN_DIR/replay_buffer (removed at the end), for a buffer larger than the RAM to spare
+    # RUN_DIR/replay_buffer (removed at the end), for a buffer larger than the RAM to spare |
+    # frames: in RAM, each distinct frame of the pixel stacks once (parts/frame_storage.py)
     storage: str = "memory"
     batch_size: int = defaults.BATCH_SIZE  # transitions per gradient step
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)

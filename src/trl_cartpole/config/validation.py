@@ -46,7 +46,7 @@ _CHOICES = {
     "optim.grad_clip": defaults.GRAD_CLIPS,
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
     "collector.backend": defaults.COLLECTOR_BACKENDS,
-    "buffer.storage": ("memory", "memmap"),
+    "buffer.storage": ("memory", "memmap", "frames"),
     "network.torso": ("mlp", "cnn"),
     "env.pixels_renderer": ("gymnasium", "drawn"),
 }
@@ -298,6 +298,11 @@ def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
             cfg.buffer.pixels_shift == 0 or cfg.env.from_pixels or is_atari_id(cfg.env.id),
             f"buffer.pixels_shift={cfg.buffer.pixels_shift} shifts frames, and this run has "
             "none (env.from_pixels=false): set it to 0, or use env=cartpole_pixels",
+        ),
+        (
+            cfg.buffer.storage != "frames" or cfg.env.from_pixels or is_atari_id(cfg.env.id),
+            "buffer.storage=frames stores the frames of pixel stacks once, and this run has "
+            "none: set buffer.storage=memory",
         ),
         (
             not (cfg.env.from_pixels and cfg.env.normalize_observations),

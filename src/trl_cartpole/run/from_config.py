@@ -22,6 +22,7 @@ from trl_cartpole.parts.collectors import (
     make_collector,
 )
 from trl_cartpole.parts.exploration import make_exploration
+from trl_cartpole.parts.frame_storage import FrameStackStorage
 from trl_cartpole.parts.fused_loss import fuse_dqn_loss
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
@@ -151,10 +152,14 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
     """The replay buffer of ``cfg.buffer`` (n-step returns discounted by ``cfg.loss.gamma``).
 
     ``buffer.storage=memmap`` stores it in TorchRL's ``LazyMemmapStorage``, in files under
-    ``run_dir/replay_buffer`` (TorchRL's temporary directory without ``run_dir``).
+    ``run_dir/replay_buffer`` (TorchRL's temporary directory without ``run_dir``);
+    ``buffer.storage=frames`` keeps each distinct frame of the pixel stacks once
+    (:class:`~trl_cartpole.parts.frame_storage.FrameStackStorage`).
     """
     buffer = cfg.buffer
     storage = None  # make_replay_buffer's LazyTensorStorage
+    if buffer.storage == "frames":
+        storage = FrameStackStorage(buffer.size, device=cfg.device)
     if buffer.storage == "memmap":
         scratch_dir = None if run_dir is None else str(run_dir / REPLAY_FILES)
         # existsok: a resumed run writes over the files its stopped run left

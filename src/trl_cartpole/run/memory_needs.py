@@ -19,6 +19,8 @@ import torch
 from torchrl.envs import EnvBase
 
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.frame_storage import pool_capacity
+from trl_cartpole.parts.pixels import PIXELS_KEY
 
 __all__ = [
     "MemoryNeed",
@@ -57,11 +59,23 @@ def memory_need(
     transitions: int,
     make_actor: Callable[[str], torch.nn.Module],
     amsgrad: bool = True,
+    frames_stored_once: bool = False,
 ) -> MemoryNeed:
     """The lower bound of what the buffer and networks take; ``make_actor(device)`` builds the
-    actor, here on PyTorch's ``meta`` device (shapes only, nothing allocated)."""
+    actor, here on PyTorch's ``meta`` device (shapes only, nothing allocated).
+
+    ``frames_stored_once`` (``buffer.storage=frames``): a transition's two pixel stacks
+    ``[k, H, W]`` take ``2 k`` slots of 8 bytes and one frame of the pool, whose first
+    capacity (:func:`~trl_cartpole.parts.frame_storage.pool_capacity`) is counted."""
     step = env.fake_tensordict()  # [*env.batch_size]: one step of each env, with "next"
-    per_transition = step.bytes() // max(step.batch_size.numel(), 1)
+    envs = max(step.batch_size.numel(), 1)
+    per_transition = step.bytes() // envs
+    if frames_stored_once:
+        stacks = [step.get(key) for key in (PIXELS_KEY, ("next", PIXELS_KEY))]
+        per_transition -= sum(stack.numel() * stack.element_size() for stack in stacks) // envs
+        depth, height, width = stacks[0].shape[-3:]
+        pool_frames = pool_capacity(transitions) * height * width
+        per_transition += 2 * depth * 8 + -(-pool_frames // max(transitions, 1))
     with torch.device("meta"):
         actor = make_actor("meta")
     parameters = sum(parameter.numel() for parameter in actor.parameters())

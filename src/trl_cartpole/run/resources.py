@@ -55,4 +55,5 @@ def run_memory_need(cfg: Config, env: TransformedEnv) -> MemoryNeed:
         cfg.buffer.size,
         partial(build_actor, cfg, env),
         amsgrad=cfg.optim.amsgrad,
+        frames_stored_once=cfg.buffer.storage == "frames",
     )
