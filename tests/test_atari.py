@@ -1,0 +1,279 @@
+"""Atari games: the preprocessing against Gymnasium's frame by frame, the learner's view, frames
+stored once, the config's refusals, and a short Breakout run exported to a plain Gymnasium
+loop."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import step_mdp
+
+from tests.conftest import run_script_in_process
+from trl_cartpole.config.schema import to_config
+from trl_cartpole.config.validation import validate
+from trl_cartpole.env_ids import register_atari_games
+from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.atari import EOL_KEY, LearnerView, make_atari_env
+from trl_cartpole.parts.frame_storage import FrameStackStorage
+from trl_cartpole.parts.replay import make_replay_buffer
+
+pytest.importorskip("ale_py")
+pytest.importorskip("cv2")
+
+BREAKOUT = "ALE/Breakout-v5"
+
+
+def _gymnasium_breakout(**preprocessing):
+    """Gymnasium's own preprocessing of Breakout, 4 frames stacked."""
+    from gymnasium.wrappers import AtariPreprocessing, FrameStackObservation
+
+    register_atari_games()
+    base = gym.make(BREAKOUT, frameskip=1, repeat_action_probability=0.0)
+    return FrameStackObservation(AtariPreprocessing(base, **preprocessing), 4)
+
+
+def test_the_preprocessing_gives_gymnasiums_frames_rewards_and_ends():
+    """No NOOPs, no FIRE, no sticky actions: both sides deterministic, so the same actions must
+    give the same [4, 84, 84] stacks (the max of two frames, INTER_AREA, the reset stack)."""
+    env = make_atari_env(
+        BREAKOUT,
+        seed=3,
+        repeat_action_probability=0.0,
+        preprocessing={"noop_max": 0, "fire_on_reset": False},
+    )
+    theirs = _gymnasium_breakout(noop_max=0)
+    expected, _ = theirs.reset(seed=3)
+    state = env.reset()
+    actions = np.random.default_rng(0).integers(4, size=400)
+    ends = 0
+    for step, action in enumerate(actions.tolist()):
+        assert np.array_equal(state["pixels"].numpy(), expected), f"step {step}"
+        state["action"] = torch.tensor(action)
+        state = env.step(state)
+        expected, reward, terminated, truncated, _ = theirs.step(action)
+        assert float(state["next", "reward"]) == reward, f"step {step}"
+        assert bool(state["next", "terminated"]) == terminated, f"step {step}"
+        if terminated or truncated:
+            ends += 1
+            expected, _ = theirs.reset(seed=step)
+            env.set_seed(step)
+            state = env.reset()
+        else:
+            state = step_mdp(state)
+    assert state["pixels"].shape == (4, 84, 84) and state["pixels"].dtype == torch.uint8
+    assert ends >= 1  # a game ended on the way (the last life lost to random play)
+
+
+def test_noop_starts_and_fire_count_their_frames():
+    """After a reset: 1 to noop_max NOOP frames, then FIRE held for the frame skip (4)."""
+    counts = set()
+    for seed in range(6):
+        env = make_atari_env(BREAKOUT, seed=seed, preprocessing={"noop_max": 5})
+        torch.manual_seed(seed)
+        env.reset()
+        ale = env.base_env._env.unwrapped.ale
+        counts.add(ale.getEpisodeFrameNumber() - 4)
+        env.close()
+    assert counts <= set(range(1, 6)) and len(counts) > 1
+
+
+def test_a_lost_life_fires_again_and_the_game_goes_on():
+    """A lost life marks end-of-life, not done; the episode's return is the game's score."""
+    env = make_atari_env(BREAKOUT, seed=0, repeat_action_probability=0.0)
+    torch.manual_seed(0)
+    rollout = env.rollout(3000, break_when_any_done=True)  # random play to the game's end
+    lost = rollout["next", EOL_KEY].squeeze(-1)
+    done = rollout["next", "done"].squeeze(-1)
+    assert done[-1] and not done[:-1].any()
+    assert int(lost.sum()) == 5  # Breakout's five lives, the last one with the game
+    score = rollout["next", "reward"].sum()
+    assert float(rollout["next", "episode_reward"][-1]) == float(score)
+
+
+def test_the_learner_view_ends_episodes_at_a_lost_life_and_clips_rewards():
+    batch = TensorDict(
+        {
+            "next": {
+                "reward": torch.tensor([[4.0], [0.0], [-2.0]]),
+                "terminated": torch.tensor([[False], [False], [True]]),
+                "done": torch.tensor([[False], [False], [True]]),
+                EOL_KEY: torch.tensor([[True], [False], [True]]),
+            }
+        },
+        batch_size=[3],
+    )
+    seen = LearnerView()._inv_call(batch)
+    assert seen["next", "reward"].squeeze(-1).tolist() == [1.0, 0.0, -1.0]
+    assert seen["next", "terminated"].squeeze(-1).tolist() == [True, False, True]
+    assert seen["next", "done"].squeeze(-1).tolist() == [True, False, True]
+    assert batch["next", "reward"][0].item() == 4.0  # the env's data is left as it was
+    kept = LearnerView(life_loss_ends=False, clip_rewards=False)._inv_call(batch)
+    assert kept["next", "terminated"].squeeze(-1).tolist() == [False, False, True]
+    assert kept["next", "reward"].squeeze(-1).tolist() == [4.0, 0.0, -2.0]
+
+
+def _breakout_transitions(steps: int) -> TensorDict:
+    """[2, steps] steps of two Breakout games (SerialEnv-like stacking of two rollouts)."""
+    keys = ["pixels", "action", ("next", "pixels"), ("next", "reward"), ("next", "done")]
+    keys += [("next", "terminated"), ("next", "truncated"), ("next", "step_count"), "step_count"]
+    games = []
+    for seed in (0, 1):
+        env = make_atari_env(BREAKOUT, seed=seed)
+        torch.manual_seed(seed)
+        games.append(env.rollout(steps, break_when_any_done=False).select(*keys))
+        env.close()
+    return torch.stack(games)  # [2, steps]
+
+
+def test_frames_stored_once_give_back_what_was_stored_after_wrapping_around():
+    data = _breakout_transitions(160)
+    plain = make_replay_buffer(max_size=200, batch_size=16, n_steps=3, gamma=0.99)
+    once = make_replay_buffer(storage=FrameStackStorage(200), batch_size=16, n_steps=3, gamma=0.99)
+    for chunk in data.split(40, dim=1):  # [2, 40] batches, as a collector of 2 envs gives
+        plain.extend(chunk)
+        once.extend(chunk)
+    assert len(plain) == len(once) == 200  # wrapped around: 2 x 160 windows into 200 rows
+    rows = torch.arange(200)
+    stored, given = plain.storage.get(rows), once.storage.get(rows)
+    assert set(stored.keys(True, True)) == set(given.keys(True, True))
+    for key in stored.keys(True, True):
+        assert torch.equal(stored[key], given[key]), key
+    pool = once.storage.pool
+    # each row adds one new frame (its next stack's newest); game starts add their stacks
+    assert 200 <= pool.held <= 200 + 3 * 4 + 2 * 4
+    assert int(pool.uses.sum()) == 200 * 2 * 4  # every row's 8 slots counted, the old released
+    with tempfile.TemporaryDirectory() as folder:
+        once.dumps(folder)
+        again = make_replay_buffer(
+            storage=FrameStackStorage(200), batch_size=16, n_steps=3, gamma=0.99
+        )
+        again.loads(folder)
+        loaded = again.storage.get(rows)
+        assert all(torch.equal(loaded[k], given[k]) for k in given.keys(True, True))
+        assert again.storage.pool.held == pool.held
+
+
+def test_frames_stored_once_find_equal_frames_by_their_bytes():
+    """Stacks of arbitrary frames, repeated and shuffled: the pool holds each distinct frame
+    once, however the stacks are laid out."""
+    frames = torch.randint(0, 256, (5, 6, 6), dtype=torch.uint8)
+    order = torch.tensor([[0, 1, 2, 3], [1, 2, 3, 4], [4, 4, 4, 4], [0, 0, 1, 1]])
+    data = TensorDict(
+        {"pixels": frames[order], "next": {"pixels": frames[order.flip(-1)]}}, batch_size=[4]
+    )
+    storage = FrameStackStorage(4)
+    storage.set(torch.arange(4), data)
+    assert storage.pool.held == 5
+    assert torch.equal(storage.get(torch.tensor([2, 0]))["pixels"], frames[order[[2, 0]]])
+    storage.set(torch.arange(4), data[[2, 2, 2, 2]])  # overwrite all: only frame 4 still used
+    assert storage.pool.held == 1
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ([f"env.id={BREAKOUT}"], r"is an Atari game.*env=breakout.*network.torso=cnn"),
+        (["env=breakout", "env.make_kwargs.frameskip=4"], "env.atari.frame_skip instead"),
+        (["env=breakout", "env.atari.frame_skip=0"], "frame_skip=0 must be >= 1"),
+        (["buffer.storage=frames"], "buffer.storage=frames .* this run has none"),
+    ],
+)
+def test_impossible_atari_configs_are_refused(compose, overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        validate(to_config(compose(*overrides)))
+
+
+def test_an_atari_run_is_named_without_the_namespace_slash(compose):
+    cfg = compose("env=breakout", "seed=7")
+    name = Path(str(cfg.run_dir))
+    assert name.parent == Path("runs") and name.name.startswith("ALE-Breakout-v5-dqn-seed7-")
+
+
+def test_without_ale_py_the_message_names_the_atari_extra(monkeypatch):
+    import importlib
+
+    real = importlib.import_module
+
+    def no_ale(name, *args, **kwargs):
+        if name == "ale_py":
+            raise ImportError("No module named 'ale_py'")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(importlib, "import_module", no_ale)
+    with pytest.raises(ConfigError, match=r"atari extra .* install it with .*\[atari\]"):
+        register_atari_games()
+
+
+def test_the_preset_sees_stacked_screens_and_stores_them_once(compose):
+    from trl_cartpole.run.from_config import build_actor, build_env, build_replay_buffer
+    from trl_cartpole.run.resources import run_memory_need
+
+    cfg = validate(to_config(compose("env=breakout")))
+    env = build_env(cfg, seed=0)
+    assert env.observation_spec["pixels"].shape == (4, 84, 84)
+    actor = build_actor(cfg, env)
+    assert actor(env.reset())["action_value"].shape == (4,)  # Breakout's 4 actions
+    assert isinstance(build_replay_buffer(cfg).storage, FrameStackStorage)
+    need = run_memory_need(cfg, env)
+    # 100 000 transitions: about one 84x84 frame each (and an eighth more), not 2 x 4
+    assert 0.7e9 < need.buffer_bytes < 1.0e9
+    env.close()
+
+
+TINY_BREAKOUT = [
+    "env=breakout",
+    "collector.total_frames=400",
+    "collector.init_random_frames=300",
+    "eval.interval_frames=200",
+    "eval.episodes=1",
+    "eval.final_episodes=1",
+    "eval.candidates=1",
+    "buffer.size=1000",
+    "logger.plots=false",
+    "logger.progress_bar=false",
+]
+
+
+@pytest.mark.slow  # a short Breakout run, exported and played in a plain Gymnasium loop
+def test_an_exported_breakout_policy_plays_gymnasiums_own_preprocessing_alike(tmp_path):
+    from trl_cartpole.policy.load import load_trained_policy
+
+    run_dir = tmp_path / "run"
+    proc = run_script_in_process("train.py", *TINY_BREAKOUT, f"run_dir={run_dir}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["frames"] == 400 and summary["updates"] > 0
+    program = tmp_path / "policy.pt2"
+    written = run_script_in_process("export.py", f"checkpoint={run_dir}", f"output={program}")
+    assert written.returncode == 0, written.stderr[-2000:]
+    assert "pixels [batch, 4, 84, 84] uint8" in written.stdout
+    exported = torch.export.load(program).module()
+    # Gymnasium's preprocessing and ours, deterministic: the greedy actions must agree.
+    trained = load_trained_policy(run_dir)
+    ours = make_atari_env(
+        BREAKOUT,
+        seed=5,
+        repeat_action_probability=0.0,
+        preprocessing={"noop_max": 0, "fire_on_reset": False},
+    )
+    theirs = _gymnasium_breakout(noop_max=0)
+    observation, _ = theirs.reset(seed=5)
+    state = ours.reset()
+    for _ in range(200):
+        values = exported(torch.from_numpy(observation)[None])  # [1, 4]
+        action = int(values.argmax(-1))
+        mine = trained.actor(state.select("pixels"))["action_value"]
+        assert torch.allclose(values[0], mine, atol=1e-5)
+        observation, _, terminated, truncated, _ = theirs.step(action)
+        state["action"] = torch.tensor(action)
+        state = step_mdp(ours.step(state))
+        if terminated or truncated:
+            break
+    trained.env.close()
