@@ -52,12 +52,14 @@ def check_video_output(output: str) -> None:
 MAX_EPISODES_IN_A_VIDEO = 20
 
 
-def check_video_arguments(episodes: int, fps: int, scale: float, output: str | None = None) -> None:
+def check_video_arguments(
+    episodes: int, fps: int, scale: float | None, output: str | None = None
+) -> None:
     """Raise a one-line :class:`ConfigError` for a video that cannot be recorded (``output``:
-    :func:`check_video_output`; None: the default GIF)."""
+    :func:`check_video_output`; None: the default GIF; ``scale`` None: the env's own)."""
     if output is not None:
         check_video_output(output)
-    if episodes < 1 or fps < 1 or not 0 < scale <= 4:
+    if episodes < 1 or fps < 1 or not (scale is None or 0 < scale <= 4):
         raise ConfigError("episodes and fps must be >= 1 and scale in (0, 4]")
     if episodes > MAX_EPISODES_IN_A_VIDEO:
         raise ConfigError(

@@ -28,6 +28,7 @@ from trl_cartpole.policy.formats import check_video_arguments, check_video_outpu
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.report.console import quiet_libraries, shown_path
 from trl_cartpole.report.progress_bar import clear_status, show_status
+from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.store.files import write_atomic
 
 __all__ = [
@@ -58,6 +59,9 @@ def _captioned(frame: np.ndarray, text: str, scale: float) -> np.ndarray:
     return np.asarray(image)
 
 
+# a video's frame size relative to the env's render, by kind: Atari's 160x210 screen x3, a
+# classic-control env's 600x400 picture halved
+SCALES = {"atari": 3.0, "other": 0.5}
 # the white band that names the agent's view under the scene, in pixels
 VIEW_CAPTION_HEIGHT = 14
 
@@ -69,8 +73,10 @@ def _with_agent_view(scene: np.ndarray, pixels: torch.Tensor) -> np.ndarray:
     patch = pixels[-1].numpy()  # [h, w]
     factor = max(scene.shape[1] // patch.shape[1], 1)
     view = np.repeat(np.repeat(patch, factor, axis=0), factor, axis=1)  # [h * f, w * f]
-    view = np.pad(view, ((0, 0), (0, scene.shape[1] - view.shape[1])), constant_values=255)
-    band = Image.new("RGB", (scene.shape[1], VIEW_CAPTION_HEIGHT), (255, 255, 255))
+    width = max(scene.shape[1], view.shape[1])  # a game's small screen may be the narrower
+    view = np.pad(view, ((0, 0), (0, width - view.shape[1])), constant_values=255)
+    scene = np.pad(scene, ((0, 0), (0, width - scene.shape[1]), (0, 0)), constant_values=255)
+    band = Image.new("RGB", (width, VIEW_CAPTION_HEIGHT), (255, 255, 255))
     caption = f"what the network sees: its last {patch.shape[0]}x{patch.shape[1]} patch, x{factor}"
     ImageDraw.Draw(band).text((6, 1), caption, fill=(0, 0, 0))
     return np.concatenate([scene, np.asarray(band), np.repeat(view[..., None], 3, axis=-1)], axis=0)
@@ -155,19 +161,22 @@ def record_agent(
     seed: int | None = None,
     output: str | Path | None = None,
     fps: int = 50,
-    scale: float = 0.5,
+    scale: float | None = None,
 ) -> Recording:
     """Play ``episodes`` greedy episodes of a trained policy into a GIF (or MP4) file.
 
     ``run_dir_or_checkpoint`` is a run directory (its best policy plays) or a checkpoint;
     ``seed`` defaults to the run's final evaluation seeds and ``output`` to ``video.gif``
-    beside the checkpoint; frames are scaled by ``scale``.
+    beside the checkpoint; frames are scaled by ``scale`` (None: :data:`SCALES`, by the kind
+    of env: an Atari game's small screen enlarged, a classic-control picture halved).
     """
     check_video_arguments(episodes, fps, scale, None if output is None else str(output))
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only, no window
     frames, returns = [], []
     with quiet_libraries():  # no TorchRL INFO lines (spec checks), as in the scripts
         trained = load_trained_policy(run_dir_or_checkpoint, seed=seed, render_mode="rgb_array")
+        if scale is None:
+            scale = SCALES["atari" if EnvKind(trained.cfg.env).atari else "other"]
         try:
             show_status(f"rendering episode 1 of {episodes}")
             for episode in render_episodes(

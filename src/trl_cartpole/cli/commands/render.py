@@ -26,7 +26,9 @@ class RenderArgs:
     episodes: int = 3  # greedy episodes, one after the other
     output: str | None = None  # .gif or .mp4 (mp4 needs the video extra); null: video.gif beside it
     fps: int = 50  # frames per second of the file
-    scale: float = 0.5  # frame size relative to the env's render (0, 4]
+    # frame size relative to the env's render, in (0, 4]; null: 0.5 (a classic-control env's
+    # 600x400 picture), 3 for an Atari game's 160x210 screen
+    scale: float | None = None
     seed: int | None = None  # null: the seeds of the run's own final evaluation
     human: bool = False  # open Gymnasium's window instead of writing a file (needs a display)
 
