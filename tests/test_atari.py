@@ -21,6 +21,7 @@ from trl_cartpole.config.validation import validate
 from trl_cartpole.env_ids import register_atari_games
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.atari import EOL_KEY, LearnerView, make_atari_env
+from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.frame_storage import FrameStackStorage
 from trl_cartpole.parts.replay import make_replay_buffer
 
@@ -78,7 +79,7 @@ def test_noop_starts_and_fire_count_their_frames():
         env = make_atari_env(BREAKOUT, seed=seed, preprocessing={"noop_max": 5})
         torch.manual_seed(seed)
         env.reset()
-        ale = env.base_env._env.unwrapped.ale
+        ale = gym_env(env).unwrapped.ale
         counts.add(ale.getEpisodeFrameNumber() - 4)
         env.close()
     assert counts <= set(range(1, 6)) and len(counts) > 1

@@ -53,6 +53,7 @@ from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.utils import _set_missing_tolerance
 
 from trl_cartpole.env_ids import register_atari_games
+from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.pixels import PIXELS_KEY
 
 __all__ = [
@@ -192,7 +193,7 @@ class FireOnReset(Transform):
         return parent._step(state.clone(False).update(action))
 
     def _lives(self) -> int:
-        return int(self.parent.base_env._env.unwrapped.ale.lives())
+        return int(gym_env(self.parent).unwrapped.ale.lives())
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase):
         stepped = self._fire(tensordict_reset)
