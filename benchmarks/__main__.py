@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from benchmarks import (
     ablate,
+    atari,
     envs,
     memory,
     profile,
@@ -36,6 +37,7 @@ SUBCOMMANDS = {
     "wall": wall,
     "memory": memory,
     "weight-sync": weight_sync,
+    "atari": atari,
 }
 
 

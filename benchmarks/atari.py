@@ -1,0 +1,180 @@
+"""Atari outside the project: an exported policy in a plain Gymnasium loop, and env speeds.
+
+    python -m benchmarks atari --checkpoint RUN_DIR [--games 30] [--seeds 0]
+    python -m benchmarks atari --env-speed [--steps 2000] [env.id=ALE/Breakout-v5]
+
+``--checkpoint``: the run's kept policy, exported as ``scripts/export.py`` does to
+``OUT/policy.pt2`` (``torch.export``), plays ``--games`` whole games of the run's game in a
+loop of Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``, ``AtariPreprocessing``
+(30 NOOPs, frame skip 4, 84x84 gray) and ``FrameStackObservation(4)``; the one rule of this
+project's preprocessing Gymnasium has no wrapper for, FIRE after a reset and after a lost life,
+is three lines of the loop. Prints the mean score over the games beside the run's own final
+evaluation (``summary.json``).
+
+``--env-speed``: agent steps per second of random play (4 game frames each) through this
+project's TorchRL env (one game; a ``SerialEnv`` of 4), Gymnasium's preprocessing wrappers,
+and ALE's own C++ ``AtariVectorEnv`` (4 and 8 games, its threads), one after another.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from functools import partial
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torchrl.envs.utils import step_mdp
+
+from trl_cartpole.config.compose import compose_config
+from trl_cartpole.env_ids import register_atari_games
+
+SEEDS = [0]
+OUT = "runs/bench/atari"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", type=Path, help="a run directory of an Atari game")
+    parser.add_argument("--games", type=int, default=30, help="whole games to play")
+    parser.add_argument("--env-speed", action="store_true", help="time the env paths instead")
+    parser.add_argument("--steps", type=int, default=2000, help="agent steps per env timed")
+
+
+def _gymnasium_game(env_id: str, make_kwargs: dict) -> gym.Env:
+    from gymnasium.wrappers import AtariPreprocessing, FrameStackObservation
+
+    register_atari_games()
+    base = gym.make(env_id, frameskip=1, **make_kwargs)
+    return FrameStackObservation(AtariPreprocessing(base, noop_max=30), 4)
+
+
+def play_in_gymnasium(program: Path, env_id: str, make_kwargs: dict, games: int, seed: int):
+    """Scores of ``games`` whole games of the exported greedy network ``program``."""
+    network = torch.export.load(program).module()
+    env = _gymnasium_game(env_id, make_kwargs)
+    meanings = env.unwrapped.get_action_meanings()
+    fire = meanings.index("FIRE") if "FIRE" in meanings else None
+    scores = []
+    for game in range(games):
+        observation, info = env.reset(seed=seed + game)
+        score, lives, over = 0.0, info["lives"], False
+        if fire is not None:  # FIRE after the reset, as the project's FireOnReset
+            observation, reward, over, truncated, info = env.step(fire)
+            score, lives, over = score + reward, info["lives"], over or truncated
+        while not over:
+            with torch.no_grad():
+                values = network(torch.from_numpy(np.asarray(observation))[None])  # [1, A]
+            observation, reward, terminated, truncated, info = env.step(int(values.argmax()))
+            score, over = score + reward, terminated or truncated
+            if fire is not None and not over and info["lives"] < lives:  # and after a lost life
+                observation, reward, terminated, truncated, info = env.step(fire)
+                score, over = score + reward, terminated or truncated
+            lives = info["lives"]
+        scores.append(score)
+    env.close()
+    return scores
+
+
+def _plain_loop(args: argparse.Namespace) -> None:
+    from trl_cartpole.policy.export import export_program, greedy_q_network
+
+    run_dir = args.checkpoint
+    config = _run_config(run_dir)
+    args.out.mkdir(parents=True, exist_ok=True)
+    network = greedy_q_network(run_dir)  # what scripts/export.py writes
+    program = export_program(network, network.obs_dim, args.out / "policy.pt2")
+    env_id, make_kwargs = config["env"]["id"], config["env"].get("make_kwargs", {})
+    scores = play_in_gymnasium(program, env_id, make_kwargs, args.games, args.seeds[0])
+    summary = json.loads((run_dir / "summary.json").read_text())
+    print(f"{env_id}, {run_dir}: {args.games} games in Gymnasium's own loop")
+    print(
+        f"  exported policy, Gymnasium's preprocessing: mean {statistics.mean(scores):.2f} "
+        f"+/- {statistics.pstdev(scores):.2f} (min {min(scores):g}, max {max(scores):g})"
+    )
+    print(
+        f"  the run's final evaluation ({summary['final_eval_episodes']} games): mean "
+        f"{summary['final_eval_return_mean']:.2f} +/- {summary['final_eval_return_std']:.2f}"
+    )
+
+
+def _run_config(run_dir: Path) -> dict:
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml"), resolve=False)
+
+
+def _steps_per_second(step, steps: int, batch: int) -> float:
+    step()  # warm-up
+    start = time.perf_counter()
+    for _ in range(steps // batch):
+        step()
+    return (steps // batch) * batch / (time.perf_counter() - start)
+
+
+def _torchrl_stepper(env):
+    state = [env.reset()]
+
+    def step() -> None:
+        state[0] = step_mdp(env.rand_step(state[0]))
+
+    return step
+
+
+def _gymnasium_stepper(game: gym.Env):
+    game.reset(seed=0)
+
+    def step() -> None:
+        _, _, terminated, truncated, _ = game.step(game.action_space.sample())
+        if terminated or truncated:
+            game.reset()
+
+    return step
+
+
+def _env_speed(args: argparse.Namespace) -> None:
+    import ale_py
+    from torchrl.envs import SerialEnv
+
+    from trl_cartpole.parts.atari import make_atari_env
+
+    env_id = str(compose_config("configs", ["env=breakout", *args.overrides]).env.id)
+    register_atari_games()
+    rows = []
+    for count in (1, 4):
+        env = (
+            make_atari_env(env_id, seed=0)
+            if count == 1
+            else SerialEnv(count, partial(make_atari_env, env_id))
+        )
+        env.set_seed(0)
+        rate = _steps_per_second(_torchrl_stepper(env), args.steps, count)
+        rows.append((f"TorchRL env, this project's transforms, {count} game(s)", rate))
+        env.close()
+    game = _gymnasium_game(env_id, {})
+    rate = _steps_per_second(_gymnasium_stepper(game), args.steps, 1)
+    rows.append(("Gymnasium AtariPreprocessing + FrameStackObservation, 1 game", rate))
+    game.close()
+    name = env_id.split("/")[-1].split("-")[0].lower()
+    for count in (4, 8):
+        vector = ale_py.AtariVectorEnv(name, count, repeat_action_probability=0.25)
+        vector.reset(seed=0)
+        actions = np.zeros(count, dtype=np.int64)
+        rate = _steps_per_second(partial(vector.step, actions), args.steps, count)
+        rows.append((f"ALE AtariVectorEnv (C++ threads), {count} games", rate))
+        vector.close()
+    print("| env path | agent steps / s |\n| --- | --- |")
+    for label, rate in rows:
+        print(f"| {label} | {rate:.0f} |")
+
+
+def main(args: argparse.Namespace) -> None:
+    if args.env_speed:
+        _env_speed(args)
+    elif args.checkpoint is None:
+        raise SystemExit("give --checkpoint RUN_DIR (an Atari run) or --env-speed")
+    else:
+        _plain_loop(args)
