@@ -5,11 +5,11 @@
 
 ``--checkpoint``: the run's kept policy, exported as ``scripts/export.py`` does to
 ``OUT/policy.pt2`` (``torch.export``), plays ``--games`` whole games of the run's game in a
-loop of Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``, ``AtariPreprocessing``
-(30 NOOPs, frame skip 4, 84x84 gray) and ``FrameStackObservation(4)``; the one rule of this
-project's preprocessing Gymnasium has no wrapper for, FIRE after a reset and after a lost life,
-is three lines of the loop. Prints the mean score over the games beside the run's own final
-evaluation (``summary.json``).
+loop of Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``,
+``AtariPreprocessing`` (30 NOOPs, frame skip 4, 84x84 gray) and ``FrameStackObservation(4)``;
+the one rule of this project's preprocessing Gymnasium has no wrapper for, FIRE after a reset
+and after a lost life, is three lines of the loop. Prints the mean score over the games beside
+the run's own final evaluation (``summary.json``).
 
 ``--env-speed``: agent steps per second of random play (4 game frames each) through this
 project's TorchRL env (one game; a ``SerialEnv`` of 4), Gymnasium's preprocessing wrappers,
