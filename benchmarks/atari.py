@@ -1,6 +1,7 @@
 """Atari outside the project: an exported policy in a plain Gymnasium loop, and env speeds.
 
-    python -m benchmarks atari --checkpoint RUN_DIR [--games 30] [--seeds 0]
+    python -m benchmarks atari --checkpoint RUN_DIR [RUN_DIR ...] [--games 30] [--seeds 0]
+        [--record docs/results/atari_breakout.json]
     python -m benchmarks atari --env-speed [--steps 2000] [env.id=ALE/Breakout-v5]
 
 ``--checkpoint``: the run's kept policy, exported as ``scripts/export.py`` does to
@@ -9,7 +10,9 @@ loop of Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_k
 ``AtariPreprocessing`` (30 NOOPs, frame skip 4, 84x84 gray) and ``FrameStackObservation(4)``;
 the one rule of this project's preprocessing Gymnasium has no wrapper for, FIRE after a reset
 and after a lost life, is three lines of the loop. Prints the mean score over the games beside
-the run's own final evaluation (``summary.json``).
+the run's own final evaluation (``summary.json``); ``--record`` writes each run's summary with
+its plain-loop scores, and where and when they were measured, to a results file (docs/atari.md
+is generated from it).
 
 ``--env-speed``: agent steps per second of random play (4 game frames each) through this
 project's TorchRL env (one game; a ``SerialEnv`` of 4), Gymnasium's preprocessing wrappers,
@@ -38,7 +41,8 @@ OUT = "runs/bench/atari"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", type=Path, help="a run directory of an Atari game")
+    parser.add_argument("--checkpoint", type=Path, nargs="+", help="run directories of a game")
+    parser.add_argument("--record", type=Path, help="write the runs' results to this file")
     parser.add_argument("--games", type=int, default=30, help="whole games to play")
     parser.add_argument("--env-speed", action="store_true", help="time the env paths instead")
     parser.add_argument("--steps", type=int, default=2000, help="agent steps per env timed")
@@ -80,25 +84,32 @@ def play_in_gymnasium(program: Path, env_id: str, make_kwargs: dict, games: int,
 
 
 def _plain_loop(args: argparse.Namespace) -> None:
+    from benchmarks.harness import provenance
     from trl_cartpole.policy.export import export_program, greedy_q_network
 
-    run_dir = args.checkpoint
-    config = _run_config(run_dir)
-    args.out.mkdir(parents=True, exist_ok=True)
-    network = greedy_q_network(run_dir)  # what scripts/export.py writes
-    program = export_program(network, network.obs_dim, args.out / "policy.pt2")
-    env_id, make_kwargs = config["env"]["id"], config["env"].get("make_kwargs", {})
-    scores = play_in_gymnasium(program, env_id, make_kwargs, args.games, args.seeds[0])
-    summary = json.loads((run_dir / "summary.json").read_text())
-    print(f"{env_id}, {run_dir}: {args.games} games in Gymnasium's own loop")
-    print(
-        f"  exported policy, Gymnasium's preprocessing: mean {statistics.mean(scores):.2f} "
-        f"+/- {statistics.pstdev(scores):.2f} (min {min(scores):g}, max {max(scores):g})"
-    )
-    print(
-        f"  the run's final evaluation ({summary['final_eval_episodes']} games): mean "
-        f"{summary['final_eval_return_mean']:.2f} +/- {summary['final_eval_return_std']:.2f}"
-    )
+    runs = []
+    for number, run_dir in enumerate(args.checkpoint):
+        config = _run_config(run_dir)
+        args.out.mkdir(parents=True, exist_ok=True)
+        network = greedy_q_network(run_dir)  # what scripts/export.py writes
+        program = export_program(network, network.obs_dim, args.out / f"policy-{number}.pt2")
+        env_id, make_kwargs = config["env"]["id"], config["env"].get("make_kwargs", {})
+        scores = play_in_gymnasium(program, env_id, make_kwargs, args.games, args.seeds[0])
+        summary = json.loads((run_dir / "summary.json").read_text())
+        print(f"{env_id}, {run_dir}: {args.games} games in Gymnasium's own loop")
+        print(
+            f"  exported policy, Gymnasium's preprocessing: mean {statistics.mean(scores):.2f} "
+            f"+/- {statistics.pstdev(scores):.2f} (min {min(scores):g}, max {max(scores):g})"
+        )
+        print(
+            f"  the run's final evaluation ({summary['final_eval_episodes']} games): mean "
+            f"{summary['final_eval_return_mean']:.2f} +/- {summary['final_eval_return_std']:.2f}"
+        )
+        runs.append({**summary, "plain_loop_scores": scores})
+    if args.record:
+        command = "python -m benchmarks atari --checkpoint " + " ".join(map(str, args.checkpoint))
+        record = {**provenance(), "command": command, "runs": runs}
+        args.record.write_text(json.dumps(record, indent=2) + "\n")
 
 
 def _run_config(run_dir: Path) -> dict:

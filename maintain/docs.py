@@ -29,6 +29,7 @@ import argparse
 import inspect
 import json
 import re
+import statistics
 import sys
 from collections.abc import Callable
 from functools import partial
@@ -42,6 +43,7 @@ PACKAGE = ROOT / "src" / "trl_cartpole"
 RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
+ATARI = ROOT / "docs" / "results" / "atari_breakout.json"
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
 RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in RACE_ENVS}
 
@@ -197,16 +199,18 @@ def pixel_seeds() -> str:
         f"within {PIXEL_BUDGET['train_seconds'] / 60:g} minutes of training and "
         f"{PIXEL_BUDGET['peak_rss_mb'] / 1024:g} GiB"
     )
+    return _results_block(
+        record,
+        rows,
+        f"Target ({target_text('cartpole_pixels')}, final 100-episode return on Gymnasium's "
+        f"render() frames, {budget}): {verdict}.",
+    )
+
+
+def _results_block(record: dict, rows: list[str], verdict: str) -> str:
+    """A results file's command, where and when it ran, its table and the target's verdict."""
     return "\n".join(
-        [
-            _fenced(record["command"], "bash"),
-            provenance_line(record),
-            "",
-            *rows,
-            "",
-            f"Target ({target_text('cartpole_pixels')}, final 100-episode return on Gymnasium's "
-            f"render() frames, {budget}): {verdict}.",
-        ]
+        [_fenced(record["command"], "bash"), provenance_line(record), "", *rows, "", verdict]
     )
 
 
@@ -224,6 +228,47 @@ def _candidates_cell(run: dict) -> str:
         )
         cells.append(f"**{cell}**" if score["frames"] == run["kept_policy_frames"] else cell)
     return "; ".join(cells)
+
+
+ATARI_TARGET = {"score": 15.0, "train_seconds": 2 * 3600, "peak_rss_mb": 4 * 1024}
+
+
+def atari_runs() -> str:
+    """docs/atari.md's table of Breakout runs, from ``docs/results/atari_breakout.json``
+    (``python -m benchmarks atari --checkpoint RUN_DIR ... --record`` writes it), with the
+    Practical RL DQN assignment's target's verdict."""
+    record = json.loads(ATARI.read_text())
+    rows = [
+        "| seed | agent steps | updates | train time | greedy score at each evaluation | "
+        "kept policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
+        "steps/s, updates/s | peak memory, MiB |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for run in record["runs"]:
+        finals, plain = run["final_eval_returns"], run["plain_loop_scores"]
+        rows.append(
+            f"| {run['seed']} | {_spaced(run['frames'])} | {_spaced(run['updates'])} | "
+            f"{_duration(run['train_seconds'])} | "
+            f"{', '.join(f'{value:.1f}' for value in run['eval_curve']['returns'])} | "
+            f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
+            f"{run['final_eval_return_std']:.1f} ({min(finals):.0f} to {max(finals):.0f}) | "
+            f"{statistics.mean(plain):.1f} +/- {statistics.pstdev(plain):.1f} | "
+            f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "
+            f"{_spaced(run['peak_rss_mb'])} |"
+        )
+    met = all(
+        run["final_eval_return_mean"] >= ATARI_TARGET["score"]
+        and run["train_seconds"] <= ATARI_TARGET["train_seconds"]
+        and run["peak_rss_mb"] <= ATARI_TARGET["peak_rss_mb"]
+        for run in record["runs"]
+    )
+    return _results_block(
+        record,
+        rows,
+        f"Target (every seed's kept policy >= {ATARI_TARGET['score']:g} over 30 whole games, "
+        f"within {ATARI_TARGET['train_seconds'] // 3600} hours of training and "
+        f"{ATARI_TARGET['peak_rss_mb'] // 1024} GiB): {'met' if met else '**not met**'}.",
+    )
 
 
 def train_listing() -> str:
@@ -248,6 +293,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
+    "atari-runs": ("docs/atari.md", atari_runs),
     **{
         f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
         for env, path in RACES.items()

@@ -31,27 +31,30 @@ pytest.importorskip("cv2")
 BREAKOUT = "ALE/Breakout-v5"
 
 
-def _gymnasium_breakout(**preprocessing):
-    """Gymnasium's own preprocessing of Breakout, 4 frames stacked."""
+def _deterministic_pair(seed: int):
+    """Breakout through this project's preprocessing and through Gymnasium's own
+    (``AtariPreprocessing`` + ``FrameStackObservation(4)``), with no NOOPs, no FIRE and no
+    sticky actions: both sides deterministic. Returns (our env, its reset state, Gymnasium's
+    env, its first observation)."""
     from gymnasium.wrappers import AtariPreprocessing, FrameStackObservation
 
-    register_atari_games()
-    base = gym.make(BREAKOUT, frameskip=1, repeat_action_probability=0.0)
-    return FrameStackObservation(AtariPreprocessing(base, **preprocessing), 4)
-
-
-def test_the_preprocessing_gives_gymnasiums_frames_rewards_and_ends():
-    """No NOOPs, no FIRE, no sticky actions: both sides deterministic, so the same actions must
-    give the same [4, 84, 84] stacks (the max of two frames, INTER_AREA, the reset stack)."""
-    env = make_atari_env(
+    ours = make_atari_env(
         BREAKOUT,
-        seed=3,
+        seed=seed,
         repeat_action_probability=0.0,
         preprocessing={"noop_max": 0, "fire_on_reset": False},
     )
-    theirs = _gymnasium_breakout(noop_max=0)
-    expected, _ = theirs.reset(seed=3)
-    state = env.reset()
+    register_atari_games()
+    base = gym.make(BREAKOUT, frameskip=1, repeat_action_probability=0.0)
+    theirs = FrameStackObservation(AtariPreprocessing(base, noop_max=0), 4)
+    observation, _ = theirs.reset(seed=seed)
+    return ours, ours.reset(), theirs, observation
+
+
+def test_the_preprocessing_gives_gymnasiums_frames_rewards_and_ends():
+    """Both sides deterministic (:func:`_deterministic_pair`): the same actions must give the
+    same [4, 84, 84] stacks (the max of two frames, INTER_AREA, the reset stack)."""
+    env, state, theirs, expected = _deterministic_pair(3)
     actions = np.random.default_rng(0).integers(4, size=400)
     ends = 0
     for step, action in enumerate(actions.tolist()):
@@ -258,15 +261,7 @@ def test_an_exported_breakout_policy_plays_gymnasiums_own_preprocessing_alike(tm
     exported = torch.export.load(program).module()
     # Gymnasium's preprocessing and ours, deterministic: the greedy actions must agree.
     trained = load_trained_policy(run_dir)
-    ours = make_atari_env(
-        BREAKOUT,
-        seed=5,
-        repeat_action_probability=0.0,
-        preprocessing={"noop_max": 0, "fire_on_reset": False},
-    )
-    theirs = _gymnasium_breakout(noop_max=0)
-    observation, _ = theirs.reset(seed=5)
-    state = ours.reset()
+    ours, state, theirs, observation = _deterministic_pair(5)
     for _ in range(200):
         values = exported(torch.from_numpy(observation)[None])  # [1, 4]
         action = int(values.argmax(-1))
