@@ -273,3 +273,41 @@ def test_an_exported_breakout_policy_plays_gymnasiums_own_preprocessing_alike(tm
         if terminated or truncated:
             break
     trained.env.close()
+
+
+def test_a_restored_game_plays_on_exactly_as_the_saved_one():
+    """ALE's state (the emulator and its RNG: sticky actions), the preprocessing's state (the
+    stacked frames, the lives at the last step) and the carried step: a game restored into a
+    fresh env gives the same frames, rewards, lives and ends as the saved one, step by step."""
+    from trl_cartpole.store.env_state import env_snapshot, restore_env_snapshot
+
+    torch.manual_seed(0)
+    saved = make_atari_env(BREAKOUT, seed=0)  # sticky actions 0.25, NOOPs, FIRE: the preset's
+    state = saved.reset()
+    actions = np.random.default_rng(0).integers(4, size=340).tolist()
+    for action in actions[:40]:
+        state["action"] = torch.tensor(action)
+        state = step_mdp(saved.step(state))
+    snapshot = env_snapshot(saved)
+    transforms = {key: value.clone() for key, value in saved.transform.state_dict().items()}
+    carried, rng = state.clone(), torch.get_rng_state()
+    expected = []
+    for action in actions[40:]:
+        state["action"] = torch.tensor(action)
+        stepped = saved.step(state)
+        expected.append(stepped["next"].clone())
+        state = step_mdp(stepped)
+    restored = make_atari_env(BREAKOUT, seed=9)
+    restored.reset()
+    restored.load_state_dict(transforms)
+    assert restore_env_snapshot(restored, snapshot)
+    torch.set_rng_state(rng)
+    state, lost = carried, 0
+    for step, action in enumerate(actions[40:]):
+        state["action"] = torch.tensor(action)
+        stepped = restored.step(state)
+        for key in ("pixels", "reward", "done", EOL_KEY, "lives", "step_count"):
+            assert torch.equal(stepped["next", key], expected[step][key]), (step, key)
+        lost += int(stepped["next", EOL_KEY])
+        state = step_mdp(stepped)
+    assert lost >= 1  # the game went through a lost life (and its FIRE) after the restore

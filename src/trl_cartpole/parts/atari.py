@@ -184,6 +184,8 @@ class FireOnReset(Transform):
     def __init__(self, fire_action: int) -> None:
         super().__init__()
         self.fire_action = int(fire_action)
+        # the lives at the last step, a buffer so the env's state_dict (a checkpoint) holds it
+        self.register_buffer("lives_before", torch.tensor(-1))
 
     def _fire(self, state: TensorDictBase) -> TensorDictBase:
         parent = self.parent
@@ -199,18 +201,18 @@ class FireOnReset(Transform):
         stepped = self._fire(tensordict_reset)
         if stepped.get("done").any():  # the game ended on its first move: start again
             return self.parent._reset(tensordict_reset.clone(False))
-        self._lives_before = self._lives()
+        self.lives_before.fill_(self._lives())
         return tensordict_reset.update(stepped.exclude("reward", "action"))
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase):
         lives = self._lives()
-        lost = lives < getattr(self, "_lives_before", lives)
-        self._lives_before = lives
+        lost = lives < int(self.lives_before)
+        self.lives_before.fill_(lives)
         if not lost or next_tensordict.get("done").any():
             return next_tensordict
         fired = self._fire(next_tensordict)
         fired.set("reward", next_tensordict.get("reward") + fired.get("reward"))
-        self._lives_before = self._lives()
+        self.lives_before.fill_(self._lives())
         return fired
 
 

@@ -67,6 +67,7 @@ __all__ = [
     "n_step_transform",
     "n_step_window",
     "replay_transform",
+    "serial_envs",
     "set_autoreset_state",
     "set_gym_env",
     "set_held_steps",
@@ -103,6 +104,11 @@ def set_worker_carriers(collector: BaseCollector, carriers: list[TensorDictBase]
 def gym_env(env: EnvBase) -> Any:
     """The Gymnasium env (or vector env) behind ``env``'s ``GymWrapper``."""
     return env.base_env._env
+
+
+def serial_envs(env: EnvBase) -> list[EnvBase]:
+    """The envs a ``SerialEnv`` steps one after another (none before it first starts)."""
+    return list(getattr(env, "_envs", None) or [])
 
 
 def set_gym_env(env: EnvBase, gymnasium_env: Any) -> None:

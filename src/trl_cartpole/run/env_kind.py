@@ -58,8 +58,11 @@ class EnvKind:
     @property
     def collector_state_saved(self) -> bool:
         """Whether a single-process collector's own state (its frame counter, its env's) is
-        saved with the run: a state env's is; a pixel env's (a ``SerialEnv`` or drawn frames,
+        saved with the run: a state env's is, and one Atari game's (its stacked frames; ALE's
+        state is the env snapshot's); a pixel env's (a ``SerialEnv`` or drawn frames,
         restarted with fresh transforms once the collector has closed it) is not."""
+        if self.atari:
+            return self.env.num_envs == 1
         return not self.pixels
 
     def judged(self) -> EnvConfig:

@@ -108,6 +108,6 @@ class EnvState:
                 "wrote this checkpoint"
             )
         return (
-            f"the {name}'s state is not stored as data (only classic-control envs are), so the "
-            "resumed run starts new episodes (not an exact continuation)"
+            f"the {name}'s state is not stored as data (only classic-control envs' and Atari "
+            "games' are), so the resumed run starts new episodes (not an exact continuation)"
         )

@@ -11,6 +11,11 @@ stopped:
   vector env its own arrays (``_autoreset_envs``, the last observations, rewards and flags);
 - TorchRL's autoreset memo of the last vector-env step, which the next reset reads.
 
+An Atari game's state is ALE's own: ``cloneState(include_rng=True)`` holds the emulator and
+its random generator (sticky actions), stored as its serialized bytes (a uint8 array), with
+the Gymnasium env's RNG; the preprocessing's own state (the stacked frames, the lives at the
+last step) is in the env's ``state_dict``, which the collector's state holds.
+
 Other envs (Box2D's LunarLander, MuJoCo, a user's own) do not expose their state as data: the
 resumed run resets them and says so. ``checkpoint.trust_pickled_envs=true`` stores such envs
 pickled instead and loads them back; unpickling runs any code the checkpoint holds, so the
@@ -31,12 +36,14 @@ import numpy as np
 from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import CatFrames, EnvBase, GymWrapper, TransformedEnv
+from torchrl.envs import CatFrames, EnvBase, GymWrapper, SerialEnv, TransformedEnv
 
+from trl_cartpole.parts.atari import ResizeFrame
 from trl_cartpole.parts.cartpole_drawing import DrawCartPole
 from trl_cartpole.parts.compat import (
     autoreset_state,
     gym_env,
+    serial_envs,
     set_autoreset_state,
     set_gym_env,
 )
@@ -111,13 +118,50 @@ def _stores_its_state(env: EnvBase) -> bool:
     return isinstance(base, GymWrapper) and not base.from_pixels
 
 
+def _atari_games(env: EnvBase) -> list[TransformedEnv] | None:
+    """The single-game envs of an Atari env (itself, or the games of its ``SerialEnv``), or
+    None for another env."""
+    base = env.base_env if isinstance(env, TransformedEnv) else env
+    games = serial_envs(base) if isinstance(base, SerialEnv) else [env]
+    if games and all(
+        isinstance(game, TransformedEnv)
+        and any(isinstance(transform, ResizeFrame) for transform in game.transform)
+        for game in games
+    ):
+        return games
+    return None
+
+
+def _atari_snapshot(game: TransformedEnv) -> dict[str, Any]:
+    unwrapped = gym_env(game).unwrapped
+    state = unwrapped.ale.cloneState(include_rng=True).serialize()
+    rng = unwrapped._np_random
+    return {
+        "ale": np.frombuffer(state, dtype=np.uint8).copy(),
+        "rng": None if rng is None else rng.bit_generator.state,
+    }
+
+
+def _restore_atari(game: TransformedEnv, snapshot: dict[str, Any]) -> None:
+    import ale_py
+
+    unwrapped = gym_env(game).unwrapped
+    unwrapped.ale.restoreState(ale_py.ALEState(snapshot["ale"].tobytes()))
+    if snapshot["rng"] is not None:
+        unwrapped.np_random.bit_generator.state = snapshot["rng"]
+
+
 def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | None:
     """The state of the Gymnasium env (or ``SyncVectorEnv``) behind ``env``, or None.
 
     ``{"data": ...}`` (nested dicts, lists, numbers and arrays) for classic-control envs;
+    ``{"atari": [...]}`` (each game's ALE state as bytes, and its RNG) for Atari games;
     ``{"pickle": bytes}`` for other envs only with ``trust_pickle``; None where neither holds
     the env's state (and for pixel envs).
     """
+    games = _atari_games(env)
+    if games is not None:
+        return {"atari": [_atari_snapshot(game) for game in games]}
     if not _stores_its_state(env):
         return None
     gymnasium_env = gym_env(env)
@@ -140,6 +184,13 @@ def restore_env_snapshot(
 
     A pickled snapshot is loaded only with ``trust_pickle``.
     """
+    if snapshot is not None and "atari" in snapshot:
+        games = _atari_games(env)
+        if games is None or len(games) != len(snapshot["atari"]):
+            return False
+        for game, game_snapshot in zip(games, snapshot["atari"], strict=True):
+            _restore_atari(game, game_snapshot)
+        return True
     if snapshot is None or not _stores_its_state(env):
         return False
     gymnasium_env = gym_env(env)
