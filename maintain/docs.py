@@ -293,7 +293,6 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
-    "atari-runs": ("docs/atari.md", atari_runs),
     **{
         f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
         for env, path in RACES.items()
