@@ -9,7 +9,10 @@
 loop of Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``,
 ``AtariPreprocessing`` (30 NOOPs, frame skip 4, 84x84 gray) and ``FrameStackObservation(4)``;
 the one rule of this project's preprocessing Gymnasium has no wrapper for, FIRE after a reset
-and after a lost life, is three lines of the loop. Prints the mean score over the games beside
+and after a lost life, is three lines of the loop. The stacks then differ a little from the
+project's for three steps after each FIRE: here the FIRE step's frame is pushed onto the stack
+of the frame before it, where the project's stack after a reset is the FIRE frame four times and
+drops the lost life's frame. Prints the mean score over the games beside
 the run's own final evaluation (``summary.json``); ``--record`` writes each run's summary with
 its plain-loop scores, and where and when they were measured, to a results file (docs/atari.md
 is generated from it).
@@ -27,6 +30,7 @@ import statistics
 import time
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -48,20 +52,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=2000, help="agent steps per env timed")
 
 
-def _gymnasium_game(env_id: str, make_kwargs: dict) -> gym.Env:
+def _gymnasium_game(env_id: str, make_kwargs: dict, atari: dict | None = None) -> gym.Env:
+    """Gymnasium's own preprocessing with the run's ``env.atari`` settings (the defaults
+    without it)."""
     from gymnasium.wrappers import AtariPreprocessing, FrameStackObservation
 
+    from trl_cartpole.parts.atari import ATARI_DEFAULTS
+
+    settings = {**ATARI_DEFAULTS, **(atari or {})}
     register_atari_games()
     base = gym.make(env_id, frameskip=1, **make_kwargs)
-    return FrameStackObservation(AtariPreprocessing(base, noop_max=30), 4)
+    preprocessed = AtariPreprocessing(
+        base,
+        noop_max=settings["noop_max"],
+        frame_skip=settings["frame_skip"],
+        screen_size=settings["screen_size"],
+    )
+    return FrameStackObservation(preprocessed, settings["frames"])
 
 
-def play_in_gymnasium(program: Path, env_id: str, make_kwargs: dict, games: int, seed: int):
-    """Scores of ``games`` whole games of the exported greedy network ``program``."""
+def play_in_gymnasium(program: Path, config: dict, games: int, seed: int) -> list[float]:
+    """Scores of ``games`` whole games of the exported greedy network ``program``, in the game
+    and preprocessing of the run's ``config``."""
     network = torch.export.load(program).module()
-    env = _gymnasium_game(env_id, make_kwargs)
+    env_cfg = config["env"]
+    atari = env_cfg.get("atari", {})
+    env = _gymnasium_game(env_cfg["id"], env_cfg.get("make_kwargs", {}), atari)
     meanings = env.unwrapped.get_action_meanings()
-    fire = meanings.index("FIRE") if "FIRE" in meanings else None
+    fires = atari.get("fire_on_reset", True) and "FIRE" in meanings
+    fire = meanings.index("FIRE") if fires else None
     scores = []
     for game in range(games):
         observation, info = env.reset(seed=seed + game)
@@ -93,8 +112,8 @@ def _plain_loop(args: argparse.Namespace) -> None:
         args.out.mkdir(parents=True, exist_ok=True)
         network = greedy_q_network(run_dir)  # what scripts/export.py writes
         program = export_program(network, network.obs_dim, args.out / f"policy-{number}.pt2")
-        env_id, make_kwargs = config["env"]["id"], config["env"].get("make_kwargs", {})
-        scores = play_in_gymnasium(program, env_id, make_kwargs, args.games, args.seeds[0])
+        env_id = config["env"]["id"]
+        scores = play_in_gymnasium(program, config, args.games, args.seeds[0])
         summary = json.loads((run_dir / "summary.json").read_text())
         print(f"{env_id}, {run_dir}: {args.games} games in Gymnasium's own loop")
         print(
@@ -146,6 +165,10 @@ def _gymnasium_stepper(game: gym.Env):
     return step
 
 
+def _random_vector_step(vector: Any) -> None:
+    vector.step(vector.action_space.sample())
+
+
 def _env_speed(args: argparse.Namespace) -> None:
     import ale_py
     from torchrl.envs import SerialEnv
@@ -173,8 +196,7 @@ def _env_speed(args: argparse.Namespace) -> None:
     for count in (4, 8):
         vector = ale_py.AtariVectorEnv(name, count, repeat_action_probability=0.25)
         vector.reset(seed=0)
-        actions = np.zeros(count, dtype=np.int64)
-        rate = _steps_per_second(partial(vector.step, actions), args.steps, count)
+        rate = _steps_per_second(partial(_random_vector_step, vector), args.steps, count)
         rows.append((f"ALE AtariVectorEnv (C++ threads), {count} games", rate))
         vector.close()
     print("| env path | agent steps / s |\n| --- | --- |")

@@ -76,11 +76,11 @@ def test_the_preprocessing_gives_gymnasiums_frames_rewards_and_ends():
 
 
 def test_noop_starts_and_fire_count_their_frames():
-    """After a reset: 1 to noop_max NOOP frames, then FIRE held for the frame skip (4)."""
+    """After a reset: 1 to noop_max NOOP frames (drawn from the game's seeded RNG), then FIRE
+    held for the frame skip (4)."""
     counts = set()
     for seed in range(6):
         env = make_atari_env(BREAKOUT, seed=seed, preprocessing={"noop_max": 5})
-        torch.manual_seed(seed)
         env.reset()
         ale = gym_env(env).unwrapped.ale
         counts.add(ale.getEpisodeFrameNumber() - 4)
@@ -276,9 +276,10 @@ def test_an_exported_breakout_policy_plays_gymnasiums_own_preprocessing_alike(tm
 
 
 def test_a_restored_game_plays_on_exactly_as_the_saved_one():
-    """ALE's state (the emulator and its RNG: sticky actions), the preprocessing's state (the
-    stacked frames, the lives at the last step) and the carried step: a game restored into a
-    fresh env gives the same frames, rewards, lives and ends as the saved one, step by step."""
+    """The env's snapshot (ALE's state with the RNG of its sticky actions, the game's RNG of the
+    NOOP starts, the stacked frames, the lives at the last step) and the carried step: a game
+    restored into a fresh env gives the same frames, rewards, lives and ends as the saved one,
+    step by step, through a lost life and a new game."""
     from trl_cartpole.store.env_state import env_snapshot, restore_env_snapshot
 
     torch.manual_seed(0)
@@ -289,19 +290,20 @@ def test_a_restored_game_plays_on_exactly_as_the_saved_one():
         state["action"] = torch.tensor(action)
         state = step_mdp(saved.step(state))
     snapshot = env_snapshot(saved)
-    transforms = {key: value.clone() for key, value in saved.transform.state_dict().items()}
-    carried, rng = state.clone(), torch.get_rng_state()
-    expected = []
+    carried = state.clone()
+    expected, saved_resets = [], []
     for action in actions[40:]:
         state["action"] = torch.tensor(action)
         stepped = saved.step(state)
         expected.append(stepped["next"].clone())
         state = step_mdp(stepped)
+        if stepped["next", "done"]:  # a new game: its NOOP count from the game's own RNG
+            state = saved.reset()
+            saved_resets.append(state.clone())
     restored = make_atari_env(BREAKOUT, seed=9)
     restored.reset()
-    restored.load_state_dict(transforms)
+    torch.manual_seed(123)  # nothing of the game follows the torch RNG
     assert restore_env_snapshot(restored, snapshot)
-    torch.set_rng_state(rng)
     state, lost = carried, 0
     for step, action in enumerate(actions[40:]):
         state["action"] = torch.tensor(action)
@@ -310,4 +312,45 @@ def test_a_restored_game_plays_on_exactly_as_the_saved_one():
             assert torch.equal(stepped["next", key], expected[step][key]), (step, key)
         lost += int(stepped["next", EOL_KEY])
         state = step_mdp(stepped)
+        if stepped["next", "done"]:
+            state = restored.reset()
+            expected_reset = saved_resets.pop(0)
+            assert torch.equal(state["pixels"], expected_reset["pixels"])
     assert lost >= 1  # the game went through a lost life (and its FIRE) after the restore
+
+
+def test_the_buffer_ends_an_n_step_window_at_a_lost_life_and_clips_its_rewards(compose):
+    """The preset's buffer: LearnerView folds a lost life into the window's end before the
+    n-step returns are formed, so a window stops at the lost life and does not bootstrap."""
+    from trl_cartpole.run.from_config import build_replay_buffer
+
+    cfg = validate(to_config(compose("env=breakout", "buffer.storage=memory")))
+    buffer = build_replay_buffer(cfg)  # 10-step returns, gamma 0.99
+    steps = 14
+    pixels = torch.arange(steps + 1, dtype=torch.uint8)[:, None, None, None].expand(-1, 4, 2, 2)
+    lost = torch.zeros(steps, 1, dtype=torch.bool)
+    lost[2] = True  # a life lost at the third step; the game goes on
+    batch = TensorDict(
+        {
+            "pixels": pixels[:-1],
+            "action": torch.zeros(steps, dtype=torch.int64),
+            "next": {
+                "pixels": pixels[1:],
+                "reward": torch.full((steps, 1), 3.0),
+                "done": torch.zeros(steps, 1, dtype=torch.bool),
+                "terminated": torch.zeros(steps, 1, dtype=torch.bool),
+                "truncated": torch.zeros(steps, 1, dtype=torch.bool),
+                EOL_KEY: lost,
+            },
+        },
+        batch_size=[steps],
+    )
+    buffer.extend(batch)  # one game of 14 steps: the windows of the first 4 are complete
+    first = buffer.storage.get(torch.arange(len(buffer)))
+    assert len(buffer) == steps - 10
+    # step 0's window: rewards 1 (clipped from 3) at steps 0, 1, 2, ending at the lost life
+    assert first["steps_to_next_obs"][:3].flatten().tolist() == [3, 2, 1]
+    assert torch.allclose(first["next", "reward"][0], torch.tensor([1 + 0.99 + 0.99**2]))
+    assert first["next", "terminated"][:3].all()  # no bootstrap past the lost life
+    assert not first["next", "terminated"][3]  # step 3's window starts after it
+    assert int(first["next", "pixels"][0, -1, 0, 0]) == 3  # ends on the lost life's frame

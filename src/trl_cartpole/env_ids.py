@@ -41,7 +41,8 @@ ATARI_NAMESPACE = "ALE/"
 
 def is_atari_id(env_id: str) -> bool:
     """Whether ``env_id`` names an Atari game of ALE's: ``ALE/<Game>-v5``, or an id whose
-    registered entry point is ale-py's (its ``Breakout-v4`` family)."""
+    registered entry point is ale-py's (its ``Breakout-v4`` family, once ale-py has registered
+    it: ``env.imports=[ale_py]``)."""
     if str(env_id).startswith(ATARI_NAMESPACE):
         return True
     spec = gym.registry.get(str(env_id))

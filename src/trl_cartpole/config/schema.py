@@ -50,7 +50,8 @@ class AtariConfig:
     frame_skip: int = 4  # frames each action is held; the max of the last two is seen
     screen_size: int = 84  # the screen resized to screen_size x screen_size gray (INTER_AREA)
     frames: int = 4  # the last N screens stacked (CatFrames)
-    fire_on_reset: bool = True  # one FIRE step after a reset, where the game has FIRE
+    # one FIRE step after a reset and after a lost life, where the game has FIRE
+    fire_on_reset: bool = True
     life_loss_ends: bool = True  # a lost life ends the learner's episode (never the game)
     clip_rewards: bool = True  # the learner's rewards clipped to their sign (the score is not)
 
@@ -61,7 +62,9 @@ class EnvConfig:
     # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.parts.env.
     id: str = defaults.ENV_ID  # a Gymnasium id (vector observation, discrete actions), or module:Id
     imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
-    max_episode_steps: int | None = None  # null: Gymnasium's registered TimeLimit
+    # null: Gymnasium's registered TimeLimit (an Atari game: agent steps, ALE's cap of 108 000
+    # frames otherwise)
+    max_episode_steps: int | None = None
     num_envs: int = 32  # training envs stepped together (a Gymnasium SyncVectorEnv when > 1)
     # seconds a training env's step or reset may take before the run stops naming it (null: no
     # limit); a SIGALRM alarm, so the main thread of the training or worker process only
@@ -84,7 +87,7 @@ class EnvConfig:
     pixels_rendered_share: float = 0.0
     # An Atari game (env.id=ALE/...) is learnt from its screen, preprocessed as configured here
     atari: AtariConfig = field(default_factory=AtariConfig)
-    # keywords given to gymnasium.make as they are: an env's own options (ALE's
+    # keywords given to gymnasium.make as they are, for any env: its own options (ALE's
     # repeat_action_probability, full_action_space, mode, difficulty...)
     make_kwargs: dict[str, Any] = field(default_factory=dict)
 

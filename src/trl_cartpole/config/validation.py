@@ -106,6 +106,7 @@ def validate(cfg: Config) -> Config:
         *_buffer_rules(cfg),
         *_collector_rules(cfg),
         *_env_rules(cfg),
+        *_atari_rules(cfg),
         *_pixels_rules(cfg),
         *_evaluation_rules(cfg),
         *_network_rules(cfg),
@@ -200,18 +201,28 @@ def _collector_rules(cfg: Config) -> list[tuple[bool, str]]:
     ]
 
 
+# keywords of gymnasium.make the run sets itself, so env.make_kwargs may not
+RESERVED_MAKE_KWARGS = {
+    "max_episode_steps",
+    "render_mode",
+    "seed",
+    "preprocessing",
+    "num_envs",
+    "device",
+    "observation_norm",
+    "from_pixels",
+    "pixels_only",
+}
+
+
 def _env_rules(cfg: Config) -> list[tuple[bool, str]]:
     """(holds, the message when it does not) for the env and its envs at once."""
-    atari = cfg.env.atari
     return [
-        (atari.noop_max >= 0, f"env.atari.noop_max={atari.noop_max} must be >= 0 (0: none)"),
-        (atari.frame_skip >= 1, f"env.atari.frame_skip={atari.frame_skip} must be >= 1"),
-        (atari.screen_size >= 8, f"env.atari.screen_size={atari.screen_size} must be >= 8"),
-        (atari.frames >= 1, f"env.atari.frames={atari.frames} must be >= 1"),
         (
-            not {"frameskip", "obs_type"} & set(cfg.env.make_kwargs),
-            "env.make_kwargs: frameskip and obs_type are the Atari preprocessing's (ALE's "
-            "frameskip=1, grayscale); set env.atari.frame_skip instead",
+            not RESERVED_MAKE_KWARGS & set(cfg.env.make_kwargs),
+            f"env.make_kwargs: {sorted(RESERVED_MAKE_KWARGS & set(cfg.env.make_kwargs))} are set "
+            "by the run (env.max_episode_steps, the seed, the render mode, env.atari); set those "
+            "fields instead",
         ),
         (cfg.env.num_envs >= 1, f"env.num_envs={cfg.env.num_envs} must be >= 1"),
         (
@@ -227,6 +238,35 @@ def _env_rules(cfg: Config) -> list[tuple[bool, str]]:
             cfg.env.max_episode_steps is None or cfg.env.max_episode_steps >= 1,
             f"env.max_episode_steps={cfg.env.max_episode_steps} must be >= 1 (or null for the "
             "env's registered limit)",
+        ),
+    ]
+
+
+def _atari_rules(cfg: Config) -> list[tuple[bool, str]]:
+    """(holds, the message when it does not) for an Atari game and its preprocessing."""
+    atari = cfg.env.atari
+    return [
+        (atari.noop_max >= 0, f"env.atari.noop_max={atari.noop_max} must be >= 0 (0: none)"),
+        (atari.frame_skip >= 1, f"env.atari.frame_skip={atari.frame_skip} must be >= 1"),
+        (atari.screen_size >= 8, f"env.atari.screen_size={atari.screen_size} must be >= 8"),
+        (atari.frames >= 1, f"env.atari.frames={atari.frames} must be >= 1"),
+        (
+            not {"frameskip", "obs_type"} & set(cfg.env.make_kwargs),
+            "env.make_kwargs: frameskip and obs_type are the Atari preprocessing's (ALE's "
+            "frameskip=1, grayscale); set env.atari.frame_skip instead",
+        ),
+        (
+            not is_atari_id(cfg.env.id) or cfg.network.torso == "cnn",
+            f"env.id={cfg.env.id} is an Atari game, learnt from its screen by a CNN: use an "
+            "Atari preset (env=breakout; env=breakout env.id=ALE/<Game>-v5 for another game), "
+            "or set network.torso=cnn",
+        ),
+        (
+            not (
+                is_atari_id(cfg.env.id) and (cfg.env.from_pixels or cfg.env.normalize_observations)
+            ),
+            f"env.id={cfg.env.id} is an Atari game, always learnt from its preprocessed screen "
+            "(env.atari): set env.from_pixels=false and env.normalize_observations=false",
         ),
     ]
 
@@ -251,12 +291,6 @@ def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
             min([*cfg.network.cnn_channels, *cfg.network.cnn_kernels, *cfg.network.cnn_strides])
             >= 1,
             "network.cnn_channels, cnn_kernels and cnn_strides must all be >= 1",
-        ),
-        (
-            not is_atari_id(cfg.env.id) or cfg.network.torso == "cnn",
-            f"env.id={cfg.env.id} is an Atari game, learnt from its screen by a CNN: use an "
-            "Atari preset (env=breakout; env=breakout env.id=ALE/<Game>-v5 for another game), "
-            "or set network.torso=cnn",
         ),
         (
             is_atari_id(cfg.env.id) or cfg.env.from_pixels == (cfg.network.torso == "cnn"),
@@ -298,6 +332,11 @@ def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
             cfg.buffer.pixels_shift == 0 or cfg.env.from_pixels or is_atari_id(cfg.env.id),
             f"buffer.pixels_shift={cfg.buffer.pixels_shift} shifts frames, and this run has "
             "none (env.from_pixels=false): set it to 0, or use env=cartpole_pixels",
+        ),
+        (
+            cfg.buffer.storage != "frames" or cfg.device == "cpu",
+            f"buffer.storage=frames keeps its frames on the CPU, and device={cfg.device}: set "
+            "buffer.storage=memory, or device=cpu",
         ),
         (
             cfg.buffer.storage != "frames" or cfg.env.from_pixels or is_atari_id(cfg.env.id),

@@ -28,7 +28,8 @@ differ from Gymnasium's and TorchRL's example):
    ``padding_type="reset"``).
 
 Each game is capped at ALE's ``max_num_frames_per_episode`` (108 000 frames, 30 minutes of
-play: Machado et al.), so a policy that never serves still ends.
+play: Machado et al.; ``eval.max_steps`` must allow its 27 000 agent steps for an evaluation to
+play it whole, as the Breakout preset's does).
 """
 
 from __future__ import annotations
@@ -84,8 +85,9 @@ ATARI_DEFAULTS: dict[str, Any] = {
 class NoopStarts(Transform):
     """After each reset, NOOP (action 0) for a number of frames drawn uniformly from
     ``[1, noop_max]`` (Mnih et al. 2015: up to 30; Gymnasium's and Baselines' range), so
-    games do not all start alike. The count is drawn from the torch RNG; a game that ends
-    during them is reset again."""
+    games do not all start alike. The count is drawn from the Gymnasium env's ``np_random``
+    (seeded with the env, as Gymnasium's wrapper draws it); a game that ends during them is
+    reset again."""
 
     def __init__(self, noop_max: int = 30) -> None:
         super().__init__()
@@ -93,7 +95,8 @@ class NoopStarts(Transform):
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase):
         parent = self.parent
-        noops = int(torch.randint(1, self.noop_max + 1, ()).item()) if self.noop_max else 0
+        rng = gym_env(parent).unwrapped.np_random  # the game's own, seeded with the env
+        noops = int(rng.integers(1, self.noop_max + 1)) if self.noop_max else 0
         state = tensordict_reset
         for _ in range(noops):
             action = parent.full_action_spec.zero()  # NOOP is action 0 in every ALE game
@@ -179,7 +182,8 @@ class FireOnReset(Transform):
     (OpenAI Baselines' ``FireResetEnv`` under its ``EpisodicLifeEnv``, which resets at each
     lost life): a game such as Breakout waits for FIRE to serve, and a greedy policy that
     never presses it would wait until the game's frame cap. ``fire_action`` is FIRE's index
-    in the game's action set (:func:`fire_action`). The FIRE step's reward joins the step's."""
+    in the game's action set (:func:`fire_action`). After a lost life the FIRE step's reward
+    joins the step's; after a reset it is dropped, as the NOOPs' are."""
 
     def __init__(self, fire_action: int) -> None:
         super().__init__()
@@ -199,9 +203,9 @@ class FireOnReset(Transform):
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase):
         stepped = self._fire(tensordict_reset)
+        self.lives_before.fill_(self._lives())
         if stepped.get("done").any():  # the game ended on its first move: start again
             return self.parent._reset(tensordict_reset.clone(False))
-        self.lives_before.fill_(self._lives())
         return tensordict_reset.update(stepped.exclude("reward", "action"))
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase):

@@ -98,12 +98,14 @@ def _env_from_config(
 def _configured_env(
     env_cfg: EnvConfig, device: str | torch.device = "cpu", **make_env_kwargs: Any
 ) -> TransformedEnv:
-    """:func:`make_env` of ``env_cfg``'s env (its id resolved) and step limit."""
+    """:func:`make_env` of ``env_cfg``'s env (its id resolved), step limit and
+    ``env.make_kwargs``."""
     return make_env(
         resolve_env_id(env_cfg.id, env_cfg.imports),
         device,
         max_episode_steps=env_cfg.max_episode_steps,
         **make_env_kwargs,
+        **env_cfg.make_kwargs,
     )
 
 
@@ -148,8 +150,8 @@ def make_game_env(
     make_kwargs = dict(env_cfg.make_kwargs)
     if render_mode is not None:
         make_kwargs["render_mode"] = render_mode
-    if env_cfg.max_episode_steps is not None:
-        make_kwargs["max_episode_steps"] = env_cfg.max_episode_steps
+    if env_cfg.max_episode_steps is not None:  # agent steps, each frame_skip of ALE's frames
+        make_kwargs["max_episode_steps"] = env_cfg.max_episode_steps * env_cfg.atari.frame_skip
     build = partial(
         make_atari_env,
         resolve_env_id(env_cfg.id, env_cfg.imports),

@@ -13,8 +13,8 @@ stopped:
 
 An Atari game's state is ALE's own: ``cloneState(include_rng=True)`` holds the emulator and
 its random generator (sticky actions), stored as its serialized bytes (a uint8 array), with
-the Gymnasium env's RNG; the preprocessing's own state (the stacked frames, the lives at the
-last step) is in the env's ``state_dict``, which the collector's state holds.
+the Gymnasium env's RNG (the NOOP starts) and the preprocessing's own state (the stacked
+frames, the lives at the last step: the transforms' ``state_dict``), for each game of the env.
 
 Other envs (Box2D's LunarLander, MuJoCo, a user's own) do not expose their state as data: the
 resumed run resets them and says so. ``checkpoint.trust_pickled_envs=true`` stores such envs
@@ -33,6 +33,7 @@ import pickle
 from typing import Any
 
 import numpy as np
+import torch
 from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict, TensorDictBase
@@ -139,6 +140,8 @@ def _atari_snapshot(game: TransformedEnv) -> dict[str, Any]:
     return {
         "ale": np.frombuffer(state, dtype=np.uint8).copy(),
         "rng": None if rng is None else rng.bit_generator.state,
+        # the preprocessing's state: the stacked frames, the lives at the last step
+        "transforms": {k: v.numpy().copy() for k, v in game.transform.state_dict().items()},
     }
 
 
@@ -149,6 +152,9 @@ def _restore_atari(game: TransformedEnv, snapshot: dict[str, Any]) -> None:
     unwrapped.ale.restoreState(ale_py.ALEState(snapshot["ale"].tobytes()))
     if snapshot["rng"] is not None:
         unwrapped.np_random.bit_generator.state = snapshot["rng"]
+    game.transform.load_state_dict(
+        {key: torch.from_numpy(value.copy()) for key, value in snapshot["transforms"].items()}
+    )
 
 
 def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | None:
