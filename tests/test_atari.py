@@ -354,3 +354,18 @@ def test_the_buffer_ends_an_n_step_window_at_a_lost_life_and_clips_its_rewards(c
     assert first["next", "terminated"][:3].all()  # no bootstrap past the lost life
     assert not first["next", "terminated"][3]  # step 3's window starts after it
     assert int(first["next", "pixels"][0, -1, 0, 0]) == 3  # ends on the lost life's frame
+
+
+def test_frames_stored_once_take_single_adds_refuse_rows_written_twice_and_empty():
+    frames = torch.randint(0, 256, (6, 3, 3), dtype=torch.uint8)
+    buffer = make_replay_buffer(storage=FrameStackStorage(3), batch_size=2)
+    for i in range(4):  # buffer.add: an int cursor, wrapping around the 3 rows
+        stacks = frames[[i, i + 1]]  # [2, 3, 3]
+        buffer.add(TensorDict({"pixels": stacks, "next": {"pixels": frames[[i + 1, i + 2]]}}))
+    rows = buffer.storage.get(torch.arange(3))
+    assert torch.equal(rows["pixels"][0], frames[[3, 4]])  # row 0 rewritten by the 4th add
+    assert buffer.storage.pool.held == 5  # frames 1 to 5 in use: frame 0 was released
+    with pytest.raises(ValueError, match="writes some of the 3 rows twice"):
+        buffer.storage.set(torch.tensor([0, 0]), buffer.storage.get(torch.tensor([1, 2])))
+    buffer.empty()
+    assert len(buffer) == 0 and buffer.storage.pool is None
