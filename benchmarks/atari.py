@@ -124,7 +124,8 @@ def _plain_loop(args: argparse.Namespace) -> None:
             f"  the run's final evaluation ({summary['final_eval_episodes']} games): mean "
             f"{summary['final_eval_return_mean']:.2f} +/- {summary['final_eval_return_std']:.2f}"
         )
-        runs.append({**summary, "plain_loop_scores": scores})
+        plain = {"games": len(scores), "mean": statistics.mean(scores)}
+        runs.append({**summary, "plain_loop": {**plain, "std": statistics.pstdev(scores)}})
     if args.record:
         command = "python -m benchmarks atari --checkpoint " + " ".join(map(str, args.checkpoint))
         record = {**provenance(), "command": command, "runs": runs}

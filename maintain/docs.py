@@ -29,7 +29,6 @@ import argparse
 import inspect
 import json
 import re
-import statistics
 import sys
 from collections.abc import Callable
 from functools import partial
@@ -241,18 +240,18 @@ def atari_runs() -> str:
     rows = [
         "| seed | agent steps | updates | train time | greedy score at each evaluation | "
         "kept policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
-        "steps/s, updates/s | peak memory, MiB |",
+        "collecting: steps/s; updates/s | peak memory, MiB |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for run in record["runs"]:
-        finals, plain = run["final_eval_returns"], run["plain_loop_scores"]
+        finals, plain = run["final_eval_returns"], run["plain_loop"]
         rows.append(
             f"| {run['seed']} | {_spaced(run['frames'])} | {_spaced(run['updates'])} | "
             f"{_duration(run['train_seconds'])} | "
             f"{', '.join(f'{value:.1f}' for value in run['eval_curve']['returns'])} | "
             f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
             f"{run['final_eval_return_std']:.1f} ({min(finals):.0f} to {max(finals):.0f}) | "
-            f"{statistics.mean(plain):.1f} +/- {statistics.pstdev(plain):.1f} | "
+            f"{plain['mean']:.1f} +/- {plain['std']:.1f} | "
             f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "
             f"{_spaced(run['peak_rss_mb'])} |"
         )
@@ -293,6 +292,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
+    "atari-runs": ("docs/atari.md", atari_runs),
     **{
         f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
         for env, path in RACES.items()
