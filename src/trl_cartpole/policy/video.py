@@ -59,9 +59,6 @@ def _captioned(frame: np.ndarray, text: str, scale: float) -> np.ndarray:
     return np.asarray(image)
 
 
-# a video's frame size relative to the env's render, by kind: Atari's 160x210 screen x3, a
-# classic-control env's 600x400 picture halved
-SCALES = {"atari": 3.0, "other": 0.5}
 # the white band that names the agent's view under the scene, in pixels
 VIEW_CAPTION_HEIGHT = 14
 
@@ -167,8 +164,8 @@ def record_agent(
 
     ``run_dir_or_checkpoint`` is a run directory (its best policy plays) or a checkpoint;
     ``seed`` defaults to the run's final evaluation seeds and ``output`` to ``video.gif``
-    beside the checkpoint; frames are scaled by ``scale`` (None: :data:`SCALES`, by the kind
-    of env: an Atari game's small screen enlarged, a classic-control picture halved).
+    beside the checkpoint; frames are scaled by ``scale`` (None: the kind of env's
+    :attr:`~trl_cartpole.run.env_kind.EnvKind.video_scale`).
     """
     check_video_arguments(episodes, fps, scale, None if output is None else str(output))
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # frames only, no window
@@ -176,7 +173,7 @@ def record_agent(
     with quiet_libraries():  # no TorchRL INFO lines (spec checks), as in the scripts
         trained = load_trained_policy(run_dir_or_checkpoint, seed=seed, render_mode="rgb_array")
         if scale is None:
-            scale = SCALES["atari" if EnvKind(trained.cfg.env).atari else "other"]
+            scale = EnvKind(trained.cfg.env).video_scale
         try:
             show_status(f"rendering episode 1 of {episodes}")
             for episode in render_episodes(

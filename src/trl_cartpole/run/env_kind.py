@@ -73,6 +73,12 @@ class EnvKind:
             return replace(self.env, pixels_rendered_share=1.0)
         return self.env
 
+    @property
+    def video_scale(self) -> float:
+        """A video's frame size relative to the env's render: an Atari game's 160x210 screen
+        x3, a classic-control env's 600x400 picture halved."""
+        return 3.0 if self.atari else 0.5
+
     def recorded(self) -> EnvConfig:
         """The env a video records: Gymnasium's own ``render()`` for every kind (a game's
         colour screen, for Atari)."""
