@@ -7,7 +7,8 @@ the same function. Every subcommand takes ``key=value`` arguments and ``--help``
 Bad input (an unknown key, a wrong type, an impossible value, an unknown env, a bad
 checkpoint) ends the program with one line on stderr and exit status 2, before any training.
 An interrupted run exits with 128 + the signal (130 for Ctrl-C) after one line saying how to
-resume; a numerical fault exits with 1; a full disk exits with 74 (``EX_IOERR``) after one line
+resume (a second signal ends the process at once by the signal's default action, keeping the
+newest complete checkpoint); a numerical fault exits with 1; a full disk exits with 74 (``EX_IOERR``) after one line
 naming the path, the space needed and the resume command; a lost Ray actor exits with 75
 (``EX_TEMPFAIL``) after a checkpoint and one line naming the actor and the resume command. Set
 ``HYDRA_FULL_ERROR=1`` to get the full traceback instead.
@@ -38,7 +39,7 @@ from trl_cartpole.errors import (
     WorkerLost,
 )
 from trl_cartpole.report.console import command, quiet_libraries, set_scripts_dir
-from trl_cartpole.run.signals import install_unbreakable_console
+from trl_cartpole.run.signals import end_process_on_second_signal, install_unbreakable_console
 
 __all__ = [
     "COMMANDS",
@@ -98,6 +99,7 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     argv = list(sys.argv[1:] if argv is None else argv)
     # for the rest of the process: the messages below and Python's last flush at exit too
     install_unbreakable_console()
+    end_process_on_second_signal()  # whatever the run is doing (docs/reliability.md)
     try:
         with quiet_libraries():
             main(argv)

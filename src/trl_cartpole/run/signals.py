@@ -3,9 +3,14 @@
 :class:`StopRequest` turns the first SIGINT (Ctrl-C), SIGTERM (``kill``, a scheduler),
 SIGHUP (the terminal or SSH connection closed) or SIGUSR1 (SLURM's ``--signal=USR1@60``
 warning before preemption) into a flag the training loop reads at its next safe point (the end
-of a collected batch), where it writes a checkpoint and raises :class:`TrainingInterrupted`; a
-second signal raises ``KeyboardInterrupt`` at once (checkpoint writes are atomic, so that
-corrupts nothing). The errors live in :mod:`trl_cartpole.errors`.
+of a collected batch), where it writes a checkpoint and raises :class:`TrainingInterrupted`.
+A second signal leaves at once (checkpoint writes are atomic, so that corrupts nothing): in a
+command-line process (:func:`end_process_on_second_signal`) the first signal hands the stop
+signals back to the operating system's default action, so the second ends the process
+whatever it is doing, inside a long C call (a batch, an allocation, a write) included, where
+no Python handler could run; called from Python (a notebook's kernel must survive it), the
+second signal raises ``KeyboardInterrupt`` at the interpreter's next step. The errors live in
+:mod:`trl_cartpole.errors`.
 
 Output must not stop a save: once the terminal is gone or the reader of a pipe (``| tee``)
 has died, writing to stdout or stderr raises ``OSError``. :func:`unbreakable_console` makes
@@ -25,6 +30,7 @@ from typing import Any, TextIO
 __all__ = [
     "StopRequest",
     "UnbreakableStream",
+    "end_process_on_second_signal",
     "install_unbreakable_console",
     "unbreakable_console",
 ]
@@ -35,6 +41,18 @@ STOP_SIGNALS = tuple(
     for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGUSR1")
     if hasattr(signal, name)
 )
+
+
+# A command-line process: the second stop signal takes the default action (end the process).
+_second_signal_ends_process = False
+
+
+def end_process_on_second_signal() -> None:
+    """For the rest of this process, a second stop signal ends it at once, by the operating
+    system's default action (exit status 128 + the signal as a shell reports it), whatever
+    Python is doing. For command-line runs, not for a notebook's kernel."""
+    global _second_signal_ends_process
+    _second_signal_ends_process = True
 
 
 class UnbreakableStream:
@@ -121,9 +139,12 @@ class StopRequest:
         if self.signum is not None:
             raise KeyboardInterrupt  # the second signal: leave now
         self.signum = signum
+        if _second_signal_ends_process:  # the next one: the OS's default action, at once
+            for stop_signal in self._previous:
+                signal.signal(stop_signal, signal.SIG_DFL)
         print(
             f"\n{signal.Signals(signum).name}: saving a checkpoint at the end of this batch "
-            "(send it again to exit at once)",
+            "(send it again to exit at once; the newest complete checkpoint is kept)",
             file=sys.stderr,
             flush=True,
         )
