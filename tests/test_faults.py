@@ -95,6 +95,41 @@ def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     assert (whole / td_loss).read_text() == (resumed_dir / td_loss).read_text()
 
 
+@pytest.mark.parametrize(
+    ("stopped_after", "overrides"),
+    [
+        ("last", []),
+        ("periodic", []),
+        # workers: a collector whose state is not saved, rebuilt with no frames left to collect
+        pytest.param("last", ["collector.workers=2", "env.num_envs=2"], marks=pytest.mark.slow),
+    ],
+    ids=["last", "periodic", "workers"],
+)
+def test_a_run_stopped_in_its_ending_finishes_on_resume(
+    compose, tmp_path, stopped_after, overrides
+):
+    # Killed after its last training state ("last": the end-of-run state; "periodic": the
+    # state at its last frame, before that) but before summary.json: a resume goes straight
+    # to the ending, which equals the uninterrupted run's.
+    whole = tmp_path / "whole"
+    expected = train(compose(*RESUMABLE, *overrides, f"run_dir={whole}"))
+    with pytest.raises(ConfigError, match="leaves nothing to train: the run has 600 frames"):
+        resume_config(find_resume_checkpoint(whole))  # finished: its summary is of 600 frames
+    stopped = tmp_path / "stopped"
+    shutil.copytree(whole, stopped)
+    (stopped / "summary.json").unlink()
+    if stopped_after == "periodic":
+        shutil.rmtree(stopped / "checkpoints" / "last")
+    checkpoint = find_resume_checkpoint(stopped)
+    assert checkpoint.parent.name == "periodic" or checkpoint.name == stopped_after
+    resumed = train(resume_config(checkpoint, [f"run_dir={stopped}"]), resume=checkpoint)
+    assert _comparable(resumed) == _comparable(expected)
+    a, b = (_weights(d / "checkpoints" / "best") for d in (whole, stopped))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(ConfigError, match="leaves nothing to train"):  # a larger one trains on
+        resume_config(checkpoint, ["collector.total_frames=599"])
+
+
 @pytest.mark.slow  # a run resumed
 def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
     # Statistics written into the checkpoint's manifest (and its integrity record) that no

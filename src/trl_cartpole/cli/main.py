@@ -8,10 +8,10 @@ Bad input (an unknown key, a wrong type, an impossible value, an unknown env, a 
 checkpoint) ends the program with one line on stderr and exit status 2, before any training.
 An interrupted run exits with 128 + the signal (130 for Ctrl-C) after one line saying how to
 resume (a second signal ends the process at once by the signal's default action, keeping the
-newest complete checkpoint); a numerical fault exits with 1; a full disk exits with 74 (``EX_IOERR``) after one line
-naming the path, the space needed and the resume command; a lost Ray actor exits with 75
-(``EX_TEMPFAIL``) after a checkpoint and one line naming the actor and the resume command. Set
-``HYDRA_FULL_ERROR=1`` to get the full traceback instead.
+newest complete checkpoint); a numerical fault exits with 1; a full disk exits with 74
+(``EX_IOERR``) after one line naming the path, the space needed and the resume command; a lost
+Ray actor exits with 75 (``EX_TEMPFAIL``) after a checkpoint and one line naming the actor and
+the resume command. Set ``HYDRA_FULL_ERROR=1`` to get the full traceback instead.
 """
 
 from __future__ import annotations

@@ -277,7 +277,11 @@ def build_collector(
         else env,
         policy,
         frames_per_batch=cfg.collector.frames_per_batch,
-        total_frames=cfg.collector.total_frames - frames_not_counted,
+        # a run whose training is done goes to its ending without collecting (``train``): its
+        # collector, never iterated, is built for one batch, as TorchRL needs at least that
+        total_frames=max(
+            cfg.collector.total_frames - frames_not_counted, cfg.collector.frames_per_batch
+        ),
         init_random_frames=max(cfg.collector.init_random_frames - frames_not_counted, 0),
         device=cfg.device,
         sync=cfg.collector.sync,

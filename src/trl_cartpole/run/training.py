@@ -65,9 +65,12 @@ def train(
         stop.rearm()  # a Ray collector's ray.init has just replaced the SIGTERM handler
         progress, phase = run.progress, run.progress.phase
         progress.clock.start()
+        # a resumed run whose training was done when it stopped (killed in its ending) collects
+        # nothing: it goes to its last evaluation and its ending, as the uninterrupted run did
+        batches = run.collector if progress.frames < cfg.collector.total_frames else ()
         try:
             # batch: [envs, T] ([workers, envs, T] from synchronous workers), envs * T frames
-            for batch in progress.timed(run.collector, "collect"):
+            for batch in progress.timed(batches, "collect"):
                 batch = batch.reshape(-1, batch.shape[-1]) if batch.ndim > 2 else batch
                 with phase("store"):
                     _store(run, batch)

@@ -302,12 +302,25 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
             f"{', '.join(RESUMABLE_FIELDS)} may"
         )
     frames = Checkpoint.manifest(checkpoint)["metadata"]["counters"]["frames"]
-    if cfg.collector.total_frames <= frames:
+    if cfg.collector.total_frames <= frames and not _ending_left(checkpoint, stored, cfg, frames):
         raise ConfigError(
             f"collector.total_frames={cfg.collector.total_frames} leaves nothing to train: the "
             f"run has {frames} frames; pass a larger collector.total_frames to continue it"
         )
     return cfg
+
+
+def _ending_left(checkpoint: str | Path, stored: Config, cfg: Config, frames: int) -> bool:
+    """Whether the run trained all its frames but stopped before its ending was written (no
+    ``summary.json`` of these frames): a resume with the same ``collector.total_frames`` then
+    goes straight to the ending (the last evaluation, the kept policy, the final episodes)."""
+    if cfg.collector.total_frames != stored.collector.total_frames:
+        return False
+    summary = run_dir_of(checkpoint) / "summary.json"
+    try:
+        return json.loads(summary.read_text()).get("frames") != frames
+    except (OSError, ValueError, AttributeError):  # none yet, or cut off mid-write: not written
+        return True
 
 
 def read_checkpoint_config(path: str | Path) -> Config:
