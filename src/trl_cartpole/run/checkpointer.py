@@ -20,6 +20,7 @@ from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import DiskFull, TrainingInterrupted, WorkerLost
 from trl_cartpole.report.console import command, shown_path
 from trl_cartpole.run.progress import Progress
+from trl_cartpole.store.buffer_checkpoint import restore_last_written_row
 from trl_cartpole.store.checkpoint import (
     DISK_MARGIN_BYTES,
     DISK_MARGIN_FRACTION,
@@ -85,6 +86,8 @@ class Checkpointer:
         if "replay_buffer" not in Checkpoint.manifest(path)["components"]:
             components.pop("replay_buffer", None)  # saved while an n-step buffer was empty
         load_training_state(path, **components)
+        if "replay_buffer" in components:
+            restore_last_written_row(components["replay_buffer"])
         self.last_saved_frame = progress.frames
 
     def save(self, path: Path, progress: Progress, keep_last: int | None = None) -> Path:

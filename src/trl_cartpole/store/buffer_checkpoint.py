@@ -15,7 +15,7 @@ from typing import Any
 from tensordict import TensorDictBase
 from torchrl.data import LazyTensorStorage
 
-__all__ = ["save_filled_part"]
+__all__ = ["restore_last_written_row", "save_filled_part"]
 
 
 class _FilledRows:
@@ -50,3 +50,16 @@ def save_filled_part(storage: Any) -> bool:
     storage.checkpointer.register_save_hook(_FilledRows(storage))
     storage.checkpointer.register_load_hook(_IntoCapacity(storage.max_size))
     return True
+
+
+def restore_last_written_row(buffer: Any) -> None:
+    """Give a loaded buffer's storage the row of its last write (``_last_cursor``).
+
+    TorchRL's storage checkpointers do not restore it, so a state saved again before the next
+    write (a resumed run's ending, or a window of n steps still filling) warned "last_cursor is
+    None". It is the row before the writer's cursor (the next row to write).
+    """
+    storage, writer = buffer.storage, getattr(buffer, "_writer", None)
+    cursor = getattr(writer, "_cursor", None)
+    if getattr(storage, "_last_cursor", 0) is None and len(storage) > 0 and cursor is not None:
+        storage._set_last_cursor((int(cursor) - 1) % storage.max_size)
