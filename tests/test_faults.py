@@ -45,12 +45,13 @@ def _comparable(summary: dict) -> dict:
 
 
 def _weights(checkpoint: Path) -> dict[str, torch.Tensor]:
-    from trl_cartpole.parts.env import make_env
-    from trl_cartpole.run.from_config import build_actor
+    from trl_cartpole.run.from_config import build_actor, build_env
     from trl_cartpole.store.checkpoint import load_policy, read_checkpoint_config
 
     cfg = read_checkpoint_config(checkpoint)
-    actor = build_actor(cfg, make_env(cfg.env.id), "cpu")
+    env = build_env(cfg, seed=0)  # the run's own kind of env: its state, or its pixels
+    actor = build_actor(cfg, env, "cpu")
+    env.close()
     load_policy(checkpoint, actor)
     return actor.state_dict()
 
@@ -76,8 +77,21 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         ),
         # The learning rate's taper goes on from the frames, its value read back with Adam's.
         pytest.param(["optim.lr_end=0.0002", "optim.lr_decay_frames=500"], marks=pytest.mark.slow),
+        # The pixel preset: frames drawn from the state, a share painted by Gymnasium, stacked
+        # by CatFrames; the stacks are stored with the envs' state.
+        pytest.param(
+            [
+                "env=cartpole_pixels",
+                "env.num_envs=2",
+                "env.pixels_rendered_share=0.5",
+                "buffer.size=500",
+                "buffer.batch_size=16",
+                "eval.max_steps=50",
+            ],
+            marks=pytest.mark.slow,
+        ),
     ],
-    ids=["dqn", "rainbow", "observation-norm", "lr-taper"],
+    ids=["dqn", "rainbow", "observation-norm", "lr-taper", "pixels"],
 )
 def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     whole = tmp_path / "whole"

@@ -37,10 +37,10 @@ import torch
 from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict, TensorDictBase
+from torch.nn.parameter import UninitializedBuffer
 from torchrl.envs import CatFrames, EnvBase, GymWrapper, SerialEnv, TransformedEnv
 
 from trl_cartpole.parts.atari import ResizeFrame
-from trl_cartpole.parts.cartpole_drawing import DrawCartPole
 from trl_cartpole.parts.compat import (
     autoreset_state,
     gym_env,
@@ -108,15 +108,34 @@ def _envs_of(gymnasium_env: Any) -> list[Any]:
 
 def _stores_its_state(env: EnvBase) -> bool:
     """Whether ``env`` is a Gymnasium env (or vector env) in a ``GymWrapper`` seen through its
-    state. Pixel envs are not, rendered or drawn (``DrawCartPole``): the frames stacked by
-    their ``CatFrames`` are not stored (and several rendered envs are a ``SerialEnv``); a
-    resumed pixel run starts new episodes."""
+    state: a state env, or pixels drawn from its state (``DrawCartPole``, whose stacked frames
+    are stored with it: :func:`_frame_stacks`). Pixels Gymnasium renders are not (several
+    rendered envs are a ``SerialEnv`` of renderers); a resumed run of them starts new
+    episodes."""
     base = env.base_env if isinstance(env, TransformedEnv) else env
-    if isinstance(env, TransformedEnv) and any(
-        isinstance(transform, (CatFrames, DrawCartPole)) for transform in env.transform
-    ):
-        return False
     return isinstance(base, GymWrapper) and not base.from_pixels
+
+
+def _frame_stacks(env: EnvBase) -> dict[str, np.ndarray]:
+    """The frames ``env``'s transforms hold stacked (``CatFrames``' buffers, via the transforms'
+    ``state_dict``) as arrays; none for an env without ``CatFrames``."""
+    if not isinstance(env, TransformedEnv) or not any(
+        isinstance(transform, CatFrames) for transform in env.transform
+    ):
+        return {}
+    return {key: value.numpy().copy() for key, value in env.transform.state_dict().items()}
+
+
+def _stacks_unmade(env: EnvBase) -> bool:
+    """Whether ``env``'s ``CatFrames`` buffers are still unmade (an env never reset)."""
+    return any(isinstance(buffer, UninitializedBuffer) for buffer in env.transform.buffers())
+
+
+def _restore_frame_stacks(env: EnvBase, stacks: dict[str, np.ndarray]) -> None:
+    if stacks:
+        env.transform.load_state_dict(
+            {key: torch.from_numpy(value.copy()) for key, value in stacks.items()}
+        )
 
 
 def _atari_games(env: EnvBase) -> list[TransformedEnv] | None:
@@ -160,10 +179,11 @@ def _restore_atari(game: TransformedEnv, snapshot: dict[str, Any]) -> None:
 def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | None:
     """The state of the Gymnasium env (or ``SyncVectorEnv``) behind ``env``, or None.
 
-    ``{"data": ...}`` (nested dicts, lists, numbers and arrays) for classic-control envs;
+    ``{"data": ...}`` (nested dicts, lists, numbers and arrays) for classic-control envs, with
+    the frames stacked by pixels drawn from their state;
     ``{"atari": [...]}`` (each game's ALE state as bytes, and its RNG) for Atari games;
     ``{"pickle": bytes}`` for other envs only with ``trust_pickle``; None where neither holds
-    the env's state (and for pixel envs).
+    the env's state (and for pixels Gymnasium renders).
     """
     games = _atari_games(env)
     if games is not None:
@@ -174,7 +194,8 @@ def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | N
     envs = _envs_of(gymnasium_env)
     if all(type(e.unwrapped).__module__.startswith(DATA_STATE_MODULE) for e in envs):
         vector = _plain_attributes(gymnasium_env) if gymnasium_env is not envs[0] else {}
-        return {"data": {"envs": [_single_env_snapshot(e) for e in envs], "vector": vector}}
+        envs_state = [_single_env_snapshot(e) for e in envs]
+        return {"data": {"envs": envs_state, "vector": vector, "frames": _frame_stacks(env)}}
     if not trust_pickle or any(isinstance(e.unwrapped, EzPickle) for e in envs):
         return None
     try:  # a vector env made by gymnasium.make_vec holds local functions: pickle its envs
@@ -201,6 +222,8 @@ def restore_env_snapshot(
         return False
     gymnasium_env = gym_env(env)
     if "data" in snapshot:
+        if snapshot["data"].get("frames") and _stacks_unmade(env):
+            env.reset()  # makes CatFrames' buffers; every state the reset moved is restored below
         envs = _envs_of(gymnasium_env)
         if len(envs) != len(snapshot["data"]["envs"]):
             return False
@@ -208,6 +231,7 @@ def restore_env_snapshot(
             _restore_single_env(single_env, single_snapshot)
         for name, value in snapshot["data"]["vector"].items():
             setattr(gymnasium_env, name, value.copy() if isinstance(value, np.ndarray) else value)
+        _restore_frame_stacks(env, snapshot["data"].get("frames", {}))
         return True
     if not trust_pickle:
         return False
