@@ -42,7 +42,20 @@ PACKAGE = ROOT / "src" / "trl_cartpole"
 RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
-ATARI = ROOT / "docs" / "results" / "atari_breakout.json"
+# Breakout's results files, each a form of the recipe, with the line that names it in the docs
+ATARI_RECORDS = (
+    (
+        ROOT / "docs" / "results" / "atari_breakout.json",
+        "The first form of the recipe (double DQN, one step per batch), stopped at 50 000 "
+        "steps; seeds 101 and 102, side by side",
+    ),
+    (
+        ROOT / "docs" / "results" / "atari_breakout_80k.json",
+        "The preset as it is (`env=breakout`: 80 000 steps, batches of 4 steps and 4 updates, "
+        "plain DQN targets); seeds 103, 104 and 105 named for it before any ran, each alone "
+        "on the machine",
+    ),
+)
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
 RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in RACE_ENVS}
 
@@ -229,14 +242,23 @@ def _candidates_cell(run: dict) -> str:
     return "; ".join(cells)
 
 
-ATARI_TARGET = {"score": 15.0, "train_seconds": 2 * 3600, "peak_rss_mb": 4 * 1024}
+ATARI_TARGET = {"score": 15.0, "train_seconds": 2 * 3600, "peak_rss_mb": 4 * 1024, "seeds": 3}
 
 
 def atari_runs() -> str:
-    """docs/atari.md's table of Breakout runs, from ``docs/results/atari_breakout.json``
-    (``python -m benchmarks atari --checkpoint RUN_DIR ... --record`` writes it), with the
-    Practical RL DQN assignment's target's verdict."""
-    record = json.loads(ATARI.read_text())
+    """docs/atari.md's tables of Breakout runs, one per form of the recipe
+    (:data:`ATARI_RECORDS`, written by ``python -m benchmarks atari --checkpoint RUN_DIR ...
+    --record``), each with the Practical RL DQN assignment's target's verdict."""
+    blocks = []
+    for path, title in ATARI_RECORDS:
+        if path.is_file():
+            record = json.loads(path.read_text())
+            blocks.append(f"**{title}.**\n\n{_results_block(record, *_atari_table(record))}")
+    return "\n\n".join(blocks)
+
+
+def _atari_table(record: dict) -> tuple[list[str], str]:
+    """One record's rows and its verdict on :data:`ATARI_TARGET`."""
     rows = [
         "| seed | agent steps | updates | train time | greedy score at each evaluation | "
         "kept policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
@@ -255,19 +277,23 @@ def atari_runs() -> str:
             f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "
             f"{_spaced(run['peak_rss_mb'])} |"
         )
-    met = all(
-        run["final_eval_return_mean"] >= ATARI_TARGET["score"]
+    meeting = [
+        run["seed"]
+        for run in record["runs"]
+        if run["final_eval_return_mean"] >= ATARI_TARGET["score"]
         and run["train_seconds"] <= ATARI_TARGET["train_seconds"]
         and run["peak_rss_mb"] <= ATARI_TARGET["peak_rss_mb"]
-        for run in record["runs"]
+    ]
+    seeds = ATARI_TARGET["seeds"]
+    met = len(meeting) == len(record["runs"]) >= seeds
+    verdict = (
+        f"Target ({seeds} seeds, every one's kept policy >= {ATARI_TARGET['score']:g} over 30 "
+        f"whole games within {ATARI_TARGET['train_seconds'] // 3600} hours of training and "
+        f"{ATARI_TARGET['peak_rss_mb'] // 1024} GiB): {'met' if met else '**not met**'}; "
+        f"{len(meeting)} of the {len(record['runs'])} seeds run here meet it"
+        f"{' (' + ', '.join(map(str, meeting)) + ')' if meeting else ''}."
     )
-    return _results_block(
-        record,
-        rows,
-        f"Target (every seed's kept policy >= {ATARI_TARGET['score']:g} over 30 whole games, "
-        f"within {ATARI_TARGET['train_seconds'] // 3600} hours of training and "
-        f"{ATARI_TARGET['peak_rss_mb'] // 1024} GiB): {'met' if met else '**not met**'}.",
-    )
+    return rows, verdict
 
 
 def train_listing() -> str:
