@@ -114,39 +114,46 @@ def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     ("stopped_after", "overrides"),
     [
         ("last", []),
-        ("periodic", []),
+        # the end-of-run state removed: the periodic one at frame 600 predates the last
+        # evaluation (evaluations every 250 frames: at 250, 500, then 600 after the loop)
+        ("periodic", ["eval.interval_frames=250"]),
+        # a solved run stops early: its end-of-run state has fewer frames than total_frames
+        ("last", ["eval.stop_when_solved=true", "eval.solve_threshold=10"]),
         # workers: a collector whose state is not saved, rebuilt with no frames left to collect
         pytest.param("last", ["collector.workers=2", "env.num_envs=2"], marks=pytest.mark.slow),
     ],
-    ids=["last", "periodic", "workers"],
+    ids=["last", "periodic", "solved-early", "workers"],
 )
 def test_a_run_stopped_in_its_ending_finishes_on_resume(
     compose, tmp_path, stopped_after, overrides
 ):
-    # Killed after its last training state ("last": the end-of-run state; "periodic": the
-    # state at its last frame, before that) but before summary.json: a resume goes straight
-    # to the ending, which equals the uninterrupted run's.
+    # Killed after its last training state but before summary.json: a resume with no override
+    # goes straight to the ending, which equals the uninterrupted run's.
     whole = tmp_path / "whole"
     expected = train(compose(*RESUMABLE, *overrides, f"run_dir={whole}"))
-    with pytest.raises(ConfigError, match="leaves nothing to train: the run has 600 frames"):
-        resume_config(find_resume_checkpoint(whole))  # finished: its summary is of 600 frames
+    frames = expected["frames"]
+    assert (frames < 600) == ("eval.stop_when_solved=true" in overrides)
+    with pytest.raises(ConfigError, match="is a finished run"):  # its summary is written
+        resume_config(find_resume_checkpoint(whole))
     stopped = tmp_path / "stopped"
     shutil.copytree(whole, stopped)
     (stopped / "summary.json").unlink()
+    checkpoint = stopped / "checkpoints" / "last"
     if stopped_after == "periodic":
-        shutil.rmtree(stopped / "checkpoints" / "last")
-    checkpoint = find_resume_checkpoint(stopped)
-    assert checkpoint.parent.name == "periodic" or checkpoint.name == stopped_after
+        shutil.rmtree(checkpoint)
+        checkpoint = find_resume_checkpoint(stopped)
+    assert Checkpoint.manifest(checkpoint)["metadata"]["counters"]["frames"] == frames
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         resumed = train(resume_config(checkpoint, [f"run_dir={stopped}"]), resume=checkpoint)
+    # the same evaluations, kept policy and final games, and no frame collected again
     assert _comparable(resumed) == _comparable(expected)
     # saved again before a write: TorchRL's "last_cursor is None" once warned here
     assert not [w for w in caught if "last_cursor" in str(w.message)]
-    a, b = (_weights(d / "checkpoints" / "best") for d in (whole, stopped))
-    assert all(torch.equal(a[k], b[k]) for k in a)
+    final = "metrics/scalars/eval/final_return_mean.csv"  # logged once, not twice
+    assert (whole / final).read_text() == (stopped / final).read_text()
     with pytest.raises(ConfigError, match="leaves nothing to train"):  # a larger one trains on
-        resume_config(checkpoint, ["collector.total_frames=599"])
+        resume_config(checkpoint, [f"collector.total_frames={frames - 1}"])
 
 
 @pytest.mark.slow  # a run resumed
@@ -324,6 +331,9 @@ def test_second_ctrl_c_exits_at_once_and_corrupts_nothing(python, tmp_path):
     _wait_until_training(run_dir, proc)
     time.sleep(0.3)
     proc.send_signal(signal.SIGINT)
+    said = proc.stderr.readline()
+    while said and "saving a checkpoint" not in said:  # the first signal was handled
+        said = proc.stderr.readline()
     proc.send_signal(signal.SIGINT)
     _, stderr = proc.communicate(timeout=60)
     # ended by the signal's default action (a shell reports 130), no traceback
@@ -333,20 +343,22 @@ def test_second_ctrl_c_exits_at_once_and_corrupts_nothing(python, tmp_path):
     Checkpoint.manifest(checkpoint)
 
 
-# A process that gets a stop signal, then spends minutes inside one C call (a matrix power of
-# 2**20 on 3000x3000: about 20 products of 54 GFLOP each), where no Python handler can run.
+# A process that gets a stop signal, then spends minutes inside one C call on one thread (a
+# matrix power of 2**40 on 3000x3000: 40 products of 54 GFLOP each), where no Python handler
+# can run.
 _BUSY_IN_C = """
-import sys, time, torch
+import contextlib, sys, time, torch
 from trl_cartpole.run import signals
-if sys.argv[1] == "command-line":
-    signals.end_process_on_second_signal()
-with signals.StopRequest() as stop:
+torch.set_num_threads(1)
+command_line = sys.argv[1] == "command-line"
+with signals.second_signal_ends_process() if command_line else contextlib.nullcontext(), \\
+        signals.StopRequest() as stop:
     print("ready", flush=True)
     while not stop.requested:
         time.sleep(0.01)
     print("busy", flush=True)
     try:
-        torch.linalg.matrix_power(torch.rand(3000, 3000), 2**20)
+        torch.linalg.matrix_power(torch.rand(3000, 3000), 2**40)
     except KeyboardInterrupt:
         print("KeyboardInterrupt", flush=True)
         raise SystemExit(130)
@@ -577,7 +589,7 @@ def test_a_training_state_of_another_format_is_refused_naming_both(tmp_path, fin
         (["network.hidden_sizes=[64]"], "network.hidden_sizes cannot change"),
         (["loss.gama=1"], "Key 'gama' not in"),
         (["logger.plots=512"], "logger.plots=512 is not a switch value"),
-        ([], "leaves nothing to train: the run has 600 frames"),  # a distributed one never ended
+        ([], "is a finished run"),  # its summary.json is written
     ],
 )
 def test_resume_refuses_an_incompatible_config(finished_run, args, message):

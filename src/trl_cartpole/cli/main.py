@@ -39,7 +39,7 @@ from trl_cartpole.errors import (
     WorkerLost,
 )
 from trl_cartpole.report.console import command, quiet_libraries, set_scripts_dir
-from trl_cartpole.run.signals import end_process_on_second_signal, install_unbreakable_console
+from trl_cartpole.run.signals import install_unbreakable_console, second_signal_ends_process
 
 __all__ = [
     "COMMANDS",
@@ -99,9 +99,9 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
     argv = list(sys.argv[1:] if argv is None else argv)
     # for the rest of the process: the messages below and Python's last flush at exit too
     install_unbreakable_console()
-    end_process_on_second_signal()  # whatever the run is doing (docs/reliability.md)
     try:
-        with quiet_libraries():
+        # a second stop signal ends the run whatever it is doing (docs/reliability.md)
+        with quiet_libraries(), second_signal_ends_process():
             main(argv)
     except (ConfigError, HydraException, OmegaConfBaseException) as error:
         if os.environ.get("HYDRA_FULL_ERROR") == "1":
@@ -135,7 +135,7 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
         return EXIT_DISK_FULL
     except KeyboardInterrupt:
         print(
-            "interrupted outside a safe point (or twice): exited at once; the newest complete "
+            "interrupted outside a safe point: exited at once; the newest complete "
             f"checkpoint is intact ({command('train')} resume=RUN_DIR)",
             file=sys.stderr,
         )

@@ -103,7 +103,8 @@ def make_logger(
 
 
 def truncate_csv_metrics(run_dir: str | Path, frames: int) -> None:
-    """Drop the CSV rows logged after ``frames`` (``run_dir/metrics/scalars/**.csv``).
+    """Drop the CSV rows logged after ``frames`` (``run_dir/metrics/scalars/**.csv``), and the
+    ending's own (``final_*``: logged after the last training state, at its frames).
 
     A resumed run logs those frames again; each file is rewritten atomically. A row that is
     not ``step,value`` (a write cut off by a kill, a damaged file) is dropped with a line on
@@ -111,11 +112,12 @@ def truncate_csv_metrics(run_dir: str | Path, frames: int) -> None:
     """
     for path in (Path(run_dir) / "metrics" / "scalars").rglob("*.csv"):
         kept, damaged = [], 0
+        last_kept = frames - 1 if path.stem.startswith("final_") else frames
         for row in path.read_text(errors="replace").splitlines():
             step = _csv_step(row)
             if step is None:
                 damaged += bool(row.strip())
-            elif step <= frames:
+            elif step <= last_kept:
                 kept.append(f"{row}\n")
         if damaged:
             print(f"dropped {damaged} damaged row(s) of {path} (not step,value)", file=sys.stderr)

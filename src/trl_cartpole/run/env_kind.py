@@ -57,10 +57,11 @@ class EnvKind:
 
     @property
     def collector_state_saved(self) -> bool:
-        """Whether a single-process collector's own state (its frame counter, its env's) is
-        saved with the run: a state env's is, and one Atari game's (its stacked frames; ALE's
-        state is the env snapshot's); a pixel env's (a ``SerialEnv`` or drawn frames,
-        restarted with fresh transforms once the collector has closed it) is not."""
+        """Whether a single-process collector's own state (its frame counter, its env's
+        transforms) is saved with the run: a state env's is, and one Atari game's; a pixel
+        env's (a ``SerialEnv`` or drawn frames, restarted with fresh transforms once the
+        collector has closed it) is not: its frames are counted by the run, and its stacked
+        frames are stored with the env's state (:mod:`trl_cartpole.store.env_state`)."""
         if self.atari:
             return self.env.num_envs == 1
         return not self.pixels

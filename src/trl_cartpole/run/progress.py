@@ -88,6 +88,9 @@ class Progress:
         self.updates = 0
         self.clock = Stopwatch()
         self.phase_seconds: dict[str, float] = defaultdict(float)
+        # the collector.total_frames under which the training loop ended (None: it has not),
+        # at them or earlier (a solved run stops): a resume with the same goes to the ending
+        self.ended_at_total: int | None = None
 
     @contextmanager
     def phase(self, name: str) -> Iterator[None]:
@@ -115,6 +118,7 @@ class Progress:
             "updates": self.updates,
             "train_seconds": self.clock.seconds,
             "phase_seconds": dict(self.phase_seconds),
+            "ended_at_total": self.ended_at_total,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -122,3 +126,4 @@ class Progress:
         self.clock.elapsed = state["train_seconds"]
         self.phase_seconds.clear()
         self.phase_seconds.update(state["phase_seconds"])
+        self.ended_at_total = state.get("ended_at_total")  # absent: saved by an earlier version

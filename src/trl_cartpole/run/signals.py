@@ -5,7 +5,7 @@ SIGHUP (the terminal or SSH connection closed) or SIGUSR1 (SLURM's ``--signal=US
 warning before preemption) into a flag the training loop reads at its next safe point (the end
 of a collected batch), where it writes a checkpoint and raises :class:`TrainingInterrupted`.
 A second signal leaves at once (checkpoint writes are atomic, so that corrupts nothing): in a
-command-line process (:func:`end_process_on_second_signal`) the first signal hands the stop
+command line's run (:func:`second_signal_ends_process`) the first signal hands the stop
 signals back to the operating system's default action, so the second ends the process
 whatever it is doing, inside a long C call (a batch, an allocation, a write) included, where
 no Python handler could run; called from Python (a notebook's kernel must survive it), the
@@ -30,8 +30,8 @@ from typing import Any, TextIO
 __all__ = [
     "StopRequest",
     "UnbreakableStream",
-    "end_process_on_second_signal",
     "install_unbreakable_console",
+    "second_signal_ends_process",
     "unbreakable_console",
 ]
 
@@ -43,16 +43,21 @@ STOP_SIGNALS = tuple(
 )
 
 
-# A command-line process: the second stop signal takes the default action (end the process).
+# Inside a command line's run: the second stop signal takes the default action (the end).
 _second_signal_ends_process = False
 
 
-def end_process_on_second_signal() -> None:
-    """For the rest of this process, a second stop signal ends it at once, by the operating
+@contextmanager
+def second_signal_ends_process() -> Iterator[None]:
+    """Inside the block, a second stop signal ends the process at once, by the operating
     system's default action (exit status 128 + the signal as a shell reports it), whatever
-    Python is doing. For command-line runs, not for a notebook's kernel."""
+    Python is doing. For a command line's run, not for a notebook's kernel."""
     global _second_signal_ends_process
-    _second_signal_ends_process = True
+    saved, _second_signal_ends_process = _second_signal_ends_process, True
+    try:
+        yield
+    finally:
+        _second_signal_ends_process = saved
 
 
 class UnbreakableStream:
@@ -126,8 +131,9 @@ class StopRequest:
     def rearm(self) -> None:
         """Install the handlers again, over any a library set since (``ray.init`` installs a
         SIGTERM handler in C that prints a stack trace and kills the process)."""
-        for signum in self._previous:
-            signal.signal(signum, self._handle)
+        after_first = self.signum is not None and _second_signal_ends_process
+        for signum in self._previous:  # after a first signal the next one still ends it
+            signal.signal(signum, signal.SIG_DFL if after_first else self._handle)
 
     def __exit__(self, *exc_info: object) -> None:
         for signum, handler in self._previous.items():

@@ -67,7 +67,9 @@ def train(
         progress.clock.start()
         # a resumed run whose training was done when it stopped (killed in its ending) collects
         # nothing: it goes to its last evaluation and its ending, as the uninterrupted run did
-        batches = run.collector if progress.frames < cfg.collector.total_frames else ()
+        total = cfg.collector.total_frames
+        done = progress.frames >= total or progress.ended_at_total == total
+        batches = () if done else run.collector
         try:
             # batch: [envs, T] ([workers, envs, T] from synchronous workers), envs * T frames
             for batch in progress.timed(batches, "collect"):
@@ -90,6 +92,7 @@ def train(
                     if evaluation.stop:
                         break
                 run.checkpointer.maybe_save(progress, stop)  # after a signal: save, then raise
+            progress.ended_at_total = total
             if run.evaluator.last_eval_frame != progress.frames:  # end on an evaluation
                 _record_evaluation(run, run.evaluator.run(progress), on_evaluation)
         except TrainingFailed as failure:

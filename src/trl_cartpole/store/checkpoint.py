@@ -176,7 +176,8 @@ def find_resume_checkpoint(path: str | Path) -> Path:
     """The training state to resume from ``path``: a run directory or a checkpoint in one.
 
     In a run directory that is the one with the most frames among the newest complete periodic
-    checkpoint (``checkpoints/periodic``) and the end-of-run state (``checkpoints/last``). A
+    checkpoint (``checkpoints/periodic``) and the end-of-run state (``checkpoints/last``), the
+    end-of-run one on a tie. A
     periodic checkpoint without its integrity record was cut off while being written and is
     passed over; one whose files do not match their record raises :class:`ConfigError`.
     """
@@ -194,7 +195,10 @@ def find_resume_checkpoint(path: str | Path) -> Path:
         )
     for candidate in candidates:
         verify_checkpoint(candidate)
-    return max(candidates, key=lambda c: _read_manifest(c)["metadata"]["counters"]["frames"])
+    # on a tie the end-of-run state (after the last evaluation), listed last: taken first
+    return max(
+        reversed(candidates), key=lambda c: _read_manifest(c)["metadata"]["counters"]["frames"]
+    )
 
 
 def find_complete_checkpoints(run_dir: str | Path) -> list[Path]:
@@ -301,26 +305,33 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
             f"resume continues the stored run, so {', '.join(refused)} cannot change; only "
             f"{', '.join(RESUMABLE_FIELDS)} may"
         )
-    frames = Checkpoint.manifest(checkpoint)["metadata"]["counters"]["frames"]
-    if cfg.collector.total_frames <= frames and not _ending_left(checkpoint, stored, cfg, frames):
+    counters = Checkpoint.manifest(checkpoint)["metadata"]["counters"]
+    frames, total = counters["frames"], cfg.collector.total_frames
+    same_total = total == stored.collector.total_frames
+    if same_total and _finished(checkpoint, frames):
         raise ConfigError(
-            f"collector.total_frames={cfg.collector.total_frames} leaves nothing to train: the "
-            f"run has {frames} frames; pass a larger collector.total_frames to continue it"
+            f"resume={str(checkpoint)!r} is a finished run (its summary.json is written); pass "
+            f"a larger collector.total_frames than {total} to train it on"
+        )
+    if total <= frames and not same_total:
+        raise ConfigError(
+            f"collector.total_frames={total} leaves nothing to train: the run has {frames} "
+            "frames; pass a larger collector.total_frames to continue it, or none to finish it"
         )
     return cfg
 
 
-def _ending_left(checkpoint: str | Path, stored: Config, cfg: Config, frames: int) -> bool:
-    """Whether the run trained all its frames but stopped before its ending was written (no
-    ``summary.json`` of these frames): a resume with the same ``collector.total_frames`` then
-    goes straight to the ending (the last evaluation, the kept policy, the final episodes)."""
-    if cfg.collector.total_frames != stored.collector.total_frames:
-        return False
-    summary = run_dir_of(checkpoint) / "summary.json"
+def _finished(checkpoint: str | Path, frames: int) -> bool:
+    """Whether the run of ``checkpoint`` wrote its ending at ``frames`` (a ``summary.json`` of
+    those frames, not a failure's). A run stopped after its training but before that resumes
+    straight to the ending (``train``)."""
     try:
-        return json.loads(summary.read_text()).get("frames") != frames
-    except (OSError, ValueError, AttributeError):  # none yet, or cut off mid-write: not written
-        return True
+        summary = json.loads((run_dir_of(checkpoint) / "summary.json").read_text())
+    except (ConfigError, OSError, ValueError):  # none yet (or no run directory around it)
+        return False
+    return (
+        isinstance(summary, dict) and summary.get("frames") == frames and not summary.get("failed")
+    )
 
 
 def read_checkpoint_config(path: str | Path) -> Config:

@@ -37,7 +37,7 @@ import torch
 from gymnasium.utils import EzPickle
 from gymnasium.vector import SyncVectorEnv
 from tensordict import TensorDict, TensorDictBase
-from torch.nn.parameter import UninitializedBuffer
+from torch.nn.parameter import is_lazy
 from torchrl.envs import CatFrames, EnvBase, GymWrapper, SerialEnv, TransformedEnv
 
 from trl_cartpole.parts.atari import ResizeFrame
@@ -117,25 +117,36 @@ def _stores_its_state(env: EnvBase) -> bool:
 
 
 def _frame_stacks(env: EnvBase) -> dict[str, np.ndarray]:
-    """The frames ``env``'s transforms hold stacked (``CatFrames``' buffers, via the transforms'
-    ``state_dict``) as arrays; none for an env without ``CatFrames``."""
+    """The frames ``env``'s ``CatFrames`` hold stacked, as arrays on the CPU (none for an env
+    without ``CatFrames``, and none yet for one never reset: :func:`_transform_buffers`)."""
     if not isinstance(env, TransformedEnv) or not any(
         isinstance(transform, CatFrames) for transform in env.transform
     ):
         return {}
-    return {key: value.numpy().copy() for key, value in env.transform.state_dict().items()}
+    return {key: value for key, value in _transform_buffers(env).items() if "_cat_buffers" in key}
 
 
-def _stacks_unmade(env: EnvBase) -> bool:
-    """Whether ``env``'s ``CatFrames`` buffers are still unmade (an env never reset)."""
-    return any(isinstance(buffer, UninitializedBuffer) for buffer in env.transform.buffers())
+def _transform_buffers(env: TransformedEnv) -> dict[str, np.ndarray]:
+    """The state of ``env``'s transforms (their ``state_dict``) as arrays on the CPU, without
+    the buffers a transform makes at its first reset and has not made yet (``CatFrames``' of
+    an evaluation env never played)."""
+    state = env.transform.state_dict(keep_vars=True)
+    return {
+        key: value.detach().cpu().numpy().copy()
+        for key, value in state.items()
+        if not is_lazy(value)
+    }
 
 
-def _restore_frame_stacks(env: EnvBase, stacks: dict[str, np.ndarray]) -> None:
-    if stacks:
-        env.transform.load_state_dict(
-            {key: torch.from_numpy(value.copy()) for key, value in stacks.items()}
-        )
+def _load_transform_buffers(env: TransformedEnv, buffers: dict[str, np.ndarray]) -> None:
+    """Put :func:`_transform_buffers`' arrays back (onto the transforms' own device); an env
+    whose stacks are not made yet is reset first (every state that moves is restored after)."""
+    if not buffers:
+        return
+    if any(is_lazy(buffer) for buffer in env.transform.buffers()):
+        env.reset()
+    state = {key: torch.from_numpy(value.copy()) for key, value in buffers.items()}
+    env.transform.load_state_dict(state, strict=False)
 
 
 def _atari_games(env: EnvBase) -> list[TransformedEnv] | None:
@@ -160,20 +171,18 @@ def _atari_snapshot(game: TransformedEnv) -> dict[str, Any]:
         "ale": np.frombuffer(state, dtype=np.uint8).copy(),
         "rng": None if rng is None else rng.bit_generator.state,
         # the preprocessing's state: the stacked frames, the lives at the last step
-        "transforms": {k: v.numpy().copy() for k, v in game.transform.state_dict().items()},
+        "transforms": _transform_buffers(game),
     }
 
 
 def _restore_atari(game: TransformedEnv, snapshot: dict[str, Any]) -> None:
     import ale_py
 
+    _load_transform_buffers(game, snapshot["transforms"])  # first: it may reset the game
     unwrapped = gym_env(game).unwrapped
     unwrapped.ale.restoreState(ale_py.ALEState(snapshot["ale"].tobytes()))
     if snapshot["rng"] is not None:
         unwrapped.np_random.bit_generator.state = snapshot["rng"]
-    game.transform.load_state_dict(
-        {key: torch.from_numpy(value.copy()) for key, value in snapshot["transforms"].items()}
-    )
 
 
 def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | None:
@@ -222,8 +231,8 @@ def restore_env_snapshot(
         return False
     gymnasium_env = gym_env(env)
     if "data" in snapshot:
-        if snapshot["data"].get("frames") and _stacks_unmade(env):
-            env.reset()  # makes CatFrames' buffers; every state the reset moved is restored below
+        if snapshot["data"].get("frames"):  # first: it may reset an env never reset
+            _load_transform_buffers(env, snapshot["data"]["frames"])
         envs = _envs_of(gymnasium_env)
         if len(envs) != len(snapshot["data"]["envs"]):
             return False
@@ -231,7 +240,6 @@ def restore_env_snapshot(
             _restore_single_env(single_env, single_snapshot)
         for name, value in snapshot["data"]["vector"].items():
             setattr(gymnasium_env, name, value.copy() if isinstance(value, np.ndarray) else value)
-        _restore_frame_stacks(env, snapshot["data"].get("frames", {}))
         return True
     if not trust_pickle:
         return False
