@@ -156,6 +156,28 @@ def test_a_run_stopped_in_its_ending_finishes_on_resume(
         resume_config(checkpoint, [f"collector.total_frames={frames - 1}"])
 
 
+def test_a_run_ends_at_its_training_seconds_and_a_resume_keeps_the_limit(compose, tmp_path):
+    # collector.max_train_seconds ends the loop as its last frame would: the last evaluation,
+    # the ending. Stopped in that ending, a resume under the same limits goes straight to it; a
+    # larger limit trains on.
+    budget = [o for o in RESUMABLE if not o.startswith("collector.total_frames")]
+    limited = [*budget, "collector.total_frames=1000000", "collector.max_train_seconds=1.5"]
+    whole = tmp_path / "whole"
+    expected = train(compose(*limited, f"run_dir={whole}"))
+    assert 0 < expected["frames"] < 1000000 and expected["train_seconds"] >= 1.5
+    assert expected["eval_curve"]["frames"][-1] == expected["frames"]  # ended on an evaluation
+    stopped = tmp_path / "stopped"
+    shutil.copytree(whole, stopped)
+    (stopped / "summary.json").unlink()
+    last = stopped / "checkpoints" / "last"
+    resumed = train(resume_config(last, [f"run_dir={stopped}"]), resume=last)
+    assert _comparable(resumed) == _comparable(expected)
+    more = train(
+        resume_config(last, [f"run_dir={stopped}", "collector.max_train_seconds=3"]), resume=last
+    )
+    assert more["frames"] > expected["frames"] and more["train_seconds"] >= 3
+
+
 @pytest.mark.slow  # a run resumed
 def test_a_resumed_run_reads_its_observation_statistics_back(compose, tmp_path):
     # Statistics written into the checkpoint's manifest (and its integrity record) that no
@@ -523,6 +545,7 @@ BAD_INPUTS = [
         "env.step_timeout=9223376706.0 must be > 0 and at most 604800 seconds",
     ),
     ("a step deadline of no time", ["env.step_timeout=0"], "env.step_timeout=0.0 must be > 0"),
+    ("no time to train", ["collector.max_train_seconds=0"], "max_train_seconds=0.0 must be > 0"),
     ("an AdamW without a floor", ["optim.eps=0"], "optim.eps=0.0 must be > 0 (AdamW's: 1e-08)"),
     ("a taper to nothing", ["optim.lr_end=0"], "optim.lr_end=0.0 must be > 0 (null: no taper)"),
     (

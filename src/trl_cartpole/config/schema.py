@@ -186,6 +186,9 @@ class OptimConfig:
 @dataclass
 class CollectorConfig:
     total_frames: int = defaults.TOTAL_FRAMES  # env steps at most (rounded up to whole batches)
+    # seconds of training at most (evaluations not counted), then the run ends as at its last
+    # frame; the frames it reaches follow the machine's speed (null: no limit)
+    max_train_seconds: float | None = None
     frames_per_batch: int = defaults.FRAMES_PER_BATCH  # frames per collected batch, over all envs
     # frames with a uniform random policy first (whole batches)
     init_random_frames: int = defaults.INIT_RANDOM_FRAMES

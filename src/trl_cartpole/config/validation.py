@@ -198,6 +198,11 @@ def _collector_rules(cfg: Config) -> list[tuple[bool, str]]:
         (cfg.collector.init_random_frames >= 0, "collector.init_random_frames must be >= 0"),
         (cfg.collector.updates_per_batch >= 0, "collector.updates_per_batch must be >= 0"),
         (cfg.collector.learning_starts >= 0, "collector.learning_starts must be >= 0"),
+        (
+            cfg.collector.max_train_seconds is None or cfg.collector.max_train_seconds > 0,
+            f"collector.max_train_seconds={cfg.collector.max_train_seconds} must be > 0, or null "
+            "for no limit",
+        ),
     ]
 
 

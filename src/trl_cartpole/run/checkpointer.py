@@ -92,8 +92,8 @@ class Checkpointer:
 
     def save(self, path: Path, progress: Progress, keep_last: int | None = None) -> Path:
         counters = {"frames": progress.frames, "updates": progress.updates}
-        if progress.ended_at_total is not None:  # the loop has ended: the ending is left
-            counters["ended_at_total"] = progress.ended_at_total
+        if progress.ended_under is not None:  # the loop has ended: the ending is left
+            counters["ended_under"] = progress.ended_under
         logger_step = None if self.metrics is None else self.metrics.logger_step()
         if logger_step is not None:
             counters["logger_step"] = logger_step  # a W&B resume rewinds to it

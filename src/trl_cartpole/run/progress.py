@@ -88,9 +88,10 @@ class Progress:
         self.updates = 0
         self.clock = Stopwatch()
         self.phase_seconds: dict[str, float] = defaultdict(float)
-        # the collector.total_frames under which the training loop ended (None: it has not),
-        # at them or earlier (a solved run stops): a resume with the same goes to the ending
-        self.ended_at_total: int | None = None
+        # the collector's total_frames and max_train_seconds under which the training loop
+        # ended (None: it has not), at them or earlier (a solved run stops): a resume under the
+        # same goes to the ending
+        self.ended_under: dict[str, Any] | None = None
 
     @contextmanager
     def phase(self, name: str) -> Iterator[None]:
@@ -118,7 +119,7 @@ class Progress:
             "updates": self.updates,
             "train_seconds": self.clock.seconds,
             "phase_seconds": dict(self.phase_seconds),
-            "ended_at_total": self.ended_at_total,
+            "ended_under": self.ended_under,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -126,4 +127,4 @@ class Progress:
         self.clock.elapsed = state["train_seconds"]
         self.phase_seconds.clear()
         self.phase_seconds.update(state["phase_seconds"])
-        self.ended_at_total = state.get("ended_at_total")  # absent: saved by an earlier version
+        self.ended_under = state.get("ended_under")  # absent: saved by an earlier version

@@ -33,6 +33,7 @@ from trl_cartpole.run.env_faults import (
     worker_env_fault,
 )
 from trl_cartpole.run.evaluation import Evaluation
+from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.signals import StopRequest
 from trl_cartpole.run.summary import finish, record_failure
 
@@ -67,8 +68,8 @@ def train(
         progress.clock.start()
         # a resumed run whose training was done when it stopped (killed in its ending) collects
         # nothing: it goes to its last evaluation and its ending, as the uninterrupted run did
-        total = cfg.collector.total_frames
-        done = progress.frames >= total or progress.ended_at_total == total
+        limits = _limits(cfg)
+        done = progress.frames >= cfg.collector.total_frames or progress.ended_under == limits
         batches = () if done else run.collector
         try:
             # batch: [envs, T] ([workers, envs, T] from synchronous workers), envs * T frames
@@ -91,8 +92,10 @@ def train(
                     _record_evaluation(run, evaluation, on_evaluation)
                     if evaluation.stop:
                         break
+                if _out_of_time(cfg, progress):  # collector.max_train_seconds: end here
+                    break
                 run.checkpointer.maybe_save(progress, stop)  # after a signal: save, then raise
-            progress.ended_at_total = total
+            progress.ended_under = limits
             if run.evaluator.last_eval_frame != progress.frames:  # end on an evaluation
                 _record_evaluation(run, run.evaluator.run(progress), on_evaluation)
         except TrainingFailed as failure:
@@ -103,6 +106,22 @@ def train(
                 raise
             raise stop_as from None
         return finish(run)
+
+
+def _limits(cfg: Config) -> dict[str, Any]:
+    """What ends the training loop: its frames and seconds (a resume under other ones trains
+    on from a loop that ended)."""
+    collector = cfg.collector
+    return {
+        "total_frames": collector.total_frames,
+        "max_train_seconds": collector.max_train_seconds,
+    }
+
+
+def _out_of_time(cfg: Config, progress: Progress) -> bool:
+    """Whether the run has trained its ``collector.max_train_seconds``."""
+    limit = cfg.collector.max_train_seconds
+    return limit is not None and progress.clock.seconds >= limit
 
 
 # the loop's own ways to stop: never read as a worker's env fault

@@ -56,6 +56,7 @@ TRUST_PICKLE = "checkpoint.trust_pickled_envs"
 # What a resumed run may change; everything else must match the stored config.
 RESUMABLE_FIELDS = (
     "collector.total_frames",
+    "collector.max_train_seconds",
     "checkpoint.interval_frames",
     "run_dir",
     "checkpoint.keep_last",
@@ -308,10 +309,12 @@ def resume_config(checkpoint: str | Path, overrides: Sequence[str] = ()) -> Conf
     counters = Checkpoint.manifest(checkpoint)["metadata"]["counters"]
     frames, total = counters["frames"], cfg.collector.total_frames
     same_total = total == stored.collector.total_frames
-    if same_total and _finished(checkpoint, frames):
+    same_time = cfg.collector.max_train_seconds == stored.collector.max_train_seconds
+    if same_total and same_time and _finished(checkpoint, frames):
         raise ConfigError(
             f"resume={str(checkpoint)!r} is a finished run (its summary.json is written); pass "
-            f"a larger collector.total_frames than {total} to train it on"
+            f"a larger collector.total_frames than {total} (or collector.max_train_seconds) to "
+            "train it on"
         )
     if total <= frames and not same_total:
         raise ConfigError(
