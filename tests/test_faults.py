@@ -46,10 +46,15 @@ def _comparable(summary: dict) -> dict:
 
 def _weights(checkpoint: Path) -> dict[str, torch.Tensor]:
     from trl_cartpole.run.from_config import build_actor, build_env
-    from trl_cartpole.store.checkpoint import load_policy, read_checkpoint_config
+    from trl_cartpole.store.checkpoint import (
+        load_policy,
+        read_checkpoint_config,
+        read_observation_norm,
+    )
 
     cfg = read_checkpoint_config(checkpoint)
-    env = build_env(cfg, seed=0)  # the run's own kind of env: its state, or its pixels
+    # the run's own kind of env: its state (with its statistics), or its pixels
+    env = build_env(cfg, seed=0, observation_norm=read_observation_norm(checkpoint))
     actor = build_actor(cfg, env, "cpu")
     env.close()
     load_policy(checkpoint, actor)

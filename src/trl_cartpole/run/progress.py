@@ -47,12 +47,14 @@ def _process_tree(pid: str) -> list[str]:
 
 
 def _resident_kib(pid: str) -> int:
-    """``VmRSS`` of ``pid`` in KiB; 0 for a process that ended meanwhile."""
+    """``VmRSS`` of ``pid`` in KiB; 0 for a process that ended meanwhile (gone, or a zombie
+    not yet reaped, whose status has no ``VmRSS`` line)."""
     try:
         status = Path(f"/proc/{pid}/status").read_text()
-    except FileNotFoundError:
+    except (FileNotFoundError, ProcessLookupError):
         return 0
-    return next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:"))
+    rss = (int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:"))
+    return next(rss, 0)
 
 
 class Stopwatch:
