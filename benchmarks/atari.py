@@ -128,8 +128,25 @@ def _plain_loop(args: argparse.Namespace) -> None:
         runs.append({**summary, "plain_loop": {**plain, "std": statistics.pstdev(scores)}})
     if args.record:
         command = "python -m benchmarks atari --checkpoint " + " ".join(map(str, args.checkpoint))
-        record = {**provenance(), "command": command, "runs": runs}
+        record = _merged_record(args.record, runs, command, provenance())
         args.record.write_text(json.dumps(record, indent=2) + "\n")
+
+
+def _merged_record(path: Path, runs: list[dict], command: str, measured: dict) -> dict:
+    """The results file at ``path`` with ``runs`` added: a seed measured again replaces its
+    old run, the others stay (seeds trained one session apart land in one table), and each run
+    keeps where and when it was measured (``measured``: date, commit, machine)."""
+    kept, commands = [], [command]
+    if path.is_file():
+        previous = json.loads(path.read_text())
+        where = {key: previous[key] for key in ("date", "commit", "machine")}
+        seeds = {run["seed"] for run in runs}
+        kept = [{"measured": where, **run} for run in previous["runs"] if run["seed"] not in seeds]
+        commands = [line for line in previous["command"].splitlines() if line != command]
+        commands.append(command)
+    merged = kept + [{**run, "measured": measured} for run in runs]
+    merged.sort(key=lambda run: run["seed"])
+    return {**measured, "command": "\n".join(commands), "runs": merged}
 
 
 def _run_config(run_dir: Path) -> dict:

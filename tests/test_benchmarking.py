@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import threading
@@ -257,3 +258,31 @@ def test_the_memory_row_subtracts_what_the_buffer_filled(tmp_path):
         "0.9",
         "+0.1",
     ]
+
+
+def test_an_atari_record_keeps_the_seeds_measured_before_and_replaces_one_measured_again(
+    tmp_path,
+):
+    from benchmarks.atari import _merged_record
+
+    path = tmp_path / "atari.json"
+    before = {"date": "2026-11-27", "commit": "a" * 40, "machine": {"cpu": "old", "cores": 2}}
+    first = _merged_record(
+        path, [{"seed": 104, "score": 1}, {"seed": 103, "score": 2}], "c1", before
+    )
+    assert [run["seed"] for run in first["runs"]] == [103, 104]
+    path.write_text(json.dumps(first))
+    now = {"date": "2026-11-28", "commit": "b" * 40, "machine": {"cpu": "new", "cores": 2}}
+    second = _merged_record(path, [{"seed": 104, "score": 3}, {"seed": 105, "score": 4}], "c2", now)
+    assert [(run["seed"], run["score"]) for run in second["runs"]] == [(103, 2), (104, 3), (105, 4)]
+    assert [run["measured"]["date"] for run in second["runs"]] == [
+        "2026-11-27",
+        "2026-11-28",
+        "2026-11-28",
+    ]
+    assert second["date"] == "2026-11-28" and second["command"] == "c1\nc2"
+    # a file written before runs carried their own provenance lends them its own
+    path.write_text(json.dumps({**before, "command": "c0", "runs": [{"seed": 101}]}))
+    third = _merged_record(path, [{"seed": 102}], "c0", now)
+    assert third["runs"][0]["measured"]["machine"]["cpu"] == "old"
+    assert third["command"] == "c0"
