@@ -127,7 +127,7 @@ def _plain_loop(args: argparse.Namespace) -> None:
         plain = {"games": len(scores), "mean": statistics.mean(scores)}
         runs.append({**summary, "plain_loop": {**plain, "std": statistics.pstdev(scores)}})
     if args.record:
-        command = "python -m benchmarks atari --checkpoint " + " ".join(map(str, args.checkpoint))
+        command = f"python -m benchmarks atari --checkpoint RUN_DIR --games {args.games}"
         record = _merged_record(args.record, runs, command, provenance())
         args.record.write_text(json.dumps(record, indent=2) + "\n")
 
