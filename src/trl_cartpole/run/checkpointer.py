@@ -31,6 +31,7 @@ from trl_cartpole.store.checkpoint import (
     save_training_state,
     state_bytes,
 )
+from trl_cartpole.store.chunked_checkpoint import confirm_chunked_writes
 from trl_cartpole.store.files import free_bytes, megabytes, tree_bytes
 
 __all__ = ["Checkpointer"]
@@ -121,6 +122,8 @@ class Checkpointer:
                 **components,
             ),
         )
+        if buffer is not None:  # its next checkpoint links the rows unchanged since this one
+            confirm_chunked_writes(buffer, saved)
         self.state_size = tree_bytes(saved)
         return saved
 

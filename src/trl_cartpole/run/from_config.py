@@ -37,7 +37,7 @@ from trl_cartpole.run.envs import (
 from trl_cartpole.run.learner import Learner
 from trl_cartpole.run.run_dir import fresh_worker_log_dir
 from trl_cartpole.run.schedules import Schedules
-from trl_cartpole.store.buffer_checkpoint import save_filled_part
+from trl_cartpole.store.chunked_checkpoint import TrackedTensorStorage
 
 __all__ = [
     "REPLAY_FILES",
@@ -157,7 +157,9 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
     (:class:`~trl_cartpole.parts.frame_storage.FrameStackStorage`).
     """
     buffer = cfg.buffer
-    storage = None  # make_replay_buffer's LazyTensorStorage
+    # in memory: TorchRL's LazyTensorStorage, its checkpoints writing what changed since the
+    # last (store/chunked_checkpoint.py)
+    storage = TrackedTensorStorage(buffer.size, device=cfg.device)
     if buffer.storage == "frames":
         storage = FrameStackStorage(buffer.size, device=cfg.device)
     if buffer.storage == "memmap":
@@ -168,7 +170,7 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         )
     replay_buffer = make_replay_buffer(
         storage=storage,
-        max_size=buffer.size if storage is None else None,
+        max_size=None,
         batch_size=buffer.batch_size,
         device=cfg.device,
         prioritized=buffer.prioritized,
@@ -185,7 +187,6 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         **({"gamma": cfg.loss.gamma} if buffer.n_steps > 1 else {}),
         transform=_buffer_transform(cfg),
     )
-    save_filled_part(replay_buffer.storage)  # a checkpoint holds the transitions, not capacity
     return replay_buffer
 
 

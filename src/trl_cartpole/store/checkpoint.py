@@ -227,17 +227,34 @@ def _read_manifest(path: Path) -> dict[str, Any]:
         ) from None
 
 
-def _file_digests(path: Path) -> dict[str, str]:
-    return {
-        str(file.relative_to(path)): hashlib.sha256(file.read_bytes()).hexdigest()
-        for file in sorted(path.rglob("*"))
-        if file.is_file() and file.name != INTEGRITY
-    }
+# The digests of the newest checkpoint written by this process, by file identity (device,
+# inode, size, modification time): a file hard-linked into the next checkpoint (a replay
+# buffer's unchanged rows, store/chunked_checkpoint.py) is the same file, not read again.
+_written_digests: dict[tuple[int, int, int, int], str] = {}
+
+
+def _file_digests(path: Path, reuse: bool = False) -> dict[str, str]:
+    """The SHA-256 of every file under ``path``; with ``reuse``, a file of the checkpoint this
+    process wrote last (the same inode: a hard link) keeps the digest it had there."""
+    global _written_digests
+    digests, seen = {}, {}
+    for file in sorted(path.rglob("*")):
+        if not file.is_file() or file.name == INTEGRITY:
+            continue
+        stat = file.stat()
+        identity = (stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns)
+        digest = _written_digests.get(identity) if reuse else None
+        if digest is None:
+            digest = hashlib.sha256(file.read_bytes()).hexdigest()
+        digests[str(file.relative_to(path))] = seen[identity] = digest
+    if reuse:
+        _written_digests = seen
+    return digests
 
 
 def write_integrity(path: Path) -> Path:
     """Record a SHA-256 of every file of the checkpoint at ``path`` (written atomically)."""
-    write_json_atomic(path / INTEGRITY, _file_digests(path))
+    write_json_atomic(path / INTEGRITY, _file_digests(path, reuse=True))
     return path
 
 
