@@ -28,6 +28,8 @@ from tensordict.utils import NestedKey
 from torchrl.data import LazyTensorStorage
 from torchrl.data.replay_buffers.checkpointers import TensorStorageCheckpointer
 
+from trl_cartpole.parts.chunked_storage import ChunkWriter, read_chunks
+
 __all__ = [
     "FramePool",
     "FrameStackCheckpointer",
@@ -37,6 +39,7 @@ __all__ = [
 ]
 
 POOL_DIR = "frame_pool"
+FRAMES_DIR = "frames"  # the pool's frames, in files of rows (parts/chunked_storage.py)
 
 
 def slots_key(key: NestedKey) -> NestedKey:
@@ -67,6 +70,7 @@ class FramePool:
         self._hashes: list[int | None] = [None] * capacity
         self._slots_of: dict[int, list[int]] = {}
         self._free = list(range(capacity - 1, -1, -1))
+        self.written: list[int] = []  # slots given a new frame since the storage last looked
 
     @property
     def held(self) -> int:
@@ -87,6 +91,7 @@ class FramePool:
                 slot = self._take_free()
                 self.frames[slot] = frames[i]
                 self._remember(slot, key)
+                self.written.append(slot)
             slots[i] = slot
         self.uses.index_add_(0, slots, torch.ones_like(slots))
         return slots
@@ -126,9 +131,13 @@ class FramePool:
 
     def state(self) -> TensorDict:
         """The frames and their counts up to the last slot in use (what a checkpoint saves)."""
-        used = self.uses.nonzero()
-        end = int(used.max()) + 1 if used.numel() else 0
+        end = self.end()
         return TensorDict({"frames": self.frames[:end], "uses": self.uses[:end]}, batch_size=[])
+
+    def end(self) -> int:
+        """One past the last slot in use."""
+        used = self.uses.nonzero()
+        return int(used.max()) + 1 if used.numel() else 0
 
     def restore(self, frames: torch.Tensor, uses: torch.Tensor) -> None:
         """Put back a saved pool (:meth:`state`) into this pool's capacity or more: the frames,
@@ -169,6 +178,8 @@ class FrameStackStorage(LazyTensorStorage):
         super().__init__(max_size, **kwargs)
         self.frame_keys = [tuple(k) if isinstance(k, list) else k for k in frame_keys]
         self.pool: FramePool | None = None
+        # the pool's slots written since the last complete checkpoint (parts/chunked_storage)
+        self.pool_chunks = ChunkWriter()
 
     # the buffer sets the storage's checkpointer to its own or to this class's default
     _default_checkpointer = None  # FrameStackCheckpointer, set below its definition
@@ -197,6 +208,8 @@ class FrameStackStorage(LazyTensorStorage):
                 raise TypeError(f"{key}: frames must be uint8, got {stack.dtype}")
             slots = self.pool.intern(stack.reshape(-1, *stack.shape[-2:]))  # [B * k]
             rows.set(slots_key(key), slots.reshape(stack.shape[:-2]))  # [B, k]
+        self.pool_chunks.mark(torch.tensor(self.pool.written, dtype=torch.int64))
+        self.pool.written.clear()
         super().set(cursor, rows[0] if single else rows, set_cursor=set_cursor)
 
     def _positions(self, cursor: Any) -> torch.Tensor:
@@ -216,6 +229,11 @@ class FrameStackStorage(LazyTensorStorage):
     def _empty(self) -> None:
         super()._empty()
         self.pool = None  # ``buffer.empty()``: every frame goes with the rows
+        self.pool_chunks.loaded_from(None)
+
+    def chunk_writers(self) -> list[ChunkWriter]:
+        """The writer of the pool's frames, told when a checkpoint is complete."""
+        return [self.pool_chunks]
 
     def state_dict(self) -> dict[str, Any]:
         """TorchRL's storage state, with the pool's frames and counts."""
@@ -229,6 +247,7 @@ class FrameStackStorage(LazyTensorStorage):
         if pool is not None:
             self.pool = FramePool(pool["frames"].shape[-2:], pool_capacity(self.max_size))
             self.pool.restore(torch.as_tensor(pool["frames"]), torch.as_tensor(pool["uses"]))
+        self.pool_chunks.loaded_from(None)  # no checkpoint files to link to
 
     def get(self, index: Any) -> TensorDictBase:
         """The rows at ``index`` with their stacks gathered back ``[*, k, H, W]`` uint8."""
@@ -246,12 +265,19 @@ class FrameStackStorage(LazyTensorStorage):
 
 class FrameStackCheckpointer(TensorStorageCheckpointer):
     """TorchRL's checkpointer of a tensor storage (the rows, memory-mapped), plus the frame
-    pool's frames and counts in ``frame_pool/`` beside them."""
+    pool in ``frame_pool/`` beside them: its counts memory-mapped, its frames in files of rows
+    linked to the last complete checkpoint's where unchanged
+    (:class:`~trl_cartpole.parts.chunked_storage.ChunkWriter`)."""
 
     def dumps(self, storage: FrameStackStorage, path: Any) -> None:
         path = Path(path)
         super().dumps(storage, path)
-        storage.pool.state().memmap(path / POOL_DIR, copy_existing=True)
+        end = storage.pool.end()
+        TensorDict({"uses": storage.pool.uses[:end]}, batch_size=[]).memmap(
+            path / POOL_DIR, copy_existing=True
+        )
+        frames = {("frames",): storage.pool.frames}
+        storage.pool_chunks.write(frames, end, path / POOL_DIR / FRAMES_DIR)
         with open(path / POOL_DIR / "frame_keys.json", "w", encoding="utf-8") as file:
             json.dump([list(k) if isinstance(k, tuple) else k for k in storage.frame_keys], file)
 
@@ -262,11 +288,13 @@ class FrameStackCheckpointer(TensorStorageCheckpointer):
         if saved_keys != keys:
             raise ValueError(f"the saved storage holds the frames of {saved_keys}, not {keys}")
         super().loads(storage, path)
-        saved = TensorDict.load_memmap(path / POOL_DIR)
-        frames, uses = saved.get("frames"), saved.get("uses")
+        uses = TensorDict.load_memmap(path / POOL_DIR).get("uses")
+        tensors, _ = read_chunks(path / POOL_DIR / FRAMES_DIR)
+        frames = tensors[("frames",)]
         if storage.pool is None:
             storage.pool = FramePool(frames.shape[-2:], pool_capacity(storage.max_size))
-        storage.pool.restore(torch.as_tensor(frames), torch.as_tensor(uses))
+        storage.pool.restore(frames, torch.as_tensor(uses))
+        storage.pool_chunks.loaded_from(path / POOL_DIR / FRAMES_DIR)
 
 
 FrameStackStorage._default_checkpointer = FrameStackCheckpointer

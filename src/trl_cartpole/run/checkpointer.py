@@ -18,6 +18,7 @@ from torchrl.checkpoint import Checkpoint
 
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import DiskFull, TrainingInterrupted, WorkerLost
+from trl_cartpole.parts.chunked_storage import confirm_chunked_writes
 from trl_cartpole.report.console import command, shown_path
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.store.buffer_checkpoint import restore_last_written_row
@@ -31,7 +32,6 @@ from trl_cartpole.store.checkpoint import (
     save_training_state,
     state_bytes,
 )
-from trl_cartpole.store.chunked_checkpoint import confirm_chunked_writes
 from trl_cartpole.store.files import free_bytes, megabytes, tree_bytes
 
 __all__ = ["Checkpointer"]

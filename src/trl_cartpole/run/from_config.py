@@ -16,6 +16,7 @@ from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActo
 
 from trl_cartpole.config.schema import Config
 from trl_cartpole.parts.atari import EOL_KEY, LearnerView
+from trl_cartpole.parts.chunked_storage import TrackedTensorStorage
 from trl_cartpole.parts.collectors import (
     RAY_ACTOR_OPTIONS,
     is_distributed,
@@ -37,7 +38,6 @@ from trl_cartpole.run.envs import (
 from trl_cartpole.run.learner import Learner
 from trl_cartpole.run.run_dir import fresh_worker_log_dir
 from trl_cartpole.run.schedules import Schedules
-from trl_cartpole.store.chunked_checkpoint import TrackedTensorStorage
 
 __all__ = [
     "REPLAY_FILES",
@@ -158,7 +158,7 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
     """
     buffer = cfg.buffer
     # in memory: TorchRL's LazyTensorStorage, its checkpoints writing what changed since the
-    # last (store/chunked_checkpoint.py)
+    # last (parts/chunked_storage.py)
     storage = TrackedTensorStorage(buffer.size, device=cfg.device)
     if buffer.storage == "frames":
         storage = FrameStackStorage(buffer.size, device=cfg.device)

@@ -73,9 +73,10 @@ RESUMABLE_FIELDS = (
 
 
 # The layout of a training state's components; a state of another format is refused in one line
-# (format 3: the plain Q-network in TorchRL's MLP layout, in the policy and the loss; format 2,
-# the loop's history under "history", is not read any more).
-TRAINING_STATE_FORMAT = 3
+# (format 4: a buffer in memory or of frames in files of rows linked between checkpoints,
+# parts/chunked_storage.py; format 3, the plain Q-network in TorchRL's MLP layout, and
+# format 2, the loop's history under "history", are not read any more).
+TRAINING_STATE_FORMAT = 4
 
 # Room asked for beyond a checkpoint's expected size before it is written (file-system blocks,
 # the manifest, the integrity record): a full disk would otherwise end the run mid-write, where
@@ -229,7 +230,7 @@ def _read_manifest(path: Path) -> dict[str, Any]:
 
 # The digests of the newest checkpoint written by this process, by file identity (device,
 # inode, size, modification time): a file hard-linked into the next checkpoint (a replay
-# buffer's unchanged rows, store/chunked_checkpoint.py) is the same file, not read again.
+# buffer's unchanged rows, parts/chunked_storage.py) is the same file, not read again.
 _written_digests: dict[tuple[int, int, int, int], str] = {}
 
 

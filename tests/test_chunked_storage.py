@@ -11,7 +11,7 @@ from tensordict import TensorDict
 from torchrl.checkpoint import Checkpoint, CheckpointRotation
 from torchrl.data import TensorDictReplayBuffer
 
-from trl_cartpole.store.chunked_checkpoint import (
+from trl_cartpole.parts.chunked_storage import (
     INDEX_FILE,
     ChunkedStorageCheckpointer,
     TrackedTensorStorage,
@@ -64,7 +64,7 @@ def test_a_checkpoint_links_the_files_whose_rows_did_not_change(tmp_path):
     buffer = _buffer()
     buffer.extend(_transitions(0, 640))  # 10 files of 64 rows per entry
     first = _save(buffer, tmp_path / "first")
-    writes_first = buffer.storage.checkpointer.last_write_bytes
+    writes_first = buffer.storage.chunks.last_write_bytes
     buffer.extend(_transitions(640, 100))  # rows 640..739: files 10 and 11, new
     second = _save(buffer, tmp_path / "second")
     before, after = _files(first), _files(second)
@@ -76,7 +76,7 @@ def test_a_checkpoint_links_the_files_whose_rows_did_not_change(tmp_path):
     assert linked == {f"{e}/{i:06d}.bin" for e in entries for i in range(10)}
     stored_row = buffer.storage._storage[0]  # the transition and the buffer's own "index"
     row_bytes = sum(t.element_size() * t.numel() for t in stored_row.values(True, True))
-    assert buffer.storage.checkpointer.last_write_bytes == 100 * row_bytes
+    assert buffer.storage.chunks.last_write_bytes == 100 * row_bytes
     assert writes_first == 640 * row_bytes
     # both load to what was stored, bit for bit
     for checkpoint, count in ((first, 640), (second, 740)):
@@ -151,3 +151,35 @@ def test_a_storage_of_another_shape_is_refused(tmp_path):
     other = TrackedTensorStorage(1000, chunk_rows=ROWS * 2)
     with pytest.raises(ValueError, match="in files of 128"):
         ChunkedStorageCheckpointer().loads(other, index.parent)
+
+
+def _stacks(start: int, count: int) -> TensorDict:
+    """``count`` transitions of 2-frame 8x8 stacks over the new frames ``start`` to
+    ``start + count + 1`` (each frame apart: its number in its bytes); a transition's next
+    stack is the following one's."""
+    number = torch.arange(start, start + count + 2)
+    frames = (number % 256).to(torch.uint8)[:, None, None].expand(-1, 8, 8).clone()
+    frames[:, 0, :] = (number // 256).to(torch.uint8)[:, None]  # frames apart past 256
+    stacks = torch.stack([frames[i : i + 2] for i in range(count + 1)])  # [count + 1, 2, 8, 8]
+    return TensorDict(
+        {"pixels": stacks[:-1], "action": number[:count], "next": {"pixels": stacks[1:]}},
+        batch_size=[count],
+    )
+
+
+def test_a_frames_checkpoint_links_the_pools_unchanged_frames(tmp_path):
+    from trl_cartpole.parts.frame_storage import FrameStackStorage
+
+    buffer = TensorDictReplayBuffer(storage=FrameStackStorage(5000), batch_size=8)
+    buffer.extend(_stacks(0, 2100))  # 2 102 frames: pool files 0, 1 and 2
+    first = _save(buffer, tmp_path / "first")
+    buffer.extend(_stacks(2102, 10))  # 12 more frames, in pool file 2
+    second = _save(buffer, tmp_path / "second")
+    before, after = _files(first), _files(second)
+    assert after["frames/000000.bin"].st_ino == before["frames/000000.bin"].st_ino
+    assert after["frames/000001.bin"].st_ino == before["frames/000001.bin"].st_ino
+    assert after["frames/000002.bin"].st_ino != before["frames/000002.bin"].st_ino
+    loaded = TensorDictReplayBuffer(storage=FrameStackStorage(5000), batch_size=8)
+    Checkpoint(replay_buffer=loaded).load(second)
+    rows = torch.arange(len(buffer))
+    assert (loaded.storage.get(rows) == buffer.storage.get(rows)).all()
