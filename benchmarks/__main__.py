@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from benchmarks import (
     ablate,
     atari,
+    checkpoint_cost,
     envs,
     memory,
     profile,
@@ -38,6 +39,7 @@ SUBCOMMANDS = {
     "memory": memory,
     "weight-sync": weight_sync,
     "atari": atari,
+    "checkpoint-cost": checkpoint_cost,
 }
 
 
