@@ -183,3 +183,20 @@ def test_a_frames_checkpoint_links_the_pools_unchanged_frames(tmp_path):
     Checkpoint(replay_buffer=loaded).load(second)
     rows = torch.arange(len(buffer))
     assert (loaded.storage.get(rows) == buffer.storage.get(rows)).all()
+
+
+def test_a_linked_file_keeps_its_digest_and_both_checkpoints_verify(tmp_path):
+    import json
+
+    from trl_cartpole.store.checkpoint import INTEGRITY, verify_checkpoint, write_integrity
+
+    buffer = _buffer()
+    buffer.extend(_transitions(0, 300))
+    first = write_integrity(_save(buffer, tmp_path / "first"))
+    buffer.extend(_transitions(300, 30))
+    second = write_integrity(_save(buffer, tmp_path / "second"))
+    verify_checkpoint(first)  # every digest read again from the bytes
+    verify_checkpoint(second)
+    digests = [json.loads((c / INTEGRITY).read_text()) for c in (first, second)]
+    shared = [name for name in digests[1] if name.endswith("action/000000.bin")]
+    assert shared and digests[0][shared[0]] == digests[1][shared[0]]

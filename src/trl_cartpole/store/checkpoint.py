@@ -228,17 +228,18 @@ def _read_manifest(path: Path) -> dict[str, Any]:
         ) from None
 
 
-# The digests of the newest checkpoint written by this process, by file identity (device,
-# inode, size, modification time): a file hard-linked into the next checkpoint (a replay
-# buffer's unchanged rows, parts/chunked_storage.py) is the same file, not read again.
+# The digests of the files of the checkpoints this process wrote, by file identity (device,
+# inode, size, modification time): a file hard-linked into a later checkpoint (a replay
+# buffer's unchanged rows, parts/chunked_storage.py) is the same file, not read again. The
+# oldest are dropped past DIGESTS_KEPT (a run's checkpoints hold a few hundred files each).
 _written_digests: dict[tuple[int, int, int, int], str] = {}
+DIGESTS_KEPT = 20_000
 
 
 def _file_digests(path: Path, reuse: bool = False) -> dict[str, str]:
-    """The SHA-256 of every file under ``path``; with ``reuse``, a file of the checkpoint this
-    process wrote last (the same inode: a hard link) keeps the digest it had there."""
-    global _written_digests
-    digests, seen = {}, {}
+    """The SHA-256 of every file under ``path``; with ``reuse``, a file this process wrote
+    into an earlier checkpoint (the same inode: a hard link) keeps the digest it had there."""
+    digests = {}
     for file in sorted(path.rglob("*")):
         if not file.is_file() or file.name == INTEGRITY:
             continue
@@ -247,9 +248,12 @@ def _file_digests(path: Path, reuse: bool = False) -> dict[str, str]:
         digest = _written_digests.get(identity) if reuse else None
         if digest is None:
             digest = hashlib.sha256(file.read_bytes()).hexdigest()
-        digests[str(file.relative_to(path))] = seen[identity] = digest
-    if reuse:
-        _written_digests = seen
+        if reuse:
+            _written_digests.pop(identity, None)  # now the newest
+            _written_digests[identity] = digest
+        digests[str(file.relative_to(path))] = digest
+    while len(_written_digests) > DIGESTS_KEPT:
+        del _written_digests[next(iter(_written_digests))]
     return digests
 
 
