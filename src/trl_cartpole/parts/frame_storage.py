@@ -11,8 +11,10 @@ stacks back, so a sample is what was stored, bit for bit; 100 000 transitions ho
 
 A frame is found again by its bytes (a hash, then an exact comparison), so any layout of the
 data stores correctly: the batches of several envs, n-step windows, resets, frames repeated
-within a stack. Checkpoints save the rows and the pool's frames and counts (TorchRL's
-memory-mapped tensors, nothing pickled): :class:`FrameStackCheckpointer`.
+within a stack. Checkpoints save the rows and the pool's counts (TorchRL's memory-mapped
+tensors) and the pool's frames in files of rows linked to the last complete checkpoint's where
+unchanged (:mod:`trl_cartpole.parts.chunked_storage`), nothing pickled:
+:class:`FrameStackCheckpointer`.
 """
 
 from __future__ import annotations
