@@ -81,19 +81,3 @@ def test_resident_memory_counts_the_processes_the_run_started():
     finally:
         child.communicate(b"")
     assert resident_mb() - before < 50  # an ended worker no longer counts
-
-
-def test_a_resume_counts_the_checkpoints_buffer_it_reads(tmp_path):
-    from trl_cartpole.run.memory_needs import checkpoint_buffer_bytes
-
-    need = MemoryNeed(transitions=1000, transition_bytes=100, parameters=10, copies_per_parameter=5)
-    buffer = tmp_path / "components" / "0010-replay_buffer" / "storage"
-    buffer.mkdir(parents=True)
-    (buffer / "rows.bin").write_bytes(b"x" * 40_960)
-    (tmp_path / "components" / "0008-policy").mkdir()
-    (tmp_path / "components" / "0008-policy" / "w.bin").write_bytes(b"x" * 4096)
-    loading = checkpoint_buffer_bytes(tmp_path)
-    assert loading == 40_960  # the buffer's blocks, not the policy's
-    check_fits_in_memory(need, available=need.total_bytes + loading)
-    with pytest.raises(ConfigError, match="reading the checkpoint's buffer"):
-        check_fits_in_memory(need, available=need.total_bytes + loading - 1, loading=loading)

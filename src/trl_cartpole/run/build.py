@@ -71,7 +71,6 @@ from trl_cartpole.run.memory_needs import (
     available_memory_bytes,
     check_buffer_fits_on_disk,
     check_fits_in_memory,
-    checkpoint_buffer_bytes,
 )
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.resources import (
@@ -222,10 +221,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         on_error.callback(close_env, env)
         if cfg.device == "cpu":  # a buffer or network that cannot fit stops here, not midway
             need, in_files = run_memory_need(cfg, env), cfg.buffer.storage == "memmap"
-            loading = 0 if resume is None or in_files else checkpoint_buffer_bytes(Path(resume))
-            check_fits_in_memory(
-                need, available_memory_bytes(), buffer_in_memory=not in_files, loading=loading
-            )
+            check_fits_in_memory(need, available_memory_bytes(), buffer_in_memory=not in_files)
             if in_files:
                 files = Path(cfg.run_dir) / REPLAY_FILES
                 check_buffer_fits_on_disk(need, files, free_bytes(files))

@@ -27,7 +27,6 @@ __all__ = [
     "available_memory_bytes",
     "check_buffer_fits_on_disk",
     "check_fits_in_memory",
-    "checkpoint_buffer_bytes",
     "disk_bytes_under",
     "memory_need",
 ]
@@ -96,12 +95,11 @@ def available_memory_bytes(meminfo: Path = Path("/proc/meminfo")) -> int | None:
 
 
 def check_fits_in_memory(
-    need: MemoryNeed, available: int | None, buffer_in_memory: bool = True, loading: int = 0
+    need: MemoryNeed, available: int | None, buffer_in_memory: bool = True
 ) -> None:
     """Raise a one-line ConfigError if ``need`` is more than the ``available`` bytes (without
-    the buffer where it lives in files: ``buffer_in_memory=False``), with ``loading`` bytes
-    more while a resumed run reads its checkpoint's buffer (read whole, then copied in)."""
-    total = (need.total_bytes if buffer_in_memory else need.network_bytes) + loading
+    the buffer where it lives in files: ``buffer_in_memory=False``)."""
+    total = need.total_bytes if buffer_in_memory else need.network_bytes
     if available is None or total <= available:
         return
     buffer = (
@@ -110,8 +108,6 @@ def check_fits_in_memory(
         if buffer_in_memory
         else ""
     )
-    if loading:
-        buffer += f"reading the checkpoint's buffer {loading / GIB:.1f} GiB, "
     raise ConfigError(
         f"the run needs at least {total / GIB:.1f} GiB of memory and "
         f"{available / GIB:.1f} GiB is available: {buffer}the networks "
@@ -120,13 +116,6 @@ def check_fits_in_memory(
         + ("buffer.size, set buffer.storage=memmap, or lower " if buffer_in_memory else "")
         + "network.hidden_sizes"
     )
-
-
-def checkpoint_buffer_bytes(checkpoint: Path) -> int:
-    """The bytes of a training state's replay buffer (what a resume reads into memory before
-    copying it into the run's storage; 0 if it holds none)."""
-    folders = checkpoint.glob("components/*-replay_buffer")
-    return sum(disk_bytes_under(folder) for folder in folders)
 
 
 def disk_bytes_under(directory: Path) -> int:
