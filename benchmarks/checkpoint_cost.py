@@ -7,7 +7,8 @@ like the env's (random values) and checkpoints it as a run does (TorchRL's ``Che
 then the integrity record), then adds ``--added`` more and checkpoints again: the storage a
 run uses (:class:`~trl_cartpole.parts.chunked_storage.TrackedTensorStorage`, files linked
 where unchanged), then TorchRL's ``LazyTensorStorage`` with its own checkpointer (the whole
-storage each time). For each: the seconds, the bytes written
+storage each time; the earlier version of this project wrote its filled rows each time, the
+same once the buffer is full). For each: the seconds, the bytes written
 (new files; linked ones are not written) and the disk the two checkpoints take together
 (each file once, however many names it has).
 """

@@ -200,3 +200,63 @@ def test_a_linked_file_keeps_its_digest_and_both_checkpoints_verify(tmp_path):
     digests = [json.loads((c / INTEGRITY).read_text()) for c in (first, second)]
     shared = [name for name in digests[1] if name.endswith("action/000000.bin")]
     assert shared and digests[0][shared[0]] == digests[1][shared[0]]
+
+
+def test_a_file_holding_more_rows_than_now_filled_is_written_anew(tmp_path):
+    # The frame pool's filled end can move down (its top slots freed): a file of the previous
+    # write with more rows than the new end is not linked, so each file holds its rows exactly.
+    from trl_cartpole.parts.chunked_storage import ChunkWriter, read_chunks
+
+    writer = ChunkWriter(chunk_rows=64)
+    frames = torch.arange(200 * 3, dtype=torch.int16).reshape(200, 3)
+    writer.write({("frames",): frames}, 100, tmp_path / "first")  # files of 64 and 36 rows
+    writer.confirm(tmp_path / "first")
+    writer.write({("frames",): frames}, 90, tmp_path / "second")  # nothing marked
+    first, second = (tmp_path / name / "frames" for name in ("first", "second"))
+    assert (second / "000000.bin").stat().st_ino == (first / "000000.bin").stat().st_ino
+    assert (second / "000001.bin").stat().st_ino != (first / "000001.bin").stat().st_ino
+    tensors, _ = read_chunks(tmp_path / "second")
+    assert torch.equal(tensors[("frames",)], frames[:90])
+
+
+def test_every_way_of_writing_rows_is_noted(tmp_path):
+    buffer = _buffer(capacity=256)
+    buffer.extend(_transitions(0, 256))
+    first = _save(buffer, tmp_path / "first")
+    buffer.storage.set(-1, _transitions(900, 1)[0])  # the last row: the last file
+    buffer.storage.set(torch.arange(256) == 3, _transitions(901, 1))  # a mask: the first file
+    second = _save(buffer, tmp_path / "second")
+    before, after = _files(first), _files(second)
+    new = {n.rsplit("/", 1)[1] for n in after if after[n].st_ino != before[n].st_ino}
+    assert new == {"000000.bin", "000003.bin"}
+    # a change TorchRL makes outside ``set`` (a state loaded in place): every file anew
+    buffer.storage.load_state_dict(buffer.storage.state_dict())
+    third = _save(buffer, tmp_path / "third")
+    assert all(_files(third)[n].st_ino != after[n].st_ino for n in after)
+    loaded = _loaded(third, capacity=256)
+    assert (loaded.storage[:256] == buffer.storage[:256]).all()
+
+
+def test_a_linked_file_is_not_read_again_for_its_digest(tmp_path, monkeypatch):
+    from trl_cartpole.store import checkpoint as checkpoint_module
+
+    buffer = _buffer()
+    buffer.extend(_transitions(0, 640))
+    checkpoint_module.write_integrity(_save(buffer, tmp_path / "first"))
+    buffer.extend(_transitions(640, 10))  # files 10 (new), 0..9 linked
+    hashed = []
+    real = checkpoint_module.hashlib.sha256
+
+    def counting(data=b""):
+        hashed.append(len(data))
+        return real(data)
+
+    monkeypatch.setattr(checkpoint_module.hashlib, "sha256", counting)
+    checkpoint_module.write_integrity(_save(buffer, tmp_path / "second"))
+    chunk_files = [f for f in _files(tmp_path / "second").values()]
+    linked = [f for f in chunk_files if f.st_nlink > 1]
+    assert len(linked) == 10 * len({n.rsplit("/", 1)[0] for n in _files(tmp_path / "second")})
+    assert (
+        len(hashed)
+        == sum(1 for f in (tmp_path / "second").rglob("*") if f.is_file()) - len(linked) - 1
+    )  # every file but the linked ones and the integrity record itself

@@ -509,7 +509,8 @@ def _damaged_copy(run_dir: Path, target: Path, how: str) -> Path:
     shutil.copytree(run_dir, target)
     checkpoint = find_resume_checkpoint(target)
     if how == "truncated":
-        biggest = max(checkpoint.rglob("*.memmap"), key=lambda p: p.stat().st_size)
+        files = [*checkpoint.rglob("*.memmap"), *checkpoint.rglob("*.bin")]  # the buffer: .bin
+        biggest = max(files, key=lambda p: p.stat().st_size)
         biggest.write_bytes(biggest.read_bytes()[: biggest.stat().st_size // 2])
     elif how == "corrupt manifest":
         (checkpoint / "manifest.json").write_text("{ not json")

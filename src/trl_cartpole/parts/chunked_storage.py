@@ -50,22 +50,22 @@ Key = tuple[str, ...]
 
 
 def rows_of(cursor: Any, max_size: int) -> torch.Tensor:
-    """``[B]`` the rows a storage write at ``cursor`` (an int, a slice, a sequence or a tensor)
-    reaches."""
-    if isinstance(cursor, int):
-        return torch.tensor([cursor])
-    if isinstance(cursor, slice):
-        return torch.arange(*cursor.indices(max_size))
-    return torch.as_tensor(cursor).reshape(-1).cpu()
+    """``[B]`` the rows a storage write at ``cursor`` reaches: an int (negative ones count from
+    the end), a slice, a range, a sequence, an index tensor or a boolean mask."""
+    if isinstance(cursor, torch.Tensor):
+        cursor = cursor.cpu()
+    return torch.arange(max_size)[cursor].reshape(-1)
 
 
-def _link_or_copy(source: Path, target: Path) -> bool:
-    """Hard-link ``source`` as ``target`` (a copy where the file system has no hard links);
-    False if ``source`` is gone (its checkpoint deleted meanwhile)."""
+def _link(source: Path, target: Path) -> bool:
+    """Hard-link ``source`` as the new name ``target`` (a copy where the file system has no
+    hard links); False if ``source`` is gone (its checkpoint deleted meanwhile)."""
     try:
         os.link(source, target)
     except FileNotFoundError:
         return False
+    except FileExistsError:
+        raise
     except OSError:  # EXDEV, EPERM, ENOTSUP: no hard links here
         try:
             shutil.copyfile(source, target)
@@ -74,9 +74,13 @@ def _link_or_copy(source: Path, target: Path) -> bool:
     return True
 
 
-def _as_bytes(tensor: torch.Tensor) -> np.ndarray:
-    """A contiguous CPU tensor's bytes as a uint8 array (any dtype, bool too)."""
-    return tensor.reshape(-1).view(torch.uint8).numpy()
+def _write_new(target: Path, tensor: torch.Tensor) -> int:
+    """Write a contiguous CPU tensor's bytes (any dtype, bool too) as the new file ``target``
+    (never through an existing name: it may be another checkpoint's file); the bytes."""
+    data = tensor.reshape(-1).view(torch.uint8).numpy()
+    with open(target, "xb") as file:
+        data.tofile(file)
+    return data.nbytes
 
 
 class ChunkWriter:
@@ -84,15 +88,17 @@ class ChunkWriter:
     each file whose rows were not marked since the last confirmed write a hard link to that
     write's (module doc).
 
-    :meth:`mark` the rows each store writes; :meth:`write` at a checkpoint; :meth:`confirm`
-    once the checkpoint holding it is complete (only then is it linked to next).
+    :meth:`mark` the rows each store writes (:meth:`mark_all` when a write's rows are not
+    known); :meth:`write` at a checkpoint; :meth:`confirm` once the checkpoint holding it is
+    complete (only then is it linked to next).
     """
 
     def __init__(self, chunk_rows: int = CHUNK_ROWS) -> None:
         self.chunk_rows = chunk_rows
         self.changed: set[int] = set()  # chunks written since the confirmed write
+        self.all_changed = False  # a write whose rows are not known: every chunk
         self.previous: Path | None = None  # the directory of the confirmed write
-        self._pending: tuple[str, set[int]] | None = None  # (write id, changes it holds)
+        self._pending: tuple[str, set[int], bool] | None = None  # (write id, its changes)
         self.last_write_bytes = 0  # bytes the last write wrote (links not counted)
 
     def mark(self, rows: torch.Tensor) -> None:
@@ -101,36 +107,39 @@ class ChunkWriter:
         if rows.numel():
             self.changed.update((rows // self.chunk_rows).unique().tolist())
 
+    def mark_all(self) -> None:
+        """Note that any row may have changed: the next write links nothing."""
+        self.all_changed = True
+
     def write(
         self, tensors: Mapping[Key, torch.Tensor], filled: int, path: Path, **facts: Any
     ) -> None:
-        """Write the first ``filled`` rows of every tensor under ``path``, with an index that
-        records ``facts`` (JSON values) beside the layout."""
+        """Write the first ``filled`` rows of every tensor as new files under ``path``, with an
+        index that records ``facts`` (JSON values) beside the layout."""
         path.mkdir(parents=True, exist_ok=True)
-        rows, previous = self.chunk_rows, self._previous_filled()
-        changed = set(self.changed)
+        rows, previous = self.chunk_rows, self._previous_filled(path)
+        changed, all_changed = set(self.changed), self.all_changed
         entries, written = {}, 0
         for key, tensor in tensors.items():
             folder = path.joinpath(*key)
             folder.mkdir(parents=True, exist_ok=True)
-            array = tensor.detach().cpu()
             entries["/".join(key)] = {
                 "key": list(key),
-                "dtype": str(array.dtype).removeprefix("torch."),
-                "row_shape": list(array.shape[1:]),
+                "dtype": str(tensor.dtype).removeprefix("torch."),
+                "row_shape": list(tensor.shape[1:]),
             }
             for chunk in range(-(-filled // rows)):
                 target = folder / f"{chunk:06d}.bin"
-                stop = min((chunk + 1) * rows, filled)
+                target.unlink(missing_ok=True)  # a name only: another link keeps its bytes
+                start, stop = chunk * rows, min((chunk + 1) * rows, filled)
                 if (
-                    chunk not in changed
-                    and previous >= stop  # that write's file holds these rows whole
-                    and _link_or_copy(self.previous.joinpath(*key, target.name), target)
+                    not all_changed
+                    and chunk not in changed
+                    and min(previous, start + rows) == stop  # that file holds these rows
+                    and _link(self.previous.joinpath(*key, target.name), target)
                 ):
                     continue
-                part = array[chunk * rows : stop].contiguous()
-                _as_bytes(part).tofile(target)
-                written += part.numel() * part.element_size()
+                written += _write_new(target, tensor[start:stop].detach().contiguous().cpu())
         write_id = uuid.uuid4().hex
         index = {
             "write_id": write_id,
@@ -139,14 +148,16 @@ class ChunkWriter:
             "entries": entries,
             **facts,
         }
-        with open(path / INDEX_FILE, "w", encoding="utf-8") as file:
+        (path / INDEX_FILE).unlink(missing_ok=True)
+        with open(path / INDEX_FILE, "x", encoding="utf-8") as file:
             json.dump(index, file)
-        self._pending = (write_id, changed)
+        self._pending = (write_id, changed, all_changed)
         self.last_write_bytes = written
 
-    def _previous_filled(self) -> int:
-        """The rows the confirmed write holds (0: none to link to)."""
-        if self.previous is None:
+    def _previous_filled(self, path: Path) -> int:
+        """The rows the confirmed write holds (0: none to link to, or it is ``path`` itself,
+        written over)."""
+        if self.previous is None or self.previous.resolve() == path.resolve():
             return 0
         try:
             return json.loads((self.previous / INDEX_FILE).read_text(encoding="utf-8"))["filled"]
@@ -158,30 +169,40 @@ class ChunkWriter:
         its files are the ones to link to next and its rows no longer count as changed."""
         if self._pending is None:
             return
-        write_id, held = self._pending
+        write_id, held, all_held = self._pending
         for index in checkpoint.rglob(INDEX_FILE):
             if json.loads(index.read_text(encoding="utf-8")).get("write_id") == write_id:
                 self.previous, self._pending = index.parent, None
                 self.changed -= held
+                self.all_changed = self.all_changed and not all_held
                 return
 
     def loaded_from(self, path: Path | None) -> None:
         """The tensors are now those written at ``path`` (None: emptied): link to it next."""
         self.previous, self._pending = path, None
         self.changed.clear()
+        self.all_changed = False
 
 
-def read_chunks(path: Path) -> tuple[dict[Key, torch.Tensor], dict[str, Any]]:
+def read_chunks(
+    path: Path, out: Mapping[Key, torch.Tensor] | None = None
+) -> tuple[dict[Key, torch.Tensor], dict[str, Any]]:
     """The tensors ``{key: [filled, ...]}`` a :class:`ChunkWriter` wrote at ``path``, and its
-    index."""
+    index. With ``out`` (a tensor of at least ``filled`` rows per key), each file is read into
+    its rows, with no second copy: the rows of ``out`` are returned."""
     index = json.loads((path / INDEX_FILE).read_text(encoding="utf-8"))
+    filled, rows = index["filled"], index["chunk_rows"]
     tensors = {}
     for folder, entry in index["entries"].items():
-        dtype = getattr(torch, entry["dtype"])
-        files = sorted((path / folder).glob("*.bin"))
-        parts = [torch.from_numpy(np.fromfile(f, dtype=np.uint8)).view(dtype) for f in files]
-        flat = torch.cat(parts) if parts else torch.empty(0, dtype=dtype)
-        tensors[tuple(entry["key"])] = flat.reshape(index["filled"], *entry["row_shape"])
+        key, dtype = tuple(entry["key"]), getattr(torch, entry["dtype"])
+        target = torch.empty((filled, *entry["row_shape"]), dtype=dtype)
+        if out is not None:
+            target = out[key][:filled]
+        for chunk in range(-(-filled // rows)):
+            data = np.fromfile(path / folder / f"{chunk:06d}.bin", dtype=np.uint8)
+            part = torch.from_numpy(data).view(dtype)
+            target[chunk * rows : (chunk + 1) * rows] = part.reshape(-1, *entry["row_shape"])
+        tensors[key] = target
     return tensors, index
 
 
@@ -193,16 +214,41 @@ class TrackedTensorStorage(LazyTensorStorage):
     def __init__(self, max_size: int, *, chunk_rows: int = CHUNK_ROWS, **kwargs: Any) -> None:
         super().__init__(max_size, **kwargs)
         self.chunks = ChunkWriter(chunk_rows)
+        self._marked = False  # inside ``set``: its rows are marked already
 
     _default_checkpointer = None  # ChunkedStorageCheckpointer, set below its definition
 
     def set(self, cursor: Any, data: Any, *, set_cursor: bool = True) -> None:
         self.chunks.mark(rows_of(cursor, self.max_size))
-        super().set(cursor, data, set_cursor=set_cursor)
+        self._marked = True
+        try:
+            super().set(cursor, data, set_cursor=set_cursor)
+        finally:
+            self._marked = False
+
+    def _bump_mutation_revision(self) -> None:
+        """TorchRL's note of every change to the contents: one outside ``set`` (the buffer's
+        ``update_``, ``set_``, a conditional patch) marks every row changed."""
+        chunks = getattr(self, "chunks", None)
+        if chunks is not None and not self._marked:
+            chunks.mark_all()
+        super()._bump_mutation_revision()
 
     def _empty(self) -> None:
         super()._empty()
         self.chunks.loaded_from(None)  # nothing left to link to
+
+    def loads(self, path: Any) -> None:
+        self._marked = True  # the checkpointer records where the rows came from
+        try:
+            super().loads(path)
+        finally:
+            self._marked = False
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        super().load_state_dict(state_dict)
+        self.chunks.loaded_from(None)  # no checkpoint files to link to
+        self.chunks.mark_all()
 
     def chunk_writers(self) -> list[ChunkWriter]:
         return [self.chunks]
@@ -223,19 +269,27 @@ class ChunkedStorageCheckpointer(StorageCheckpointerBase):
 
     def loads(self, storage: TrackedTensorStorage, path: Any) -> None:
         path = Path(path)
-        tensors, index = read_chunks(path)
+        index = json.loads((path / INDEX_FILE).read_text(encoding="utf-8"))
         rows, capacity = index["chunk_rows"], index["capacity"]
         if rows != storage.chunks.chunk_rows or capacity != storage.max_size:
             raise ValueError(
                 f"the saved storage holds {capacity} rows in files of {rows}, not "
                 f"{storage.max_size} in files of {storage.chunks.chunk_rows}"
             )
-        filled = index["filled"]
-        loaded = TensorDict(tensors, batch_size=[filled])
-        if not storage.initialized:
-            storage._init(loaded[0])
-        storage._storage[:filled] = loaded
-        storage._len = filled
+        if not storage.initialized:  # allocated from a row of zeros, then read into
+            row = {
+                tuple(entry["key"]): torch.zeros(
+                    entry["row_shape"], dtype=getattr(torch, entry["dtype"])
+                )
+                for entry in index["entries"].values()
+            }
+            storage._init(TensorDict(row, batch_size=[]))
+        leaves = {
+            key if isinstance(key, tuple) else (key,): tensor
+            for key, tensor in storage._storage.items(include_nested=True, leaves_only=True)
+        }
+        read_chunks(path, out=leaves)  # each file into its rows: no second copy of the buffer
+        storage._len = index["filled"]
         storage.chunks.loaded_from(path)
 
 

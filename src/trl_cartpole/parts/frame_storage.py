@@ -30,7 +30,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import LazyTensorStorage
 from torchrl.data.replay_buffers.checkpointers import TensorStorageCheckpointer
 
-from trl_cartpole.parts.chunked_storage import ChunkWriter, read_chunks
+from trl_cartpole.parts.chunked_storage import INDEX_FILE, ChunkWriter, read_chunks
 
 __all__ = [
     "FramePool",
@@ -147,6 +147,12 @@ class FramePool:
         capacity = max(frames.shape[0], self.frames.shape[0])
         self.frames = frames.new_zeros((capacity, *frames.shape[1:]))
         self.frames[: frames.shape[0]] = frames
+        self.restore_counts(uses)
+
+    def restore_counts(self, uses: torch.Tensor) -> None:
+        """Put back the counts of the frames already in place (read into ``frames``), and the
+        lookup rebuilt from them."""
+        capacity = self.frames.shape[0]
         self.uses = uses.new_zeros(capacity)
         self.uses[: uses.shape[0]] = uses
         self._hashes = [None] * capacity
@@ -290,13 +296,16 @@ class FrameStackCheckpointer(TensorStorageCheckpointer):
         if saved_keys != keys:
             raise ValueError(f"the saved storage holds the frames of {saved_keys}, not {keys}")
         super().loads(storage, path)
-        uses = TensorDict.load_memmap(path / POOL_DIR).get("uses")
-        tensors, _ = read_chunks(path / POOL_DIR / FRAMES_DIR)
-        frames = tensors[("frames",)]
-        if storage.pool is None:
-            storage.pool = FramePool(frames.shape[-2:], pool_capacity(storage.max_size))
-        storage.pool.restore(frames, torch.as_tensor(uses))
-        storage.pool_chunks.loaded_from(path / POOL_DIR / FRAMES_DIR)
+        uses = torch.as_tensor(TensorDict.load_memmap(path / POOL_DIR).get("uses"))
+        frames_dir = path / POOL_DIR / FRAMES_DIR
+        index = json.loads((frames_dir / INDEX_FILE).read_text(encoding="utf-8"))
+        frame_shape = index["entries"]["frames"]["row_shape"]
+        capacity = max(pool_capacity(storage.max_size), index["filled"])
+        pool = FramePool(frame_shape, capacity)
+        read_chunks(frames_dir, out={("frames",): pool.frames})  # in place: no second copy
+        pool.restore_counts(uses)
+        storage.pool = pool
+        storage.pool_chunks.loaded_from(frames_dir)
 
 
 FrameStackStorage._default_checkpointer = FrameStackCheckpointer

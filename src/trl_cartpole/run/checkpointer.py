@@ -78,7 +78,9 @@ class Checkpointer:
         self.keep_last = keep_last  # periodic states kept (None: all)
         self.saves_best, self.saves_last = save_best, save_last
         self.last_saved_frame = 0
-        self.state_size: int | None = None  # bytes of the last training state written
+        # bytes the last training state wrote (its files linked from the one before not counted):
+        # about what the next one writes
+        self.state_size: int | None = None
 
     def load(self, path: str | Path, progress: Progress) -> None:
         """Restore every component from the training state at ``path``."""
@@ -106,7 +108,7 @@ class Checkpointer:
             if name != "replay_buffer" or len(buffer) > 0
         }
         # A training state is about as large as the one before it; the first is estimated from
-        # its tensors, the replay buffer's for its filled rows (store/buffer_checkpoint.py).
+        # its tensors, the replay buffer's for its filled rows (parts/chunked_storage.py).
         expected = self.state_size or sum(
             _saved_bytes(name, component) for name, component in components.items()
         )
@@ -124,7 +126,7 @@ class Checkpointer:
         )
         if buffer is not None:  # its next checkpoint links the rows unchanged since this one
             confirm_chunked_writes(buffer, saved)
-        self.state_size = tree_bytes(saved)
+        self.state_size = tree_bytes(saved, new_only=True)
         return saved
 
     def _write_or_stop(self, path: Path, expected: int, write: Callable[[], Path]) -> Path:

@@ -245,7 +245,8 @@ def _file_digests(path: Path, reuse: bool = False) -> dict[str, str]:
             continue
         stat = file.stat()
         identity = (stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns)
-        digest = _written_digests.get(identity) if reuse else None
+        # only a file with another name (a link): a new file may reuse a deleted one's inode
+        digest = _written_digests.get(identity) if reuse and stat.st_nlink > 1 else None
         if digest is None:
             digest = hashlib.sha256(file.read_bytes()).hexdigest()
         if reuse:

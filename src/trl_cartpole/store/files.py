@@ -57,9 +57,11 @@ def free_bytes(path: str | Path) -> int:
     return shutil.disk_usage(path).free
 
 
-def tree_bytes(path: str | Path) -> int:
-    """The total size of the files under ``path`` (0 if it does not exist)."""
-    return sum(file.stat().st_size for file in Path(path).rglob("*") if file.is_file())
+def tree_bytes(path: str | Path, new_only: bool = False) -> int:
+    """The total size of the files under ``path`` (0 if it does not exist); with ``new_only``,
+    of those with no other name (a hard link shares another checkpoint's bytes)."""
+    sizes = (file.stat() for file in Path(path).rglob("*") if file.is_file())
+    return sum(stat.st_size for stat in sizes if not new_only or stat.st_nlink == 1)
 
 
 def megabytes(size: int) -> str:
