@@ -16,10 +16,12 @@ same once the buffer is full). For each: the seconds, the bytes written
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import torch
 from tensordict import TensorDict
@@ -34,11 +36,17 @@ from trl_cartpole.store.checkpoint import write_integrity
 
 SEEDS = [0]  # the config's seed: the harness's common arguments
 OUT = Path("runs/bench/checkpoint_cost")
+LINKED = "this project's (files linked where unchanged)"
+TABLE_HEAD = [
+    "| storage | first checkpoint, s | second, s | second writes, MiB | both on disk, MiB |",
+    "| --- | --- | --- | --- | --- |",
+]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--filled", type=int, default=100_000, help="transitions at first")
     parser.add_argument("--added", type=int, default=10_000, help="transitions added after")
+    parser.add_argument("--record", type=Path, help="write the figures to this results file")
 
 
 def _transitions(template: TensorDict, count: int) -> TensorDict:
@@ -87,19 +95,29 @@ def _checkpoint(buffer, path: Path) -> float:
     return time.perf_counter() - start
 
 
-def _measure(buffer, batches: list[TensorDict], root: Path, label: str) -> None:
+def _measure(buffer, batches: list[TensorDict], root: Path, label: str) -> dict[str, Any]:
     buffer.extend(batches[0])
     first_seconds = _checkpoint(buffer, root / "first")
     inodes = _inodes(root / "first")
     for batch in batches[1:]:
         buffer.extend(batch)
     second_seconds = _checkpoint(buffer, root / "second")
-    written = _written_bytes(inodes, root / "second")
-    disk = _disk_bytes(root / "first", root / "second")
-    print(
-        f"| {label} | {first_seconds:.2f} | {second_seconds:.2f} | {written / 2**20:.1f} | "
-        f"{disk / 2**20:.1f} |",
-        flush=True,
+    row = {
+        "storage": label,
+        "first_seconds": first_seconds,
+        "second_seconds": second_seconds,
+        "second_written_bytes": _written_bytes(inodes, root / "second"),
+        "disk_bytes": _disk_bytes(root / "first", root / "second"),
+    }
+    print(table_row(row), flush=True)
+    return row
+
+
+def table_row(row: dict[str, Any]) -> str:
+    """One storage's figures as a row of :data:`TABLE_HEAD`."""
+    return (
+        f"| {row['storage']} | {row['first_seconds']:.2f} | {row['second_seconds']:.2f} | "
+        f"{row['second_written_bytes'] / 2**20:.1f} | {row['disk_bytes'] / 2**20:.1f} |"
     )
 
 
@@ -116,14 +134,32 @@ def main(args: argparse.Namespace) -> None:
         f"{cfg.env.id}, a buffer of {size}: {args.filled} transitions, "
         f"then {args.added} more; each checkpoint with its integrity record"
     )
-    print("| storage | first checkpoint, s | second, s | second writes, MiB | both on disk, MiB |")
-    print("| --- | --- | --- | --- | --- |")
+    print("\n".join(TABLE_HEAD))
     args.out.mkdir(parents=True, exist_ok=True)
     root = Path(tempfile.mkdtemp(dir=args.out))
     try:
         linked = TensorDictReplayBuffer(storage=TrackedTensorStorage(size), batch_size=32)
-        _measure(linked, batches, root / "linked", "this project's (files linked where unchanged)")
+        rows = [_measure(linked, batches, root / "linked", LINKED)]
         whole = TensorDictReplayBuffer(storage=LazyTensorStorage(size), batch_size=32)
-        _measure(whole, batches, root / "whole", "TorchRL's (the whole storage)")
+        rows.append(_measure(whole, batches, root / "whole", "TorchRL's (the whole storage)"))
     finally:
         shutil.rmtree(root, ignore_errors=True)
+    if args.record:
+        _record(args, rows, cfg.env.id, size, _bytes_per_row(batches[0]))
+
+
+def _bytes_per_row(batch: TensorDict) -> int:
+    return sum(t.numel() * t.element_size() for t in batch.values(True, True)) // batch.numel()
+
+
+def _record(args: argparse.Namespace, rows: list[dict], env_id: str, size: int, row_bytes: int):
+    """The figures and the buffer they were measured on, with where and when (a results file:
+    docs/reliability.md is generated from it)."""
+    from benchmarks.harness import provenance
+
+    command = "python -m benchmarks checkpoint-cost " + " ".join(
+        [f"--filled {args.filled}", f"--added {args.added}", *args.overrides]
+    )
+    buffer = {"env_id": env_id, "size": size, "filled": args.filled, "added": args.added}
+    record = {**provenance(), "command": command, "buffer": {**buffer, "row_bytes": row_bytes}}
+    args.record.write_text(json.dumps({**record, "rows": rows}, indent=2) + "\n")

@@ -315,6 +315,40 @@ def _atari_table(record: dict) -> tuple[list[str], str]:
     return rows, verdict
 
 
+CHECKPOINT_COST = ROOT / "docs" / "results" / "checkpoint_cost.json"
+# a checkpoint of a full pixel-preset buffer: what it writes beyond its new rows, its seconds,
+# and the disk two checkpoints take, against one buffer (docs/reliability.md)
+CHECKPOINT_TARGET = {"extra_share": 0.05, "seconds": 2.0, "disk_buffers": 1.2}
+
+
+def checkpoint_cost() -> str:
+    """``python -m benchmarks checkpoint-cost --record``'s table and its verdict."""
+    from benchmarks.checkpoint_cost import LINKED, TABLE_HEAD, table_row
+
+    record = json.loads(CHECKPOINT_COST.read_text())
+    buffer = record["buffer"]
+    whole_bytes = buffer["row_bytes"] * min(buffer["filled"], buffer["size"])
+    new_bytes = buffer["row_bytes"] * buffer["added"]
+    linked = next(row for row in record["rows"] if row["storage"] == LINKED)
+    extra = (linked["second_written_bytes"] - new_bytes) / whole_bytes
+    disk = linked["disk_bytes"] / whole_bytes
+    met = (
+        extra <= CHECKPOINT_TARGET["extra_share"]
+        and linked["second_seconds"] <= CHECKPOINT_TARGET["seconds"]
+        and disk <= CHECKPOINT_TARGET["disk_buffers"]
+    )
+    verdict = (
+        f"The second checkpoint writes {extra:.2%} of the buffer's bytes beyond its "
+        f"{_spaced(buffer['added'])} new rows in {linked['second_seconds']:.2f} s, and the two "
+        f"checkpoints take {disk:.2f} times one buffer on disk. Target (at most "
+        f"{CHECKPOINT_TARGET['extra_share']:.0%} beyond the new rows, "
+        f"{CHECKPOINT_TARGET['seconds']:g} s, {CHECKPOINT_TARGET['disk_buffers']:g} buffers): "
+        f"{'met' if met else '**not met**'}."
+    )
+    rows = [*TABLE_HEAD, *(table_row(row) for row in record["rows"])]
+    return _results_block(record, rows, verdict)
+
+
 def train_listing() -> str:
     """``train()`` as ``src/trl_cartpole/run/training.py`` has it."""
     from trl_cartpole.run.training import train
@@ -339,6 +373,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "performance-tables": ("docs/performance.md", performance_tables),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
     "atari-runs": ("docs/atari.md", atari_runs),
+    "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),
     **{
         f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
         for env, path in RACES.items()
