@@ -15,6 +15,7 @@ import signal
 import subprocess
 import time
 import warnings
+from importlib.util import find_spec
 from pathlib import Path
 
 import pytest
@@ -95,8 +96,17 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
             ],
             marks=pytest.mark.slow,
         ),
+        # An Atari game: ALE's cloneState (the emulator and its RNG), the NOOP starts' RNG and
+        # the preprocessing's stacks and lives, each of 4 games, the frames stored once
+        pytest.param(
+            ["env=breakout", "buffer.size=1000", "eval.max_steps=2000", "logger.plots=false"],
+            marks=[
+                pytest.mark.slow,
+                pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
+            ],
+        ),
     ],
-    ids=["dqn", "rainbow", "observation-norm", "lr-taper", "pixels"],
+    ids=["dqn", "rainbow", "observation-norm", "lr-taper", "pixels", "breakout"],
 )
 def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     whole = tmp_path / "whole"
