@@ -25,6 +25,7 @@ from torchrl.envs import (
 from trl_cartpole import defaults
 from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.episode_log import EpisodeLog, records_episodes
 
 __all__ = [
     "GYM_WRAPPER_KEYWORDS",
@@ -58,6 +59,8 @@ def make_sync_vector_env(env_id: str, num_envs: int, **make_kwargs: Any) -> gym.
         num_envs=num_envs,
         vectorization_mode="sync",
         vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
+        # an env whose state is not plain data logs its episodes, for an exact resume
+        wrappers=[EpisodeLog] if records_episodes(env_id) else None,
         **make_kwargs,
     )
 
@@ -157,6 +160,8 @@ def make_env(
     try:
         if num_envs == 1:
             gym_env = gym.make(env_id, **make_kwargs)
+            if records_episodes(env_id):  # for an exact resume (parts/episode_log.py)
+                gym_env = EpisodeLog(gym_env)
             spaces = gym_env.observation_space, gym_env.action_space
         else:
             gym_env = make_sync_vector_env(env_id, num_envs, **make_kwargs)

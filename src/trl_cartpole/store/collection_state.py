@@ -107,7 +107,14 @@ class EnvState:
                 "an exact continuation); pass checkpoint.trust_pickled_envs=true to load it if you "
                 "wrote this checkpoint"
             )
+        if "replay" in (snapshot or {}):
+            return (
+                f"the {name}'s logged episodes, played again, did not reach the saved state (the "
+                "env is not deterministic given its random generator and actions), so the "
+                "resumed run starts new episodes (not an exact continuation)"
+            )
         return (
-            f"the {name}'s state is not stored as data (only classic-control envs' and Atari "
-            "games' are), so the resumed run starts new episodes (not an exact continuation)"
+            f"the {name}'s state is not stored as data and its episodes were not logged (an "
+            "episode over 100 000 steps, or reset options that are not plain data), so the "
+            "resumed run starts new episodes (not an exact continuation)"
         )

@@ -16,8 +16,12 @@ its random generator (sticky actions), stored as its serialized bytes (a uint8 a
 the Gymnasium env's RNG (the NOOP starts) and the preprocessing's own state (the stacked
 frames, the lives at the last step: the transforms' ``state_dict``), for each game of the env.
 
-Other envs (Box2D's LunarLander, MuJoCo, a user's own) do not expose their state as data: the
-resumed run resets them and says so. ``checkpoint.trust_pickled_envs=true`` stores such envs
+Other envs (Box2D's LunarLander, MuJoCo, a user's own) do not expose their state as data. Each
+logs its episode under way (:class:`~trl_cartpole.parts.episode_log.EpisodeLog`: how it began
+and every action since), and the resumed run plays that log again on its fresh envs, checking
+that each reaches the saved observation; where one does not (an env that is not deterministic
+given its random generator and actions), the resumed run resets them and says so. Where no
+log is kept (an episode too long), ``checkpoint.trust_pickled_envs=true`` stores such envs
 pickled instead and loads them back; unpickling runs any code the checkpoint holds, so the
 setting is read from the command that loads, never from the checkpoint. Gymnasium's
 ``EzPickle`` envs (LunarLander, MuJoCo) pickle as their constructor arguments, i.e. as a fresh
@@ -48,6 +52,7 @@ from trl_cartpole.parts.compat import (
     set_autoreset_state,
     set_gym_env,
 )
+from trl_cartpole.parts.episode_log import EpisodeLog
 
 __all__ = [
     "autoreset_snapshot",
@@ -185,6 +190,20 @@ def _restore_atari(game: TransformedEnv, snapshot: dict[str, Any]) -> None:
         unwrapped.np_random.bit_generator.state = snapshot["rng"]
 
 
+def _replay(gymnasium_env: Any, snapshot: dict[str, Any]) -> bool:
+    """Play each env's logged episode again (:class:`EpisodeLog`), then put the vector env's
+    own arrays back; False if an env is not logged or does not reach its logged state."""
+    envs = _envs_of(gymnasium_env)
+    if len(envs) != len(snapshot["envs"]) or not all(isinstance(e, EpisodeLog) for e in envs):
+        return False
+    reached = [env.replay(record) for env, record in zip(envs, snapshot["envs"], strict=True)]
+    if not all(reached):
+        return False
+    for name, value in snapshot["vector"].items():
+        setattr(gymnasium_env, name, value.copy() if isinstance(value, np.ndarray) else value)
+    return True
+
+
 def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | None:
     """The state of the Gymnasium env (or ``SyncVectorEnv``) behind ``env``, or None.
 
@@ -205,6 +224,10 @@ def env_snapshot(env: EnvBase, trust_pickle: bool = False) -> dict[str, Any] | N
         vector = _plain_attributes(gymnasium_env) if gymnasium_env is not envs[0] else {}
         envs_state = [_single_env_snapshot(e) for e in envs]
         return {"data": {"envs": envs_state, "vector": vector, "frames": _frame_stacks(env)}}
+    records = [e.record() if isinstance(e, EpisodeLog) else None for e in envs]
+    if all(record is not None for record in records):  # each episode, to play again
+        vector = _plain_attributes(gymnasium_env) if gymnasium_env is not envs[0] else {}
+        return {"replay": {"envs": records, "vector": vector}}
     if not trust_pickle or any(isinstance(e.unwrapped, EzPickle) for e in envs):
         return None
     try:  # a vector env made by gymnasium.make_vec holds local functions: pickle its envs
@@ -241,6 +264,8 @@ def restore_env_snapshot(
         for name, value in snapshot["data"]["vector"].items():
             setattr(gymnasium_env, name, value.copy() if isinstance(value, np.ndarray) else value)
         return True
+    if "replay" in snapshot:
+        return _replay(gymnasium_env, snapshot["replay"])
     if not trust_pickle:
         return False
     envs = pickle.loads(snapshot["pickle"])  # a list: one Gymnasium env per env of the batch
