@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from torchrl.envs.utils import step_mdp
@@ -77,3 +78,22 @@ def test_an_episode_too_long_to_log_is_not_replayed(monkeypatch):
     assert env_snapshot(env) is not None
     _play(env, env.reset(), 6, torch.Generator().manual_seed(0))
     assert env_snapshot(env) is None  # new episodes on resume, as for any other such env
+
+
+@pytest.mark.parametrize("seed", [7, None])  # a reset given a seed; one of an env never seeded
+def test_a_single_gymnasium_env_replays_its_episode(seed):
+    import gymnasium as gym
+
+    actions = np.random.default_rng(0).integers(0, 4, size=40)
+    logged = EpisodeLog(gym.make("LunarLander-v3"))
+    logged.reset(seed=seed)
+    for action in actions:
+        logged.step(int(action))
+    record = logged.record()
+    assert record["seed"] == seed and (record["rng"] is None) == (seed is not None)
+    assert len(record["actions"]) == 40
+    fresh = EpisodeLog(gym.make("LunarLander-v3"))
+    assert fresh.replay(record)
+    for action in (0, 2, 3):  # and it goes on as the logged env does
+        a, b = logged.step(action), fresh.step(action)
+        assert np.array_equal(a[0], b[0]) and a[1] == b[1]

@@ -6,7 +6,11 @@ env is deterministic given its random generator and its actions, so :class:`Epis
 records, for the episode under way, how it began (the seed its reset was given, or the state
 of its random generator just before a reset without one, and the reset's options) and every
 action since. :meth:`EpisodeLog.replay` plays that record again on a fresh copy of the env and
-checks that it reaches the same observation: the state the record was taken in, or False.
+checks that it reaches the same observation; True then means the state the record was taken in
+for an env whose state lives in its episode (LunarLander builds a new Box2D world at every
+reset; MuJoCo resets its data). State an env keeps across resets and does not show in its
+observation (an episode counter, a curriculum) is not checked: such an env may replay to the
+same observation and still go on differently.
 """
 
 from __future__ import annotations
@@ -58,7 +62,8 @@ class EpisodeLog(gym.Wrapper):
             if seed is not None
             else copy.deepcopy(self.unwrapped.np_random.bit_generator.state)
         )
-        self._start = {"seed": seed, "rng": rng, "options": options} if _plain(options) else None
+        kept = copy.deepcopy(options)
+        self._start = {"seed": seed, "rng": rng, "options": kept} if _plain(options) else None
         self._actions = []
         observation, info = self.env.reset(seed=seed, options=options)
         self._observation = np.array(observation, copy=True)

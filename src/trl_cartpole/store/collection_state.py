@@ -109,12 +109,14 @@ class EnvState:
             )
         if "replay" in (snapshot or {}):
             return (
-                f"the {name}'s logged episodes, played again, did not reach the saved state (the "
-                "env is not deterministic given its random generator and actions), so the "
-                "resumed run starts new episodes (not an exact continuation)"
+                f"the {name}'s logged episodes, played again, did not reach the saved "
+                "observations (an env not deterministic given its random generator and actions, "
+                "or envs other than the saved ones), so the resumed run starts new episodes (not "
+                "an exact continuation)"
             )
         return (
-            f"the {name}'s state is not stored as data and its episodes were not logged (an "
-            "episode over 100 000 steps, or reset options that are not plain data), so the "
-            "resumed run starts new episodes (not an exact continuation)"
+            f"the {name}'s state is not stored as data (classic-control envs' and Atari games' "
+            "are) and no episode log of it was (an env not built by make_env, an episode over "
+            "100 000 steps, reset options that are not plain data, pixels Gymnasium renders), "
+            "so the resumed run starts new episodes (not an exact continuation)"
         )

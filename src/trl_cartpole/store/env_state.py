@@ -21,9 +21,10 @@ logs its episode under way (:class:`~trl_cartpole.parts.episode_log.EpisodeLog`:
 and every action since), and the resumed run plays that log again on its fresh envs, checking
 that each reaches the saved observation; where one does not (an env that is not deterministic
 given its random generator and actions), the resumed run resets them and says so. Where no
-log is kept (an episode too long), ``checkpoint.trust_pickled_envs=true`` stores such envs
-pickled instead and loads them back; unpickling runs any code the checkpoint holds, so the
-setting is read from the command that loads, never from the checkpoint. Gymnasium's
+log is kept (an episode too long, an env not built by :func:`~trl_cartpole.parts.env.make_env`),
+``checkpoint.trust_pickled_envs=true`` stores such envs pickled instead and loads them back
+(not Gymnasium's ``EzPickle`` envs: below); unpickling runs any code the checkpoint holds, so
+the setting is read from the command that loads, never from the checkpoint. Gymnasium's
 ``EzPickle`` envs (LunarLander, MuJoCo) pickle as their constructor arguments, i.e. as a fresh
 env never reset, so they are reset even then. Collector worker processes snapshot their own
 envs with the same functions (:mod:`trl_cartpole.store.worker_state`).
