@@ -287,10 +287,15 @@ def test_a_classic_control_env_continues_exactly_from_its_stored_data(tmp_path, 
             np.testing.assert_array_equal(x, y)
 
 
-def test_an_env_that_is_not_data_is_pickled_only_when_trusted(monkeypatch):
+def test_an_env_that_is_not_data_is_replayed_or_else_pickled_only_when_trusted(monkeypatch):
+    from trl_cartpole.parts import episode_log
+
     monkeypatch.syspath_prepend(str(ROOT / "examples"))
     env = make_env("corridor:Corridor", seed=0)
-    assert env_snapshot(env) is None  # reset on resume, as LunarLander
+    assert set(env_snapshot(env)) == {"replay"}  # its episode under way, to play again
+    monkeypatch.setattr(episode_log, "MAX_LOGGED_STEPS", 0)
+    env.rand_step(env.reset())  # an episode longer than its log holds: none to play again
+    assert env_snapshot(env) is None  # reset on resume
     snapshot = env_snapshot(env, trust_pickle=True)
     assert set(snapshot) == {"pickle"}
     assert not restore_env_snapshot(make_env("corridor:Corridor"), snapshot)
