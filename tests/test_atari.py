@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 from tensordict import TensorDict
+from tensordict.nn import TensorDictSequential
 from torchrl.envs.utils import step_mdp
 
 from tests.conftest import run_script_in_process
@@ -229,6 +230,26 @@ def test_the_preset_sees_stacked_screens_and_stores_them_once(compose):
     # 100 000 transitions: about one 84x84 frame each (and an eighth more), not 2 x 4
     assert 0.7e9 < need.buffer_bytes < 1.0e9
     env.close()
+
+
+def test_a_batch_of_games_gets_an_action_per_game_and_its_state_read_after_it_closes(compose):
+    # env.num_envs=2: a SerialEnv of games, whose action spec is batched ([2] indices); the
+    # actor checks each game's action against one game's spec (it refused the batch before).
+    from trl_cartpole.run.from_config import build_actor, build_env, build_exploration
+    from trl_cartpole.store.env_state import env_snapshot
+
+    cfg = validate(to_config(compose("env=breakout", "env.num_envs=2")))
+    env = build_env(cfg, seed=0)
+    actor = build_actor(cfg, env)
+    step = actor(env.reset())
+    assert step["action_value"].shape == (2, 4) and step["action"].shape == (2,)
+    policy = TensorDictSequential(actor, build_exploration(cfg, env))  # epsilon 1 at first
+    torch.manual_seed(0)
+    drawn = torch.stack([policy(env.reset())["action"] for _ in range(20)])  # [20, 2]
+    assert not torch.equal(drawn[:, 0], drawn[:, 1])  # an action drawn for each game
+    assert len(env_snapshot(env)["atari"]) == 2
+    env.close()
+    assert env_snapshot(env) is None  # a closed batch holds no games (it recursed before)
 
 
 TINY_BREAKOUT = [

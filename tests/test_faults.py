@@ -101,7 +101,13 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         # An Atari game: ALE's cloneState (the emulator and its RNG), the NOOP starts' RNG and
         # the preprocessing's stacks and lives, each of 4 games, the frames stored once
         pytest.param(
-            ["env=breakout", "buffer.size=1000", "eval.max_steps=2000", "logger.plots=false"],
+            [
+                "env=breakout",
+                "buffer.size=1000",
+                "eval.max_steps=300",  # an untrained policy's game can last its 27 000 steps
+                "eval.candidates=1",
+                "logger.plots=false",
+            ],
             marks=[
                 pytest.mark.slow,
                 pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),

@@ -107,8 +107,10 @@ def gym_env(env: EnvBase) -> Any:
 
 
 def serial_envs(env: EnvBase) -> list[EnvBase]:
-    """The envs a ``SerialEnv`` steps one after another (none before it first starts)."""
-    return list(getattr(env, "_envs", None) or [])
+    """The envs a ``SerialEnv`` steps one after another (none before it first starts or after
+    it closes). Read from the instance's own attributes: ``SerialEnv.__getattr__`` hands a
+    missing name to its envs, and asks for ``_envs`` to do so (endless recursion when closed)."""
+    return list(vars(env).get("_envs") or [])
 
 
 def set_gym_env(env: EnvBase, gymnasium_env: Any) -> None:

@@ -10,7 +10,7 @@ from typing import Any
 import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector
-from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
+from torchrl.data import Categorical, LazyMemmapStorage, TensorDictReplayBuffer, TensorSpec
 from torchrl.envs import Compose, EnvBase, Transform, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
@@ -97,6 +97,17 @@ def build_env(
     )
 
 
+def _per_env_action_spec(env: EnvBase) -> TensorSpec:
+    """``env``'s action spec as the actor reads it: a batch of envs whose actions are indices
+    (``Categorical``, e.g. a ``SerialEnv`` of Atari games: ``[num_envs]``) gives one env's
+    (``[]``), which TorchRL's ``QValueModule`` checks each action against; a one-hot spec is
+    kept as the env gives it (its last dimension is the actions')."""
+    spec = env.action_spec
+    if env.batch_size and isinstance(spec, Categorical) and spec.shape == env.batch_size:
+        return env.action_spec_unbatched
+    return spec
+
+
 def build_actor(
     cfg: Config, env: EnvBase, device: str | None = None
 ) -> QValueActor | DistributionalQValueActor:
@@ -111,7 +122,7 @@ def build_actor(
     cnn = network.torso == "cnn"
     return make_q_actor(
         env.observation_spec,
-        env.action_spec,
+        _per_env_action_spec(env),
         in_keys=[PIXELS_KEY] if cnn else ["observation"],
         torso=network.torso,
         cnn_kwargs={
