@@ -87,6 +87,11 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         # by CatFrames; the stacks are stored with the envs' state.
         # LunarLander's Box2D state is not plain data: its envs play their logged episodes again
         pytest.param(["env=lunarlander", "logger.plots=false"], marks=pytest.mark.slow),
+        # and in two worker processes: each worker's logged episodes, through its pipe
+        pytest.param(
+            ["env=lunarlander", "logger.plots=false", "collector.workers=2", "env.num_envs=2"],
+            marks=pytest.mark.slow,
+        ),
         pytest.param(
             [
                 "env=cartpole_pixels",
@@ -114,7 +119,16 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
             ],
         ),
     ],
-    ids=["dqn", "rainbow", "observation-norm", "lr-taper", "lunarlander", "pixels", "breakout"],
+    ids=[
+        "dqn",
+        "rainbow",
+        "observation-norm",
+        "lr-taper",
+        "lunarlander",
+        "lunarlander-workers",
+        "pixels",
+        "breakout",
+    ],
 )
 def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
     whole = tmp_path / "whole"
