@@ -103,6 +103,19 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
             ],
             marks=pytest.mark.slow,
         ),
+        # and in two worker processes: each worker's state and stacks, through its pipe
+        pytest.param(
+            [
+                "env=cartpole_pixels",
+                "env.num_envs=2",
+                "collector.workers=2",
+                "env.pixels_rendered_share=0.5",
+                "buffer.size=500",
+                "buffer.batch_size=16",
+                "eval.max_steps=50",
+            ],
+            marks=pytest.mark.slow,
+        ),
         # An Atari game: ALE's cloneState (the emulator and its RNG), the NOOP starts' RNG and
         # the preprocessing's stacks and lives, each of 4 games, the frames stored once
         pytest.param(
@@ -110,6 +123,22 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
                 "env=breakout",
                 "buffer.size=1000",
                 "eval.max_steps=300",  # an untrained policy's game can last its 27 000 steps
+                "eval.candidates=1",
+                "logger.plots=false",
+            ],
+            marks=[
+                pytest.mark.slow,
+                pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
+            ],
+        ),
+        # and in two worker processes, a batch of 2 games each
+        pytest.param(
+            [
+                "env=breakout",
+                "collector.workers=2",
+                "env.num_envs=2",
+                "buffer.size=1000",
+                "eval.max_steps=300",
                 "eval.candidates=1",
                 "logger.plots=false",
             ],
@@ -127,7 +156,9 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         "lunarlander",
         "lunarlander-workers",
         "pixels",
+        "pixels-workers",
         "breakout",
+        "breakout-workers",
     ],
 )
 def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):
