@@ -11,21 +11,30 @@ prints the medians per update of the three phases over batches and seeds ("updat
 the target network's step). Runs in this process, one preset at a time, so ``--jobs`` must
 be 1.
 
-With ``dqn`` among the presets a last row times the same math in raw PyTorch, interleaved with
-the ``dqn`` updates batch by batch (``raw_update``: the same MLP, batch, n-step TD target,
-Huber loss, gradient-norm clipping, fused AdamW and hard target copy, on plain tensors
-sampled with one ``randint``), and the framework tax: the ``dqn`` row's total over the raw
-one (the target is at most 1.2).
+With ``dqn`` among the presets three more rows come from the same batches, interleaved with
+the ``dqn`` updates batch by batch so that the machine's drift slows all alike:
+
+- ``dqn, compile=true``: the same preset with its update compiled whole
+  (:mod:`trl_cartpole.parts.lean_update`), its compilation timed apart;
+- raw PyTorch (``raw_update``: the same MLP, batch, n-step TD target, Huber loss,
+  gradient-norm clipping, fused AdamW and hard target copy, on plain tensors sampled with one
+  ``randint``), eager;
+- the FLOP floor: the update's matrix-product arithmetic (:func:`update_flops`) at the rate
+  this core multiplies a large matrix in the same process (:func:`matmul_rate`);
+
+then the framework tax (the ``dqn`` row's total over the raw one; the target is at most 1.2).
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import json
 import math
 import statistics
 import time
 from itertools import chain, pairwise
+from pathlib import Path
 
 import torch
 
@@ -105,15 +114,37 @@ def raw_update(cfg, obs_dim: int, num_actions: int, size: int = RANDOM_FRAMES):
     return step
 
 
-def time_learner(
-    algo: str, seed: int, updates: int, overrides: list[str], raw: list[Timing] | None = None
-) -> list[Timing]:
-    """Per-update (sample, update, priority) seconds of each timed ``Learner.step``.
+def update_flops(cfg, obs_dim: int, num_actions: int) -> float:
+    """Floating-point operations of the matrix products of one update of ``cfg``'s MLP.
 
-    With ``raw`` (a list) and a state-vector env, a :func:`raw_update` follows each of the
-    learner's updates and its per-update seconds of each batch are appended to ``raw``
-    (priority 0).
+    One pass of a batch ``B`` through widths ``w_0 .. w_L`` is ``F = 2 B sum w_i w_{i+1}``;
+    an update makes the online pass on ``s`` and its backward pass (``2 F``: the gradients of
+    the weights and of each layer's input, less the first layer's input), the target pass on
+    ``s'`` and, for double DQN, an online pass on ``s'``: ``(4 + double) F`` less ``2 B w_0 w_1``.
+    The elementwise work (activations, loss, AdamW: about ten operations a parameter) is left
+    out: a floor, not an estimate.
     """
+    widths = [obs_dim, *cfg.network.hidden_sizes, num_actions]
+    batch = cfg.buffer.batch_size
+    one_pass = 2 * batch * sum(a * b for a, b in pairwise(widths))
+    return (4 + int(cfg.loss.double_dqn)) * one_pass - 2 * batch * widths[0] * widths[1]
+
+
+def matmul_rate(size: int = 512, repeats: int = 50) -> float:
+    """FLOP/s of this core on a ``size`` x ``size`` float32 matrix product (the best of
+    ``repeats``, after a warm-up): the rate the FLOP floor divides by."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    best = math.inf
+    for _ in range(repeats + 5):
+        start = time.perf_counter()
+        torch.mm(a, b)
+        best = min(best, time.perf_counter() - start)
+    return 2 * size**3 / best
+
+
+def _built(algo: str, seed: int, overrides: list[str]):
+    """(cfg, learner, env) of ``algo``, its buffer filled with random frames, as training has
+    them; the env is closed."""
     cfg = validate(
         to_config(compose_config(CONFIG_DIR, [f"algo={algo}", f"seed={seed}", *overrides]))
     )
@@ -125,37 +156,73 @@ def time_learner(
     steps = math.ceil(RANDOM_FRAMES / env.batch_size.numel())
     rollout = env.rollout(steps, break_when_any_done=False)  # [envs, T] or [T]: random actions
     extend_with_batch(learner.buffer, rollout.select(*transition_keys(actor.in_keys[0])))
-    vector = "observation" in env.observation_spec  # the raw MLP reads a state vector
-    raw_step = None if raw is None or not vector else raw_update(cfg, *_sizes(env))
     env.close()
+    return cfg, learner, env
+
+
+def _learner_batch(learner, count: int) -> Timing:
+    """Per-update (sample, update, priority) seconds of one batch of ``count`` updates, phase
+    by phase as ``Learner.step`` runs them ("update" includes the target network's step)."""
+    sample_s = update_s = priority_s = 0.0
+    minibatches = sample_minibatches(learner.buffer, count)
+    for _ in range(count):
+        start = time.perf_counter()
+        sample = next(minibatches)
+        sampled = time.perf_counter()
+        learner.update(sample)
+        learner.target_updater.step()
+        updated = time.perf_counter()
+        if learner.prioritized:
+            learner.buffer.update_tensordict_priority(sample)  # as Learner.step
+        done = time.perf_counter()
+        sample_s += sampled - start
+        update_s += updated - sampled
+        priority_s += done - updated
+    return sample_s / count, update_s / count, priority_s / count
+
+
+def time_learner(
+    algo: str, seed: int, updates: int, overrides: list[str], others: dict | None = None
+) -> list[Timing]:
+    """Per-update (sample, update, priority) seconds of each timed ``Learner.step``.
+
+    With ``others`` (a dict) and a state-vector env, the compiled learner
+    (``"compiled"``) and a :func:`raw_update` (``"raw"``) take a batch of updates after each of
+    the learner's, and their per-update seconds are appended to ``others[name]``;
+    ``others["compile_s"]`` gets the compiled learner's first call, ``others["flop_floor"]``
+    the floor's seconds per update.
+    """
+    cfg, learner, env = _built(algo, seed, overrides)
+    vector = "observation" in env.observation_spec  # the raw MLP reads a state vector
+    contenders = {}
+    if others is not None and vector:
+        _, compiled, _ = _built(algo, seed, [*overrides, "compile=true"])
+        start = time.perf_counter()
+        _learner_batch(compiled, 1)  # the first call compiles
+        others.setdefault("compile_s", []).append(time.perf_counter() - start)
+        raw_step = raw_update(cfg, *_sizes(env))
+        contenders = {
+            "compiled": lambda count: _learner_batch(compiled, count),
+            "raw": lambda count: _raw_batch(raw_step, count),
+        }
+        others.setdefault("flop_floor", []).append(update_flops(cfg, *_sizes(env)) / matmul_rate())
     count = cfg.collector.updates_per_batch
     timings: list[Timing] = []
     warmup_steps = math.ceil(WARMUP_UPDATES / count)
     for step in range(warmup_steps + math.ceil(updates / count)):
-        sample_s = update_s = priority_s = raw_sample_s = raw_update_s = 0.0
-        minibatches = sample_minibatches(learner.buffer, count)
-        for _ in range(count):
-            start = time.perf_counter()
-            sample = next(minibatches)
-            sampled = time.perf_counter()
-            learner.update(sample)
-            learner.target_updater.step()
-            updated = time.perf_counter()
-            if learner.prioritized:
-                learner.buffer.update_tensordict_priority(sample)  # as Learner.step
-            done = time.perf_counter()
-            sample_s += sampled - start
-            update_s += updated - sampled
-            priority_s += done - updated
-            if raw_step is not None:
-                raw_sample, raw_update_seconds = raw_step()
-                raw_sample_s += raw_sample
-                raw_update_s += raw_update_seconds
+        timing = _learner_batch(learner, count)
+        other_timings = {name: batch(count) for name, batch in contenders.items()}
         if step >= warmup_steps:
-            timings.append((sample_s / count, update_s / count, priority_s / count))
-            if raw_step is not None:
-                raw.append((raw_sample_s / count, raw_update_s / count, 0.0))
+            timings.append(timing)
+            for name, other in other_timings.items():
+                others.setdefault(name, []).append(other)
     return timings
+
+
+def _raw_batch(raw_step, count: int) -> Timing:
+    """Per-update (sample, update, 0) seconds of ``count`` raw updates."""
+    seconds = [raw_step() for _ in range(count)]
+    return sum(s for s, _ in seconds) / count, sum(u for _, u in seconds) / count, 0.0
 
 
 def _sizes(env) -> tuple[int, int]:
@@ -163,43 +230,113 @@ def _sizes(env) -> tuple[int, int]:
     return env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1]
 
 
-def _row(name: str, timings) -> tuple[str, float]:
-    """A table row of the medians per phase of ``timings``, and its total in ms."""
+def _row(name: str, timings) -> dict:
+    """The medians per phase of ``timings`` in ms, and their total."""
     sample, update, priority = (
         1e3 * statistics.median(phase) for phase in zip(*timings, strict=True)
     )
-    total = sample + update + priority
-    return f"| {name} | {sample:.2f} | {update:.2f} | {priority:.2f} | {total:.2f} |", total
+    return {
+        "name": name,
+        "sample_ms": sample,
+        "update_ms": update,
+        "priority_ms": priority,
+        "total_ms": sample + update + priority,
+    }
+
+
+TABLE_HEAD = [
+    "| update | sample ms | update ms | priority ms | total ms |",
+    "| --- | --- | --- | --- | --- |",
+]
+
+
+def table_row(row: dict) -> str:
+    """A results file's row as a line of the table (``-`` where a phase has no figure)."""
+    cells = [row.get(f"{phase}_ms") for phase in ("sample", "update", "priority", "total")]
+    return (
+        f"| {row['name']} | "
+        + " | ".join("-" if cell is None else f"{cell:.2f}" for cell in cells)
+        + " |"
+    )
+
+
+def summary_line(record: dict) -> str:
+    """The ratios of a results file's measurement, in one line."""
+    totals = {row["name"]: row["total_ms"] for row in record["rows"]}
+    return (
+        f"framework tax (dqn / raw): {totals['dqn'] / totals[RAW]:.2f} (target <= "
+        f"{TAX_TARGET}); compiled / eager dqn: {totals[COMPILED] / totals['dqn']:.2f}; "
+        f"compiled / FLOP floor: {totals[COMPILED] / totals[FLOOR]:.2f}; compilation (first "
+        f"call): {record['compile_seconds']:.1f} s"
+    )
+
+
+COMPILED = "dqn, compile=true (the whole update compiled)"
+RAW = "raw PyTorch, the dqn math, eager"
+FLOOR = "FLOP floor: the matrix products at this core's rate"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algos", nargs="+", default=list(VARIANT_PRESETS))
     parser.add_argument("--updates", type=int, default=300, help="updates timed per seed")
+    parser.add_argument(
+        "--record",
+        type=Path,
+        help="add the dqn rows to this results file (a measurement with the same overrides "
+        "is replaced)",
+    )
 
 
 def main(args: argparse.Namespace) -> None:
     if args.jobs != 1:
         raise SystemExit("error: update-cost times its updates in this process; use --jobs 1")
-    lines = [
-        "| preset | sample ms | update ms | priority ms | total ms |",
-        "| --- | --- | --- | --- | --- |",
-    ]
+    lines = list(TABLE_HEAD)
     print("\n".join(lines), flush=True)
-    raw: list[Timing] = []
-    totals = {}
+    others: dict[str, list] = {}
+    rows = []
     for algo in args.algos:
         timings = chain.from_iterable(
-            time_learner(algo, seed, args.updates, args.overrides, raw if algo == "dqn" else None)
+            time_learner(
+                algo, seed, args.updates, args.overrides, others if algo == "dqn" else None
+            )
             for seed in args.seeds
         )
-        row, totals[algo] = _row(algo, timings)
-        lines.append(row)
+        rows.append(_row(algo, timings))
+        lines.append(table_row(rows[-1]))
         print(lines[-1], flush=True)
-    if raw:
-        row, raw_total = _row("raw PyTorch, the dqn math", raw)
-        tax = totals["dqn"] / raw_total
-        met = "met" if tax <= TAX_TARGET else "not met"
-        lines += [row, "", f"framework tax (dqn / raw): {tax:.2f} (target <= {TAX_TARGET}: {met})"]
-        print("\n".join(lines[-3:]), flush=True)
+    if "raw" in others:
+        floor = 1e3 * statistics.median(others["flop_floor"])
+        rows += [
+            _row(COMPILED, others["compiled"]),
+            _row(RAW, others["raw"]),
+            {"name": FLOOR, "update_ms": floor, "total_ms": floor},
+        ]
+        record = {
+            "rows": [row for row in rows if row["name"] in ("dqn", COMPILED, RAW, FLOOR)],
+            "compile_seconds": statistics.median(others["compile_s"]),
+        }
+        lines += [*(table_row(row) for row in rows[-3:]), "", summary_line(record)]
+        print("\n".join(lines[-5:]), flush=True)
+        if args.record:
+            _record(args, record)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "results.md").write_text("\n".join(lines) + "\n")
+
+
+def _record(args: argparse.Namespace, record: dict) -> None:
+    """Add the measurement to ``args.record`` with its command, machine and date; one with the
+    same overrides is replaced (docs/performance.md is generated from the file)."""
+    from benchmarks.harness import provenance
+
+    command = " ".join(
+        [
+            "python -m benchmarks update-cost --algos dqn",
+            f"--seeds {' '.join(map(str, args.seeds))}",
+            f"--updates {args.updates}",
+            *args.overrides,
+        ]
+    )
+    measurement = {**provenance(), "command": command, "overrides": args.overrides, **record}
+    existing = json.loads(args.record.read_text()) if args.record.exists() else {"runs": []}
+    runs = [run for run in existing["runs"] if run["overrides"] != args.overrides]
+    args.record.write_text(json.dumps({"runs": [*runs, measurement]}, indent=2) + "\n")

@@ -16,7 +16,9 @@ from benchmarks.envs import table as env_table
 from benchmarks.harness import speed_ratios
 from benchmarks.profile import phase_table
 from benchmarks.run import iqm_ratio_lines, ratio_lines
+from benchmarks.update_cost import COMPILED, FLOOR, RAW, update_flops
 from benchmarks.wall import wall_table
+from trl_cartpole.config.schema import to_config
 from trl_cartpole.report.plotting import plot_seed_groups
 
 from .conftest import ROOT, summary_of
@@ -171,8 +173,11 @@ def test_wall_table_splits_the_wall_time_and_gives_the_median_ratio():
     assert wall_table(slow).endswith("median ratio 1.88 (target <= 1.3: not met)")
 
 
-@pytest.mark.slow  # times updates of every preset
-def test_update_cost_prints_a_row_per_preset(python, tmp_path):
+@pytest.mark.slow  # times updates of every preset, and compiles one
+def test_update_cost_prints_a_row_per_preset_and_records_the_compiled_and_raw_rows(
+    python, tmp_path
+):
+    record = tmp_path / "update_cost.json"
     proc = _benchmarks(
         python,
         "update-cost",
@@ -183,18 +188,31 @@ def test_update_cost_prints_a_row_per_preset(python, tmp_path):
         "3",
         "--out",
         str(tmp_path),
+        "--record",
+        str(record),
         timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
-    rows = [
-        line
+    totals = {
+        line.split("|")[1].strip(): float(line.split("|")[-2])
         for line in proc.stdout.splitlines()
-        if line.startswith("| dqn") or line.startswith("| rainbow")
-    ]
-    assert len(rows) == 2 and all(float(row.split("|")[-2]) > 0 for row in rows)
-    raw = [line for line in proc.stdout.splitlines() if line.startswith("| raw PyTorch")]
-    assert len(raw) == 1 and float(raw[0].split("|")[-2]) > 0
+        if line.startswith("| ") and not line.startswith("| update") and "---" not in line
+    }
+    assert {"dqn", "rainbow", COMPILED, RAW, FLOOR} == set(totals)
+    assert all(total > 0 for total in totals.values())
     assert "framework tax (dqn / raw): " in proc.stdout
+    (run,) = json.loads(record.read_text())["runs"]
+    assert [row["name"] for row in run["rows"]] == ["dqn", COMPILED, RAW, FLOOR]
+    assert run["compile_seconds"] > 0 and run["overrides"] == []
+
+
+def test_the_flop_floor_counts_each_matrix_product_of_an_update(compose):
+    # widths 4-128-128-2, batch 512: one pass F = 2 * 512 * (4*128 + 128*128 + 128*2)
+    cfg = to_config(compose())
+    one_pass = 2 * 512 * (4 * 128 + 128 * 128 + 128 * 2)
+    assert update_flops(cfg, 4, 2) == 4 * one_pass - 2 * 512 * 4 * 128
+    double = to_config(compose("loss.double_dqn=true"))
+    assert update_flops(double, 4, 2) == 5 * one_pass - 2 * 512 * 4 * 128
 
 
 @pytest.mark.slow  # fresh interpreters

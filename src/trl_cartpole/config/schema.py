@@ -256,7 +256,7 @@ class Config:
     run_dir: str = "runs/${run_env:}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
     device: str = "cpu"  # cpu | cuda | cuda:N (networks, losses and the replay buffer)
     num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
-    compile: bool = False  # torch.compile the gradient step (about 10 s once, then ~2x faster)
+    compile: bool = False  # the whole gradient step compiled (3-5 s once; docs/performance.md)
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)

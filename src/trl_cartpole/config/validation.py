@@ -151,9 +151,10 @@ def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
             "collector.total_frames)",
         ),
         (
-            cfg.optim.lr_end is None or not cfg.compile,
-            "optim.lr_end tapers the learning rate, which a compiled update holds fixed: pass "
-            "compile=false, or optim.lr_end=null",
+            cfg.optim.lr_end is None or not cfg.compile or compiles_lean(cfg),
+            "optim.lr_end tapers the learning rate, which the compiled update of noisy "
+            "networks, C51 and loss.fused=false holds fixed: pass compile=false, or "
+            "optim.lr_end=null",
         ),
     ]
 
@@ -499,6 +500,13 @@ def check_device(device: str) -> None:
         raise ConfigError(f"device={device!r} but MPS is not available here; use device=cpu")
     elif parsed.type not in ("cpu", "cuda", "mps"):
         raise ConfigError(f"device={device!r} is not supported; use cpu or cuda[:N]")
+
+
+def compiles_lean(cfg: Config) -> bool:
+    """Whether ``compile=true`` compiles the whole update as one function of tensors
+    (:mod:`trl_cartpole.parts.lean_update`: the fused loss, AdamW and the learning rate as an
+    input), rather than ``torch.compile`` of the eager update."""
+    return cfg.loss.fused and not cfg.network.noisy and not cfg.network.distributional
 
 
 def check_compiler(device: str) -> None:

@@ -22,6 +22,7 @@ entries is handed to the loss module itself; the loss module's forward pre-hooks
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -105,40 +106,81 @@ class FusedDQNLoss:
         self._mask_keys = loss_mask_keys(loss_module)
 
     def __call__(self, sample: TensorDictBase) -> TensorDict:
-        if any(sample.get(key, None) is not None for key in self._mask_keys):
+        if self.masked(sample):
             return self.loss_module(sample)  # masked positions: TorchRL's own reduction
+        self.run_pre_hooks(sample)
+        loss, td_error = self.compute(self._online, self._target, self.inputs(sample))
+        sample.set(self._keys.priority, td_error, inplace=True)
+        return TensorDict(loss=loss)
+
+    def run_pre_hooks(self, sample: TensorDictBase) -> None:
+        """The loss module's forward pre-hooks, as ``loss_module(sample)`` runs them."""
         loss_module = self.loss_module
-        for hook in loss_module._forward_pre_hooks.values():  # as loss_module(sample) runs them
+        for hook in loss_module._forward_pre_hooks.values():
             hook(loss_module, (sample,))
-        action = sample.get(self._keys.action)
-        values = self._online(sample.get(self._observation_key))  # [B, A]
-        if loss_module.action_space == "categorical":
+
+    def masked(self, sample: TensorDictBase) -> bool:
+        """Whether ``sample`` carries one of TorchRL's loss masks (left to the loss module)."""
+        return any(sample.get(key, None) is not None for key in self._mask_keys)
+
+    def inputs(self, sample: TensorDictBase) -> dict[str, torch.Tensor]:
+        """The plain tensors of ``sample`` the loss reads (``steps`` and ``weights`` when
+        present and used)."""
+        inputs = {
+            "observation": sample.get(self._observation_key),  # [B, *obs]
+            "action": sample.get(self._keys.action),  # [B] or [B, 1] (categorical), [B, A]
+            "next_observation": sample.get(self._next_observation_key),  # [B, *obs]
+            "reward": sample.get(self._reward_key),  # [B, 1]
+        }
+        terminated = sample.get(self._terminated_key, None)
+        inputs["terminated"] = (  # TorchRL's TD(0) falls back to done
+            sample.get(self._done_key) if terminated is None else terminated
+        )  # [B, 1]
+        steps = sample.get(self._steps_key, None)
+        if steps is not None:
+            inputs["steps"] = steps  # [B, 1] n-step lengths k
+        weights = sample.get(self._keys.priority_weight, None)
+        if self.loss_module.use_prioritized_weights in (True, "auto") and weights is not None:
+            inputs["weights"] = weights  # [B] importance-sampling weights
+        return inputs
+
+    def compute(
+        self,
+        online: Callable[[torch.Tensor], torch.Tensor],
+        target: Callable[[torch.Tensor], torch.Tensor],
+        inputs: dict[str, torch.Tensor],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(loss [], td_error [B, 1])`` of :meth:`inputs`, with ``online`` and ``target``
+        the two networks' ``observation -> values`` (the class docstring's equations)."""
+        action = inputs["action"]
+        values = online(inputs["observation"])  # [B, A]
+        if self.loss_module.action_space == "categorical":
             if action.ndim != values.ndim:
                 action = action.unsqueeze(-1)
             taken = torch.gather(values, -1, index=action).squeeze(-1)  # [B]
         else:
             taken = (values * action.to(torch.float)).sum(-1)  # [B]
-        target = self._td_target(sample)  # [B]
+        td_target = self._td_target(online, target, inputs)  # [B]
         with torch.no_grad():
-            sample.set(self._keys.priority, (taken - target).pow(2).unsqueeze(-1), inplace=True)
-        loss = self._distance(taken, target, reduction="none")  # [B]
-        weights = sample.get(self._keys.priority_weight, None)
-        if loss_module.use_prioritized_weights in (True, "auto") and weights is not None:
+            td_error = (taken - td_target).pow(2).unsqueeze(-1)  # [B, 1]
+        loss = self._distance(taken, td_target, reduction="none")  # [B]
+        weights = inputs.get("weights")
+        if weights is not None:
             if weights.shape != loss.shape:
                 raise ValueError(
                     f"Tensor and weights shapes must match, but got {loss.shape} and "
                     f"{weights.shape}"
                 )  # TorchRL's own check and words
-            return TensorDict(loss=(loss * weights).sum() / weights.sum())
-        return TensorDict(loss=loss.mean())
+            return (loss * weights).sum() / weights.sum(), td_error
+        return loss.mean(), td_error
 
     @torch.no_grad()
-    def _td_target(self, sample: TensorDictBase) -> torch.Tensor:
+    def _td_target(self, online, target, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """``r + gamma^k (1 - terminated) Q_target(s', a*)``, ``[B]`` (TorchRL's TD(0))."""
-        next_observation = sample.get(self._next_observation_key)
-        target_values = self._target(next_observation)  # [B, A]
+        next_observation = inputs["next_observation"]
+        target_values = target(next_observation)  # [B, A]
         if self.loss_module.double_dqn:
-            next_action = self._choose(self._online(next_observation))
+            next_action = self._choose(online(next_observation))
             if self.loss_module.action_space == "categorical":
                 if next_action.ndim != target_values.ndim:
                     next_action = next_action.unsqueeze(-1)
@@ -147,15 +189,12 @@ class FusedDQNLoss:
                 next_value = (target_values * next_action).sum(-1, keepdim=True)  # [B, 1]
         else:
             next_value = self._value_of_choice(target_values, self._choose(target_values))
-        reward = sample.get(self._reward_key)  # [B, 1]
+        reward = inputs["reward"]  # [B, 1]
         gamma = self.loss_module.value_estimator.gamma
-        steps = sample.get(self._steps_key, None)
+        steps = inputs.get("steps")
         if steps is not None:
             gamma = gamma ** steps.view_as(reward)
-        terminated = sample.get(self._terminated_key, None)
-        if terminated is None:  # TorchRL's TD(0) falls back to done
-            terminated = sample.get(self._done_key)
-        not_terminated = (~terminated).int()
+        not_terminated = (~inputs["terminated"]).int()
         return (reward + gamma * not_terminated * next_value).squeeze(-1)
 
 

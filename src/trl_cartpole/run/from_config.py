@@ -15,6 +15,7 @@ from torchrl.envs import Compose, EnvBase, Transform, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
 from trl_cartpole.config.schema import Config
+from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.atari import EOL_KEY, LearnerView
 from trl_cartpole.parts.chunked_storage import TrackedTensorStorage
 from trl_cartpole.parts.collectors import (
@@ -25,6 +26,7 @@ from trl_cartpole.parts.collectors import (
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.frame_storage import FrameStackStorage
 from trl_cartpole.parts.fused_loss import fuse_dqn_loss
+from trl_cartpole.parts.lean_update import make_lean_update
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
@@ -261,7 +263,13 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         noisy_network=actor if cfg.network.noisy else None,
     )
     if cfg.compile:
-        update = torch.compile(update)
+        lean = make_lean_update(loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad)
+        if lean is None and cfg.optim.lr_end is not None:  # validate's rule, for any other case
+            raise ConfigError(
+                "optim.lr_end tapers the learning rate, which torch.compile of this update "
+                "holds fixed: pass compile=false, or optim.lr_end=null"
+            )
+        update = torch.compile(update) if lean is None else lean
     return Learner(buffer, loss, target_updater, optimizer, update)
 
 

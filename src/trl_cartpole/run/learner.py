@@ -59,8 +59,13 @@ class Learner:
         self.last_report = UpdateReport(prioritized=self.prioritized)  # of the last step
 
     def step(self, count: int, progress: Progress) -> UpdateReport:
-        """Take ``count`` updates; raise :class:`TrainingFailed` on a non-finite TD loss."""
+        """Take ``count`` updates; raise :class:`TrainingFailed` on a non-finite TD loss.
+
+        The losses and gradient norms stay tensors until the last update, then are read in
+        one go (no host read per update); a non-finite loss is reported with its update.
+        """
         report = UpdateReport(prioritized=self.prioritized)
+        measured: list[torch.Tensor] = []  # [2] per update: loss, grad_norm
         for sample in sample_minibatches(self.buffer, count):  # sample: [batch_size]
             metrics = self.update(sample)
             if self.prioritized:
@@ -71,16 +76,18 @@ class Learner:
                     )
                 self.buffer.update_tensordict_priority(sample)  # the loss wrote "td_error"
             self.target_updater.step()
-            progress.updates += 1
-            loss = metrics["loss"].item()
+            measured.append(torch.stack((metrics["loss"], metrics["grad_norm"])))
+            report.last_sample = sample
+        first_update = progress.updates + 1
+        progress.updates += len(measured)
+        if measured:
+            report.losses, report.grad_norms = torch.stack(measured).T.tolist()  # [2, count]
+        for index, loss in enumerate(report.losses):
             if not math.isfinite(loss):
                 raise TrainingFailed(
-                    f"TD loss is {loss} at update {progress.updates} (frame {progress.frames}); "
-                    "training stopped"
+                    f"TD loss is {loss} at update {first_update + index} (frame "
+                    f"{progress.frames}); training stopped"
                 )
-            report.losses.append(loss)
-            report.grad_norms.append(metrics["grad_norm"].item())
-            report.last_sample = sample
         self.last_report = report
         return report
 
