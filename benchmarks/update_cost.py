@@ -186,25 +186,23 @@ def time_learner(
 ) -> list[Timing]:
     """Per-update (sample, update, priority) seconds of each timed ``Learner.step``.
 
-    With ``others`` (a dict) and a state-vector env, the compiled learner
-    (``"compiled"``) and a :func:`raw_update` (``"raw"``) take a batch of updates after each of
-    the learner's, and their per-update seconds are appended to ``others[name]``;
-    ``others["compile_s"]`` gets the compiled learner's first call, ``others["flop_floor"]``
-    the floor's seconds per update.
+    With ``others`` (a dict), the compiled learner (``"compiled"``) and, on a state-vector env,
+    a :func:`raw_update` (``"raw"``) take a batch of updates after each of the learner's, and
+    their per-update seconds are appended to ``others[name]``; ``others["compile_s"]`` gets
+    the compiled learner's first call, ``others["flop_floor"]`` (state vectors) the floor's
+    seconds per update.
     """
     cfg, learner, env = _built(algo, seed, overrides)
-    vector = "observation" in env.observation_spec  # the raw MLP reads a state vector
     contenders = {}
-    if others is not None and vector:
+    if others is not None:
         _, compiled, _ = _built(algo, seed, [*overrides, "compile=true"])
         start = time.perf_counter()
         _learner_batch(compiled, 1)  # the first call compiles
         others.setdefault("compile_s", []).append(time.perf_counter() - start)
+        contenders["compiled"] = lambda count: _learner_batch(compiled, count)
+    if others is not None and "observation" in env.observation_spec:  # an MLP's state vector
         raw_step = raw_update(cfg, *_sizes(env))
-        contenders = {
-            "compiled": lambda count: _learner_batch(compiled, count),
-            "raw": lambda count: _raw_batch(raw_step, count),
-        }
+        contenders["raw"] = lambda count: _raw_batch(raw_step, count)
         others.setdefault("flop_floor", []).append(update_flops(cfg, *_sizes(env)) / matmul_rate())
     count = cfg.collector.updates_per_batch
     timings: list[Timing] = []
@@ -263,12 +261,16 @@ def table_row(row: dict) -> str:
 def summary_line(record: dict) -> str:
     """The ratios of a results file's measurement, in one line."""
     totals = {row["name"]: row["total_ms"] for row in record["rows"]}
-    return (
-        f"framework tax (dqn / raw): {totals['dqn'] / totals[RAW]:.2f} (target <= "
-        f"{TAX_TARGET}); compiled / eager dqn: {totals[COMPILED] / totals['dqn']:.2f}; "
-        f"compiled / FLOP floor: {totals[COMPILED] / totals[FLOOR]:.2f}; compilation (first "
-        f"call): {record['compile_seconds']:.1f} s"
-    )
+    parts = []
+    if RAW in totals:
+        parts.append(
+            f"framework tax (dqn / raw): {totals['dqn'] / totals[RAW]:.2f} (target <= {TAX_TARGET})"
+        )
+    parts.append(f"compiled / eager dqn: {totals[COMPILED] / totals['dqn']:.2f}")
+    if FLOOR in totals:
+        parts.append(f"compiled / FLOP floor: {totals[COMPILED] / totals[FLOOR]:.2f}")
+    parts.append(f"compilation (first call): {record['compile_seconds']:.1f} s")
+    return "; ".join(parts)
 
 
 COMPILED = "dqn, compile=true (the whole update compiled)"
@@ -304,19 +306,21 @@ def main(args: argparse.Namespace) -> None:
         rows.append(_row(algo, timings))
         lines.append(table_row(rows[-1]))
         print(lines[-1], flush=True)
-    if "raw" in others:
-        floor = 1e3 * statistics.median(others["flop_floor"])
-        rows += [
-            _row(COMPILED, others["compiled"]),
-            _row(RAW, others["raw"]),
-            {"name": FLOOR, "update_ms": floor, "total_ms": floor},
-        ]
+    if "compiled" in others:
+        rows.append(_row(COMPILED, others["compiled"]))
+        if "raw" in others:
+            floor = 1e3 * statistics.median(others["flop_floor"])
+            rows += [
+                _row(RAW, others["raw"]),
+                {"name": FLOOR, "update_ms": floor, "total_ms": floor},
+            ]
         record = {
             "rows": [row for row in rows if row["name"] in ("dqn", COMPILED, RAW, FLOOR)],
             "compile_seconds": statistics.median(others["compile_s"]),
         }
-        lines += [*(table_row(row) for row in rows[-3:]), "", summary_line(record)]
-        print("\n".join(lines[-5:]), flush=True)
+        added = len(record["rows"]) - 1
+        lines += [*(table_row(row) for row in rows[-added:]), "", summary_line(record)]
+        print("\n".join(lines[-added - 2 :]), flush=True)
         if args.record:
             _record(args, record)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -106,6 +106,34 @@ def _copy_state(from_actor, from_optimizer, to_actor, to_optimizer) -> None:
                 to_optimizer.state[destination][key].copy_(value)
 
 
+def test_two_updates_built_differently_in_one_process_each_keep_their_own_graph():
+    # Dynamo's graphs are kept per code object and the guards on constants are left out:
+    # each built update must compile its own (another clip bound, double DQN, activation)
+    env, buffer = _buffer(1, False, False)
+    samples = [buffer.sample() for _ in range(3)]
+    for double, max_grad, activation in ((False, 0.5, "relu"), (True, 5.0, "tanh")):
+        results = []
+        for make in ("eager", "lean"):
+            torch.manual_seed(3)
+            actor = make_q_actor(
+                env.observation_spec,
+                env.action_spec,
+                num_cells=[32],
+                activation_class=torch.nn.ReLU if activation == "relu" else torch.nn.Tanh,
+            )
+            loss = make_dqn_loss(actor, gamma=0.97, double_dqn=double)
+            optimizer = make_optimizer(actor.parameters(), lr=1e-2)
+            if make == "eager":
+                update = make_update(fuse_dqn_loss(loss), optimizer, "norm", max_grad)
+            else:
+                update = make_lean_update(loss, optimizer, "norm", max_grad)
+            for sample in samples:
+                update(sample.clone())
+            results.append([p.detach().clone() for p in actor.parameters()])
+        for ours, theirs in zip(results[1], results[0], strict=True):
+            torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-6)
+
+
 def test_a_new_learning_rate_is_used_without_compiling_again():
     env, buffer = _buffer(1, False, False)
     actor, loss, optimizer = _learner(env, buffer, double=False, amsgrad=False, weight_decay=0.0)
