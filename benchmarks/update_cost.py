@@ -287,6 +287,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="add the dqn rows to this results file (a measurement with the same overrides "
         "is replaced)",
     )
+    parser.add_argument(
+        "--note", default="", help="what else the machine did meanwhile, kept with the record"
+    )
 
 
 def main(args: argparse.Namespace) -> None:
@@ -341,6 +344,8 @@ def _record(args: argparse.Namespace, record: dict) -> None:
         ]
     )
     measurement = {**provenance(), "command": command, "overrides": args.overrides, **record}
+    if args.note:
+        measurement["note"] = args.note
     existing = json.loads(args.record.read_text()) if args.record.exists() else {"runs": []}
     runs = [run for run in existing["runs"] if run["overrides"] != args.overrides]
     args.record.write_text(json.dumps({"runs": [*runs, measurement]}, indent=2) + "\n")

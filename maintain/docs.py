@@ -352,6 +352,45 @@ def checkpoint_cost() -> str:
     return _results_block(record, rows, verdict)
 
 
+UPDATE_COST = ROOT / "docs" / "results" / "update_cost.json"
+# one update of the default's network (2x128 MLP) at batch 128, Adam, one core (docs/performance.md)
+UPDATE_TARGET = {"overrides": ["buffer.batch_size=128"], "total_ms": 0.5}
+
+
+def update_cost() -> str:
+    """``python -m benchmarks update-cost --record``'s measurements, each a table, and the
+    target's verdict."""
+    from benchmarks.update_cost import COMPILED, TABLE_HEAD, summary_line, table_row
+
+    record = json.loads(UPDATE_COST.read_text())
+    parts = []
+    for run in record["runs"]:
+        parts += [
+            _fenced(run["command"], "bash"),
+            provenance_line(run) + (f" {run['note']}" if run.get("note") else ""),
+            "",
+            *TABLE_HEAD,
+            *(table_row(row) for row in run["rows"]),
+            "",
+            summary_line(run),
+            "",
+        ]
+    target = next(
+        (run for run in record["runs"] if run["overrides"] == UPDATE_TARGET["overrides"]), None
+    )
+    if target is None:
+        verdict = "Target (one update at batch 128 within 0.5 ms): not measured."
+    else:
+        compiled = next(row for row in target["rows"] if row["name"] == COMPILED)["total_ms"]
+        met = compiled <= UPDATE_TARGET["total_ms"]
+        verdict = (
+            f"Target (one update of the default's network at batch 128, one core, within "
+            f"{UPDATE_TARGET['total_ms']} ms): {compiled:.2f} ms compiled, "
+            f"{'met' if met else '**not met**'}."
+        )
+    return "\n".join([*parts, verdict])
+
+
 def train_listing() -> str:
     """``train()`` as ``src/trl_cartpole/run/training.py`` has it."""
     from trl_cartpole.run.training import train
@@ -377,6 +416,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
     "atari-runs": ("docs/atari.md", atari_runs),
     "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),
+    "update-cost": ("docs/performance.md", update_cost),
     **{
         f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
         for env, path in RACES.items()
