@@ -68,6 +68,18 @@ def make_lean_update(
     ``batch``). The first call compiles (a few seconds; Inductor's on-disk cache makes a later
     process's compile shorter).
 
+    Example::
+
+        >>> from trl_cartpole import (make_dqn_loss, make_env, make_lean_update, make_optimizer,
+        ...                           make_q_actor, make_replay_buffer)
+        >>> env = make_env("CartPole-v1", seed=0)
+        >>> actor = make_q_actor(env.observation_spec, env.action_spec)
+        >>> buffer = make_replay_buffer(batch_size=8, n_steps=1)
+        >>> indices = buffer.extend(env.rollout(20, break_when_any_done=False))
+        >>> update = make_lean_update(make_dqn_loss(actor), make_optimizer(actor.parameters()))
+        >>> sorted(update(buffer.sample()).keys())
+        ['grad_norm', 'loss']
+
     :param loss_module: a TorchRL ``DQNLoss`` that :func:`fuse_dqn_loss` covers.
     :param optimizer: ``torch.optim.AdamW`` or ``Adam`` over exactly the loss's online
         parameters, in one parameter group.
