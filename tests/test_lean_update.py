@@ -201,3 +201,37 @@ def test_a_run_with_compile_true_trains_with_the_compiled_update_and_follows_a_t
     assert summary["updates"] > 0
     assert seen["update"].__qualname__ == "make_lean_update.<locals>.update"
     assert seen["optimizer"].param_groups[0]["lr"] == pytest.approx(1e-4)  # tapered to the end
+
+
+def test_bfloat16_autocast_runs_the_products_in_bfloat16_and_keeps_float32_state():
+    env, buffer = _buffer(3, False, False)
+    samples = [buffer.sample() for _ in range(5)]
+    results = {}
+    for name in ("float32", "bfloat16 eager", "bfloat16 compiled"):
+        actor, loss, optimizer = _learner(env, buffer, double=True, amsgrad=True, weight_decay=0.0)
+        dtype = None if name == "float32" else torch.bfloat16
+        if name == "bfloat16 compiled":
+            update = make_lean_update(loss, optimizer, "norm", 10.0, autocast_dtype=dtype)
+        else:
+            update = make_update(fuse_dqn_loss(loss), optimizer, "norm", 10.0, autocast_dtype=dtype)
+        losses = [update(sample.clone())["loss"] for sample in samples]
+        assert all(value.dtype == torch.float32 for value in losses)
+        assert all(p.dtype == torch.float32 for p in actor.parameters())
+        results[name] = torch.stack(losses)
+    # bfloat16 keeps 8 bits of mantissa: the losses differ from float32's, by about that much
+    assert not torch.equal(results["bfloat16 eager"], results["float32"])
+    torch.testing.assert_close(results["bfloat16 eager"], results["float32"], rtol=5e-2, atol=1e-3)
+    torch.testing.assert_close(
+        results["bfloat16 compiled"], results["bfloat16 eager"], rtol=2e-2, atol=1e-3
+    )
+
+
+def test_autocast_is_refused_where_the_fused_loss_is_not_used(compose):
+    from trl_cartpole import ConfigError, validate
+    from trl_cartpole.config.schema import to_config
+
+    assert validate(to_config(compose("optim.autocast=bfloat16"))).optim.autocast == "bfloat16"
+    with pytest.raises(ConfigError, match=r"pass optim\.autocast=none"):
+        validate(to_config(compose("optim.autocast=bfloat16", "network.noisy=true")))
+    with pytest.raises(ConfigError, match="choose one of"):
+        validate(to_config(compose("optim.autocast=float16")))

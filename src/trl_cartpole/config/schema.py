@@ -181,6 +181,9 @@ class OptimConfig:
     # (null: lr the whole run)
     lr_end: float | None = None
     lr_decay_frames: int | None = None  # frames to reach lr_end; null: collector.total_frames
+    # none | bfloat16: the update's network passes under torch.autocast in that type (the CNN
+    # presets' convolutions about 0.6x the time on a CPU with AVX-512 BF16; docs/performance.md)
+    autocast: str = "none"
 
 
 @dataclass

@@ -44,6 +44,7 @@ _CHOICES = {
     "loss.loss_function": ("smooth_l1", "l2"),
     "loss.target_update": ("soft", "hard"),
     "optim.grad_clip": defaults.GRAD_CLIPS,
+    "optim.autocast": ("none", "bfloat16"),
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
     "collector.backend": defaults.COLLECTOR_BACKENDS,
     "buffer.storage": ("memory", "memmap", "frames"),
@@ -146,12 +147,18 @@ def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
             f"optim.lr_end={cfg.optim.lr_end} must be > 0 (null: no taper)",
         ),
         (
+            cfg.optim.autocast == "none" or uses_fused_loss(cfg),
+            f"optim.autocast={cfg.optim.autocast} runs the fused DQN loss under torch.autocast, "
+            "and noisy networks, C51 and loss.fused=false do not use it: pass "
+            "optim.autocast=none",
+        ),
+        (
             cfg.optim.lr_decay_frames is None or cfg.optim.lr_decay_frames >= 1,
             f"optim.lr_decay_frames={cfg.optim.lr_decay_frames} must be >= 1 (null: "
             "collector.total_frames)",
         ),
         (
-            cfg.optim.lr_end is None or not cfg.compile or compiles_lean(cfg),
+            cfg.optim.lr_end is None or not cfg.compile or uses_fused_loss(cfg),
             "optim.lr_end tapers the learning rate, which the compiled update of noisy "
             "networks, C51 and loss.fused=false holds fixed: pass compile=false, or "
             "optim.lr_end=null",
@@ -502,10 +509,11 @@ def check_device(device: str) -> None:
         raise ConfigError(f"device={device!r} is not supported; use cpu or cuda[:N]")
 
 
-def compiles_lean(cfg: Config) -> bool:
-    """Whether ``compile=true`` compiles the whole update as one function of tensors
-    (:mod:`trl_cartpole.parts.lean_update`: the fused loss, AdamW and the learning rate as an
-    input), rather than ``torch.compile`` of the eager update."""
+def uses_fused_loss(cfg: Config) -> bool:
+    """Whether the update computes TorchRL's DQN loss on plain tensors
+    (:mod:`trl_cartpole.parts.fused_loss`): what ``compile=true`` compiles whole
+    (:mod:`trl_cartpole.parts.lean_update`, the learning rate an input) and what
+    ``optim.autocast`` runs under ``torch.autocast``."""
     return cfg.loss.fused and not cfg.network.noisy and not cfg.network.distributional
 
 

@@ -153,7 +153,7 @@ class FusedDQNLoss:
         """``(loss [], td_error [B, 1])`` of :meth:`inputs`, with ``online`` and ``target``
         the two networks' ``observation -> values`` (the class docstring's equations)."""
         action = inputs["action"]
-        values = online(inputs["observation"])  # [B, A]
+        values = online(inputs["observation"]).float()  # [B, A] (float32 under autocast too)
         if self.loss_module.action_space == "categorical":
             if action.ndim != values.ndim:
                 action = action.unsqueeze(-1)
@@ -178,9 +178,9 @@ class FusedDQNLoss:
     def _td_target(self, online, target, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """``r + gamma^k (1 - terminated) Q_target(s', a*)``, ``[B]`` (TorchRL's TD(0))."""
         next_observation = inputs["next_observation"]
-        target_values = target(next_observation)  # [B, A]
+        target_values = target(next_observation).float()  # [B, A]
         if self.loss_module.double_dqn:
-            next_action = self._choose(online(next_observation))
+            next_action = self._choose(online(next_observation).float())
             if self.loss_module.action_space == "categorical":
                 if next_action.ndim != target_values.ndim:
                     next_action = next_action.unsqueeze(-1)

@@ -60,6 +60,7 @@ def make_lean_update(
     optimizer: torch.optim.Optimizer,
     grad_clip: str = defaults.GRAD_CLIP,
     max_grad: float = defaults.MAX_GRAD,
+    autocast_dtype: torch.dtype | None = None,
 ) -> Callable[[TensorDictBase], TensorDict] | None:
     """``update(batch) -> TensorDict(loss=[], grad_norm=[])`` compiled whole, or None.
 
@@ -85,6 +86,7 @@ def make_lean_update(
         parameters, in one parameter group.
     :param grad_clip: ``"norm"``, ``"value"`` or ``"none"``, as ``make_update``'s.
     :param max_grad: the bound of ``grad_clip``.
+    :param autocast_dtype: the loss under ``torch.autocast`` in this type, as ``make_update``'s.
     :returns: the compiled update, or None where it does not apply (use ``make_update``).
     """
     if grad_clip not in ("value", "norm", "none"):
@@ -101,12 +103,16 @@ def make_lean_update(
     names = [named[id(p)] for p in params]
     target_params = [dict(fused._target.named_parameters())[name] for name in names]
     step = torch.compile(
-        _own_code(_update_function(fused, names, optimizer.param_groups[0], grad_clip, max_grad)),
+        _own_code(
+            _update_function(
+                fused, names, optimizer.param_groups[0], grad_clip, max_grad, autocast_dtype
+            )
+        ),
         fullgraph=True,
         dynamic=False,
         options=_COMPILE_OPTIONS,
     )
-    eager = make_update(fused, optimizer, grad_clip, max_grad)
+    eager = make_update(fused, optimizer, grad_clip, max_grad, autocast_dtype=autocast_dtype)
 
     def update(batch: TensorDictBase) -> TensorDict:
         if fused.masked(batch):
@@ -171,7 +177,12 @@ def _adam_state(
 
 
 def _update_function(
-    fused: FusedDQNLoss, names: list[str], group: dict, grad_clip: str, max_grad: float
+    fused: FusedDQNLoss,
+    names: list[str],
+    group: dict,
+    grad_clip: str,
+    max_grad: float,
+    autocast_dtype: torch.dtype | None,
 ) -> Callable:
     """The update as a function of tensors only (what ``torch.compile`` takes whole).
 
@@ -185,6 +196,7 @@ def _update_function(
     beta1, beta2 = group["betas"]
     eps, weight_decay, amsgrad = group["eps"], group["weight_decay"], group["amsgrad"]
     decoupled = group.get("decoupled_weight_decay", False)  # True for AdamW
+    device_type = group["params"][0].device.type
 
     def update(params, target_params, exp_avgs, exp_avg_sqs, max_exp_avg_sqs, steps, inputs, lr):
         def target(observation):  # [B, *obs] -> [B, A]
@@ -198,7 +210,8 @@ def _update_function(
                     fused._online, dict(zip(names, online_params, strict=True)), observation
                 )
 
-            return fused.compute(online, target, inputs)
+            with torch.autocast(device_type, autocast_dtype, enabled=autocast_dtype is not None):
+                return fused.compute(online, target, inputs)
 
         grads, (loss, td_error) = grad_and_value(loss_of, has_aux=True)(params)
         grad_norm = nn.utils.get_total_norm(grads)  # [] L2 norm, before clipping

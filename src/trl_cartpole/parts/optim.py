@@ -104,6 +104,7 @@ def make_update(
     grad_clip: str = defaults.GRAD_CLIP,
     max_grad: float = defaults.MAX_GRAD,
     noisy_network: nn.Module | None = None,
+    autocast_dtype: torch.dtype | None = None,
 ) -> Callable[[TensorDictBase], TensorDict]:
     """Return ``update(batch) -> TensorDict(loss=[], grad_norm=[])``.
 
@@ -136,16 +137,23 @@ def make_update(
     :param max_grad: the bound of ``grad_clip``. Default 10.0, the config's ``optim.max_grad``.
     :param noisy_network: its ``NoisyLinear`` noise is resampled after the optimizer step, once
         per update as in Fortunato et al. (2018, section 3.1); None: no noise to resample.
+    :param autocast_dtype: the loss computed under ``torch.autocast`` in this type
+        (``torch.bfloat16``: the products and convolutions in bfloat16, the parameters, their
+        gradients and AdamW in float32, Micikevicius et al. 2018); a loss module's outputs must
+        then be read in float32 (:class:`~trl_cartpole.parts.fused_loss.FusedDQNLoss` does).
+        None: float32 throughout.
     :returns: this project's function ``update(batch) -> TensorDict(loss=[], grad_norm=[])``,
         with no Python-side state, so ``torch.compile`` can take it whole.
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
+    device_type = params[0].device.type if params else "cpu"
     if grad_clip not in ("value", "norm", "none"):
         raise ValueError(f"optim.grad_clip={grad_clip!r}; choose 'value', 'norm' or 'none'")
 
     def update(batch: TensorDictBase) -> TensorDict:
         optimizer.zero_grad(set_to_none=True)
-        loss = loss_module(batch)["loss"]  # [] (weighted mean over the batch)
+        with torch.autocast(device_type, autocast_dtype, enabled=autocast_dtype is not None):
+            loss = loss_module(batch)["loss"]  # [] (weighted mean over the batch)
         loss.backward()
         if grad_clip == "norm":
             grad_norm = nn.utils.clip_grad_norm_(params, max_grad, foreach=True)

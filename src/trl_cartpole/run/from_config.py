@@ -255,15 +255,19 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         eps=cfg.optim.eps,
     )
     fused = fuse_dqn_loss(loss) if loss_cfg.fused else None  # None: C51, noisy layers
+    autocast_dtype = None if cfg.optim.autocast == "none" else getattr(torch, cfg.optim.autocast)
     update = make_update(
         loss if fused is None else fused,
         optimizer,
         cfg.optim.grad_clip,
         cfg.optim.max_grad,
         noisy_network=actor if cfg.network.noisy else None,
+        autocast_dtype=autocast_dtype,
     )
     if cfg.compile:
-        lean = make_lean_update(loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad)
+        lean = make_lean_update(
+            loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad, autocast_dtype=autocast_dtype
+        )
         if lean is None and cfg.optim.lr_end is not None:  # validate's rule, for any other case
             raise ConfigError(
                 "optim.lr_end tapers the learning rate, which torch.compile of this update "
