@@ -372,7 +372,7 @@ def update_cost() -> str:
             *TABLE_HEAD,
             *(table_row(row) for row in run["rows"]),
             "",
-            summary_line(run),
+            summary_line(run) + _against_float32(run, record["runs"]),
             "",
         ]
     target = next(
@@ -389,6 +389,28 @@ def update_cost() -> str:
             f"{'met' if met else '**not met**'}."
         )
     return "\n".join([*parts, verdict])
+
+
+def _against_float32(run: dict, runs: list[dict]) -> str:
+    """For a run with ``optim.autocast=bfloat16``: its updates over the same run's in float32
+    (the measurement with the same overrides less that one), where both were recorded."""
+    from benchmarks.update_cost import COMPILED
+
+    autocast = "optim.autocast=bfloat16"
+    if autocast not in run["overrides"]:
+        return ""
+    plain = [override for override in run["overrides"] if override != autocast]
+    float32 = next((other for other in runs if other["overrides"] == plain), None)
+    if float32 is None:
+        return ""
+    eager = {r["name"]: r["total_ms"] for r in float32["rows"]}["dqn"]
+    short = {"dqn": "eager", COMPILED: "compiled"}
+    ratios = ", ".join(
+        f"{short[row['name']]} {row['total_ms'] / eager:.2f}"
+        for row in run["rows"]
+        if row["name"] in short
+    )
+    return f"; bfloat16 against float32 eager ({eager:.2f} ms): {ratios}"
 
 
 def train_listing() -> str:
