@@ -40,7 +40,7 @@ from torch.optim.adam import adam
 
 from trl_cartpole import defaults
 from trl_cartpole.parts.fused_loss import FusedDQNLoss, fuse_dqn_loss
-from trl_cartpole.parts.optim import make_update
+from trl_cartpole.parts.optim import autocast_context, make_update
 
 __all__ = ["make_lean_update"]
 
@@ -196,7 +196,7 @@ def _update_function(
     beta1, beta2 = group["betas"]
     eps, weight_decay, amsgrad = group["eps"], group["weight_decay"], group["amsgrad"]
     decoupled = group.get("decoupled_weight_decay", False)  # True for AdamW
-    device_type = group["params"][0].device.type
+    autocast = autocast_context(group["params"][0].device.type, autocast_dtype)
 
     def update(params, target_params, exp_avgs, exp_avg_sqs, max_exp_avg_sqs, steps, inputs, lr):
         def target(observation):  # [B, *obs] -> [B, A]
@@ -210,7 +210,7 @@ def _update_function(
                     fused._online, dict(zip(names, online_params, strict=True)), observation
                 )
 
-            with torch.autocast(device_type, autocast_dtype, enabled=autocast_dtype is not None):
+            with autocast():
                 return fused.compute(online, target, inputs)
 
         grads, (loss, td_error) = grad_and_value(loss_of, has_aux=True)(params)

@@ -6,7 +6,9 @@ sampled batch only, with no Python-side state, so ``torch.compile`` can take it 
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Iterable
+from functools import partial
 from typing import Any
 
 import torch
@@ -17,7 +19,7 @@ from trl_cartpole import defaults
 from trl_cartpole.parts.models import reset_network_noise
 from trl_cartpole.parts.tuned import resolve
 
-__all__ = ["make_optimizer", "make_update", "tapered_lr"]
+__all__ = ["autocast_context", "make_optimizer", "make_update", "tapered_lr"]
 
 
 def make_optimizer(
@@ -98,6 +100,19 @@ def tapered_lr(lr_start: float, lr_end: float, frames: int, decay_frames: int) -
     return lr_start + (lr_end - lr_start) * min(1.0, frames / decay_frames)
 
 
+def autocast_context(
+    device_type: str, dtype: torch.dtype | None
+) -> Callable[[], contextlib.AbstractContextManager]:
+    """``() -> torch.autocast(device_type, dtype)``, or a context that does nothing for None.
+
+    Not a disabled ``torch.autocast``: that one still puts its enter and exit calls into a
+    compiled graph, which keeps AOTAutograd from caching the graph on disk.
+    """
+    if dtype is None:
+        return contextlib.nullcontext
+    return partial(torch.autocast, device_type, dtype)
+
+
 def make_update(
     loss_module: Callable[[TensorDictBase], TensorDictBase],
     optimizer: torch.optim.Optimizer,
@@ -146,13 +161,13 @@ def make_update(
         with no Python-side state, so ``torch.compile`` can take it whole.
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
-    device_type = params[0].device.type if params else "cpu"
+    autocast = autocast_context(params[0].device.type if params else "cpu", autocast_dtype)
     if grad_clip not in ("value", "norm", "none"):
         raise ValueError(f"optim.grad_clip={grad_clip!r}; choose 'value', 'norm' or 'none'")
 
     def update(batch: TensorDictBase) -> TensorDict:
         optimizer.zero_grad(set_to_none=True)
-        with torch.autocast(device_type, autocast_dtype, enabled=autocast_dtype is not None):
+        with autocast():
             loss = loss_module(batch)["loss"]  # [] (weighted mean over the batch)
         loss.backward()
         if grad_clip == "norm":
