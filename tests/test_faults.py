@@ -524,31 +524,36 @@ def test_sigkill_mid_run_leaves_the_previous_checkpoint_loadable(python, tmp_pat
 # --- numerical faults ---------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("buffer", ["uniform", "prioritized"])
 def test_non_finite_loss_stops_with_the_update_named_and_keeps_the_last_good_checkpoint(
-    compose, tmp_path
+    compose, tmp_path, buffer
 ):
     from trl_cartpole.run.build import build_components
 
     def build_a_learner_that_fails_at_update_37(cfg, resume=None):
         components = build_components(cfg, resume)
         update, calls = components.learner.update, {"n": 0}
+        first_weight = components.learner.optimizer.param_groups[0]["params"][0]
 
-        def update_or_nan(batch):
+        def update_with_nan_weights(batch):  # a real divergence: loss and td_error NaN
             calls["n"] += 1
-            metrics = update(batch)
             if calls["n"] == 37:
-                metrics["loss"] = torch.tensor(float("nan"))
-            return metrics
+                with torch.no_grad():
+                    first_weight.fill_(float("nan"))
+            return update(batch)
 
-        components.learner.update = update_or_nan
+        components.learner.update = update_with_nan_weights
         return components
 
     run_dir = tmp_path / "run"
     overrides = [*SMOKE_OVERRIDES, "checkpoint.interval_frames=80", f"run_dir={run_dir}"]
+    if buffer == "prioritized":  # the NaN must not reach the priorities the next draw reads
+        overrides.append("buffer.prioritized=true")
     with pytest.raises(TrainingFailed, match=r"TD loss is nan at update 37 \(frame \d+\)"):
         train(compose(*overrides), build=build_a_learner_that_fails_at_update_37)
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["failed"] is True and "update 37" in summary["failure"]
+    assert summary["updates"] == 37  # the second update of that batch is not counted
     assert not (run_dir / "checkpoints" / "last").exists()  # no state with a NaN in it
     good = find_resume_checkpoint(run_dir)
     assert Checkpoint.manifest(good)["metadata"]["counters"]["updates"] < 37

@@ -62,13 +62,18 @@ class Learner:
         """Take ``count`` updates; raise :class:`TrainingFailed` on a non-finite TD loss.
 
         The losses and gradient norms stay tensors until the last update, then are read in
-        one go (no host read per update); a non-finite loss is reported with its update.
+        one go (no host read per update), except with a prioritized buffer: there each loss is
+        checked before its ``td_error`` becomes priorities (a NaN priority would break the
+        next draw). A non-finite loss is reported with its update, which is where
+        ``progress.updates`` stops.
         """
         report = UpdateReport(prioritized=self.prioritized)
         measured: list[torch.Tensor] = []  # [2] per update: loss, grad_norm
+        first_update = progress.updates + 1
         for sample in sample_minibatches(self.buffer, count):  # sample: [batch_size]
             metrics = self.update(sample)
             if self.prioritized:
+                self._check_finite(metrics["loss"].item(), progress.updates + 1, progress)
                 if self.loss.tensor_keys.priority not in sample.keys(True):
                     raise TrainingFailed(
                         f"the loss wrote no {self.loss.tensor_keys.priority!r} into the sample, "
@@ -76,20 +81,25 @@ class Learner:
                     )
                 self.buffer.update_tensordict_priority(sample)  # the loss wrote "td_error"
             self.target_updater.step()
+            progress.updates += 1
             measured.append(torch.stack((metrics["loss"], metrics["grad_norm"])))
             report.last_sample = sample
-        first_update = progress.updates + 1
-        progress.updates += len(measured)
         if measured:
             report.losses, report.grad_norms = torch.stack(measured).T.tolist()  # [2, count]
         for index, loss in enumerate(report.losses):
-            if not math.isfinite(loss):
-                raise TrainingFailed(
-                    f"TD loss is {loss} at update {first_update + index} (frame "
-                    f"{progress.frames}); training stopped"
-                )
+            self._check_finite(loss, first_update + index, progress)
         self.last_report = report
         return report
+
+    @staticmethod
+    def _check_finite(loss: float, update: int, progress: Progress) -> None:
+        """Raise :class:`TrainingFailed` naming ``update`` if ``loss`` is not finite; the
+        run's update count then ends at that update."""
+        if not math.isfinite(loss):
+            progress.updates = update
+            raise TrainingFailed(
+                f"TD loss is {loss} at update {update} (frame {progress.frames}); training stopped"
+            )
 
     def state_dict(self) -> dict[str, Any]:
         """The hard update's call counter (the networks and optimizer are saved on their own)."""
