@@ -50,7 +50,8 @@ def _learner(env, buffer, *, double: bool, amsgrad: bool, weight_decay: float):
 
 VARIANTS = {  # (n_steps, categorical, prioritized, double, amsgrad, weight decay, clip)
     "default": (3, False, False, False, True, 0.0, "norm"),
-    "double-prioritized-categorical": (1, True, True, True, False, 0.01, "value"),
+    # a large decoupled weight decay: an update that left it out would drift apart at once
+    "double-prioritized-categorical": (1, True, True, True, False, 0.5, "value"),
 }
 
 
@@ -167,6 +168,39 @@ def test_an_optimizer_loaded_from_its_state_dict_continues_as_if_never_saved():
     assert all(torch.equal(a, b) for a, b in zip(*runs, strict=True))
 
 
+def test_eager_and_compiled_updates_take_turns_on_one_optimizer_as_eager_alone():
+    # the same AdamW state either way: the eager update's state read by the compiled one and
+    # the other way round, as the library's two functions may share an optimizer
+    env, buffer = _buffer(3, False, False)
+    samples = [buffer.sample() for _ in range(6)]
+    runs = []
+    for mixed in (False, True):
+        actor, loss, optimizer = _learner(env, buffer, double=False, amsgrad=True, weight_decay=0.1)
+        eager = make_update(fuse_dqn_loss(loss), optimizer, "norm", 10.0)
+        lean = make_lean_update(loss, optimizer, "norm", 10.0)
+        for index, sample in enumerate(samples):
+            (lean if mixed and index % 2 else eager)(sample.clone())
+        runs.append([p.detach().clone() for p in actor.parameters()])
+        assert all(state["step"].item() == 6 for state in optimizer.state.values())
+    for mixed, alone in zip(runs[1], runs[0], strict=True):
+        torch.testing.assert_close(mixed, alone, rtol=1e-4, atol=1e-6)
+
+
+def test_a_changed_optimizer_setting_or_sample_kind_is_refused_not_ignored():
+    env, buffer = _buffer(1, False, False)
+    _, loss, optimizer = _learner(env, buffer, double=False, amsgrad=False, weight_decay=0.0)
+    lean = make_lean_update(loss, optimizer)
+    sample = buffer.sample()
+    lean(sample.clone())
+    weighted = sample.clone()
+    weighted.set("priority_weight", torch.ones(64))  # importance weights the first had not
+    with pytest.raises(ValueError, match="one update serves samples of one kind"):
+        lean(weighted)
+    optimizer.param_groups[0]["weight_decay"] = 0.1
+    with pytest.raises(ValueError, match="call make_lean_update again"):
+        lean(sample.clone())
+
+
 def test_what_it_does_not_cover_is_left_to_the_eager_update():
     env, _ = _buffer(1, False, False)
     noisy = make_q_actor(env.observation_spec, env.action_spec, noisy=True)
@@ -224,6 +258,10 @@ def test_bfloat16_autocast_runs_the_products_in_bfloat16_and_keeps_float32_state
     torch.testing.assert_close(
         results["bfloat16 compiled"], results["bfloat16 eager"], rtol=2e-2, atol=1e-3
     )
+    # the compiled update ran under autocast too: nearer bfloat16's losses than float32's
+    to_eager = (results["bfloat16 compiled"] - results["bfloat16 eager"]).abs().sum()
+    to_float32 = (results["bfloat16 compiled"] - results["float32"]).abs().sum()
+    assert to_eager < to_float32
 
 
 def test_autocast_is_refused_where_the_fused_loss_is_not_used(compose):

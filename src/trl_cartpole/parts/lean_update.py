@@ -47,10 +47,13 @@ __all__ = ["make_lean_update"]
 Tensors = list[torch.Tensor]
 
 # Dynamo's guards re-checked before each call: the tensors' metadata (dtype, shape, strides) and
-# the global state (grad mode, autocast) only; checking the rest (the closure's constants, the
-# networks' structure) cost about 40 us of a 0.6 ms update. That is safe because each update
-# function has a code object of its own (:func:`_own_code`): Dynamo keeps compiled graphs per
-# code object, so one built with other constants or another network is never reused here.
+# the global state (grad mode, autocast) only; checking the rest cost about 40 us of a 0.6 ms
+# update. What the others guarded is held fixed instead: each update function has a code object
+# of its own (:func:`_own_code`; Dynamo keeps compiled graphs per code object, so one built with
+# other constants or another network is never reused), the optimizer settings it compiled are
+# compared at each call (:func:`_fixed_settings`), and so are the sample's entries (the keys of
+# ``inputs``, whose guards are dropped too: a sample with importance weights or n-step lengths
+# the first did not have would have them ignored).
 _COMPILE_OPTIONS = {"guard_filter_fn": torch.compiler.keep_portable_guards_unsafe}
 _INSTANCES = itertools.count()
 
@@ -113,19 +116,35 @@ def make_lean_update(
         options=_COMPILE_OPTIONS,
     )
     eager = make_update(fused, optimizer, grad_clip, max_grad, autocast_dtype=autocast_dtype)
+    built_with = _fixed_settings(optimizer)
+    input_keys: list[tuple[str, ...]] = []  # the sample entries of the first call
 
     def update(batch: TensorDictBase) -> TensorDict:
         if fused.masked(batch):
             return eager(batch)  # TorchRL's own masked reduction, eagerly
+        if _fixed_settings(optimizer) != built_with:
+            raise ValueError(
+                "the optimizer's betas, eps, weight_decay, amsgrad or parameter groups changed "
+                "after make_lean_update compiled them: call make_lean_update again"
+            )
         fused.run_pre_hooks(batch)
+        inputs = fused.inputs(batch)
+        if not input_keys:
+            input_keys.append(tuple(inputs))
+        elif tuple(inputs) != input_keys[0]:
+            raise ValueError(
+                f"this sample gives the loss {sorted(inputs)}, and the update was compiled for "
+                f"{sorted(input_keys[0])} (n-step lengths, importance weights): one update "
+                "serves samples of one kind; make another for the other"
+            )
         group = optimizer.param_groups[0]
         state = _adam_state(optimizer, params, group["amsgrad"])
-        lr = torch.tensor(group["lr"], dtype=torch.float32)  # an input: a taper recompiles nothing
-        loss, grad_norm, td_error = step(
+        lr = torch.tensor(group["lr"], dtype=torch.float32, device=params[0].device)
+        loss, grad_norm, td_error = step(  # lr an input: a taper recompiles nothing
             [p.detach() for p in params],
             [p.detach() for p in target_params],
             *state,
-            fused.inputs(batch),
+            inputs,
             lr,
         )
         batch.set(loss_module.tensor_keys.priority, td_error, inplace=True)
@@ -141,6 +160,21 @@ def _own_code(function: Callable) -> Callable:
     code = code.replace(co_name=f"{code.co_name}_{next(_INSTANCES)}")
     return types.FunctionType(
         code, function.__globals__, code.co_name, function.__defaults__, function.__closure__
+    )
+
+
+def _fixed_settings(optimizer: torch.optim.Optimizer) -> tuple:
+    """What the compiled function holds fixed of ``optimizer``: its groups and the first
+    group's settings other than the learning rate."""
+    group = optimizer.param_groups[0]
+    return (
+        len(optimizer.param_groups),
+        tuple(group["betas"]),
+        group["eps"],
+        group["weight_decay"],
+        group["amsgrad"],
+        group.get("decoupled_weight_decay", False),
+        group["maximize"],
     )
 
 
@@ -189,9 +223,9 @@ def _update_function(
     Of ``(params, target_params, exp_avgs, exp_avg_sqs, max_exp_avg_sqs, steps, inputs, lr)``
     it returns ``(loss [], grad_norm [], td_error [B, 1])`` and steps ``params`` and the state
     tensors in place. The group's constant hyper-parameters (betas, eps, weight decay) are
-    read once here, as are the loss's switches (``double_dqn``, the action space) and the
-    networks' layers, at the first call; a change to them after that is not seen (the learning
-    rate and gamma, tensors, are read at each call).
+    read once here (the update refuses to run once they change, :func:`_fixed_settings`), as
+    are the loss's switches (``double_dqn``, the action space) and the networks' layers at the
+    first call; the learning rate and gamma, tensors, are read at each call.
     """
     beta1, beta2 = group["betas"]
     eps, weight_decay, amsgrad = group["eps"], group["weight_decay"], group["amsgrad"]
