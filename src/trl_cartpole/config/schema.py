@@ -181,8 +181,8 @@ class OptimConfig:
     # (null: lr the whole run)
     lr_end: float | None = None
     lr_decay_frames: int | None = None  # frames to reach lr_end; null: collector.total_frames
-    # none | bfloat16: the update's network passes under torch.autocast in that type (the CNN
-    # presets' convolutions about 0.6x the time on a CPU with AVX-512 BF16; docs/performance.md)
+    # none | bfloat16: the update's network passes under torch.autocast in that type (Breakout's
+    # whole update about two thirds of the time on a CPU with AVX-512 BF16; docs/performance.md)
     autocast: str = "none"
 
 
@@ -259,7 +259,7 @@ class Config:
     run_dir: str = "runs/${run_env:}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
     device: str = "cpu"  # cpu | cuda | cuda:N (networks, losses and the replay buffer)
     num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
-    compile: bool = False  # the whole gradient step compiled (3-5 s once; docs/performance.md)
+    compile: bool = False  # the whole gradient step compiled (3-25 s once; docs/performance.md)
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
