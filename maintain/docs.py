@@ -54,7 +54,8 @@ ATARI_RECORDS = (
         "The preset as it is (`env=breakout`: 80 000 steps, batches of 4 steps and 4 updates, "
         "plain DQN targets); seeds 103, 104 and 105 named for it before any ran, each "
         "training on one core (103 and 104 side by side for their first 17 minutes, 104 beside "
-        "test runs for about 40 minutes of its second hour)",
+        "test runs for about 40 minutes of its second hour, 105 on a faster AMD EPYC beside "
+        "other runs on its second core)",
     ),
 )
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
