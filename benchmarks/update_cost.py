@@ -200,9 +200,7 @@ def time_learner(
         _learner_batch(compiled, 1)  # the first call compiles
         others.setdefault("compile_s", []).append(time.perf_counter() - start)
         contenders["compiled"] = lambda count: _learner_batch(compiled, count)
-    plain = (
-        cfg.network.head == "plain" and not cfg.network.noisy and not cfg.network.distributional
-    )
+    plain = cfg.network.head == "plain" and not cfg.network.noisy and not cfg.network.distributional
     if others is not None and plain and "observation" in env.observation_spec:  # a plain MLP
         raw_step = raw_update(cfg, *_sizes(env))
         contenders["raw"] = lambda count: _raw_batch(raw_step, count)
