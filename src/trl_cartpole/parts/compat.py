@@ -101,6 +101,9 @@ def set_worker_carriers(collector: BaseCollector, carriers: list[TensorDictBase]
 # --- Gymnasium envs behind TorchRL's GymWrapper ----------------------------------------------
 
 
+PARTIAL_STEP_KEY = "_step"  # env.step steps only the envs marked True here (TorchRL's rollout)
+
+
 def gym_env(env: EnvBase) -> Any:
     """The Gymnasium env (or vector env) behind ``env``'s ``GymWrapper``."""
     return env.base_env._env

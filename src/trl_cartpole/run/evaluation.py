@@ -32,9 +32,10 @@ from torchrl.envs import (
     set_exploration_type,
 )
 from torchrl.envs.transforms import VecGymEnvTransform
+from torchrl.envs.utils import step_mdp
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
-from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.parts.compat import PARTIAL_STEP_KEY, gym_env
 from trl_cartpole.parts.earlier_forms import upgrade_evaluator_state
 from trl_cartpole.parts.env import OBSERVATION_KEY
 from trl_cartpole.parts.models import expected_action_values
@@ -266,20 +267,43 @@ def evaluate(
 def evaluate_with_rollout(
     actor: TensorDictModuleBase, env: EnvBase, max_steps: int, epsilon: float
 ) -> EvalResult:
-    """:func:`evaluate` through TorchRL's ``env.rollout`` (any env, any epsilon)."""
+    """:func:`evaluate` through TorchRL's env steps (any env, any epsilon).
+
+    The steps of ``env.rollout(max_steps, policy, break_when_all_done=True)``: each env is
+    stepped until its first episode ends, then left (TorchRL's partial step), until all have
+    ended. Only each env's return, length and first action values are kept, not the trajectory:
+    a batch of Atari games near ALE's 108 000-frame cap would hold gigabytes of frames.
+    """
     policy = actor
     if epsilon > 0:
         policy = TensorDictSequential(actor, EpsilonGreedy(env.action_spec, epsilon))
+    shape = env.batch_size  # [E], or [] for a single env
+    returns = torch.zeros(shape.numel())  # [E]
+    lengths = torch.zeros(shape.numel(), dtype=torch.long)  # [E]
+    running = torch.ones(shape.numel(), dtype=torch.bool)  # [E] still in its first episode
+    initial_q = None
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        rollout = env.rollout(max_steps, policy, break_when_all_done=True)  # [E, T]
-    if rollout.ndim == 1:  # a single, unbatched env: [T] -> [1, T]
-        rollout = rollout.unsqueeze(0)
-    first = first_episode_mask(rollout["next", "done"].squeeze(-1))  # [E, T]
-    rewards = rollout["next", "reward"].squeeze(-1)  # [E, T]
-    initial_q = expected_action_values(actor, rollout["action_value"][:, 0])  # [E, num_actions]
+        tensordict = env.reset()
+        for step in range(max_steps):
+            tensordict.update(policy(tensordict))
+            if initial_q is None:
+                values = tensordict["action_value"]  # [E, num_actions(, atoms)] or unbatched
+                initial_q = expected_action_values(
+                    actor, values.reshape(-1, *values.shape[len(shape) :])
+                )
+            tensordict = env.step(tensordict)
+            reward = tensordict["next", "reward"].reshape(-1)  # [E]
+            done = tensordict["next", "done"].reshape(-1)  # [E]
+            returns += reward * running
+            lengths += running
+            running &= ~done
+            if not running.any() or step == max_steps - 1:
+                break
+            tensordict = step_mdp(tensordict)
+            tensordict.set(PARTIAL_STEP_KEY, running.view(shape))  # the ended envs wait
     return EvalResult(
-        returns=(rewards * first).sum(-1).tolist(),
-        lengths=first.sum(-1).tolist(),
+        returns=returns.tolist(),
+        lengths=lengths.tolist(),
         initial_values=initial_q.max(-1).values.tolist(),
     )
 
