@@ -162,3 +162,21 @@ def test_soft_update_pairs_are_the_online_and_target_parameters_in_order():
     assert len(sources) == len(targets) == len(online) > 0
     assert all(s.shape == t.shape for s, t in zip(sources, targets, strict=True))
     assert {s.data_ptr() for s in sources} == {p.data_ptr() for p in online}
+
+
+def test_a_partial_step_leaves_the_unmarked_envs_and_the_next_input_is_rollouts():
+    from torchrl.envs import SerialEnv
+
+    env = SerialEnv(2, lambda: make_env("CartPole-v1", seed=0))
+    env.set_seed(0)
+    first = env.reset()
+    first["action"] = env.action_spec.zero()  # [2, 2] one-hot
+    first["action"][..., 0] = 1
+    first.set(compat.PARTIAL_STEP_KEY, torch.tensor([True, False]))
+    stepped = env.step(first)
+    following = compat.next_step_input(env, stepped)
+    moved = (following["observation"] != first["observation"]).any(-1)  # [2]
+    assert moved.tolist() == [True, False]  # the second env was not stepped
+    # what the policy reads next: the next observation, as env.rollout's step_mdp gives it
+    assert torch.equal(following["observation"][0], stepped["next", "observation"][0])
+    env.close()

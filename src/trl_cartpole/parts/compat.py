@@ -104,6 +104,16 @@ def set_worker_carriers(collector: BaseCollector, carriers: list[TensorDictBase]
 PARTIAL_STEP_KEY = "_step"  # env.step steps only the envs marked True here (TorchRL's rollout)
 
 
+def next_step_input(env: EnvBase, stepped: TensorDictBase) -> TensorDictBase:
+    """What the policy reads after ``env.step``: ``env.step_mdp`` and the env's post-step-mdp
+    hooks (its transforms'), as TorchRL's ``env.rollout`` makes it."""
+    following = env.step_mdp(stepped)
+    hooks = env._post_step_mdp_hooks
+    if hooks is not None:
+        _, following = hooks(stepped, following)
+    return following
+
+
 def gym_env(env: EnvBase) -> Any:
     """The Gymnasium env (or vector env) behind ``env``'s ``GymWrapper``."""
     return env.base_env._env

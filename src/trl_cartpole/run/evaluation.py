@@ -32,10 +32,9 @@ from torchrl.envs import (
     set_exploration_type,
 )
 from torchrl.envs.transforms import VecGymEnvTransform
-from torchrl.envs.utils import step_mdp
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
-from trl_cartpole.parts.compat import PARTIAL_STEP_KEY, gym_env
+from trl_cartpole.parts.compat import PARTIAL_STEP_KEY, gym_env, next_step_input
 from trl_cartpole.parts.earlier_forms import upgrade_evaluator_state
 from trl_cartpole.parts.env import OBSERVATION_KEY
 from trl_cartpole.parts.models import expected_action_values
@@ -299,7 +298,7 @@ def evaluate_with_rollout(
             running &= ~done
             if not running.any() or step == max_steps - 1:
                 break
-            tensordict = step_mdp(tensordict)
+            tensordict = next_step_input(env, tensordict)
             tensordict.set(PARTIAL_STEP_KEY, running.view(shape))  # the ended envs wait
     return EvalResult(
         returns=returns.tolist(),
