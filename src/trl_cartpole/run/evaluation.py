@@ -51,7 +51,6 @@ __all__ = [
     "evaluate",
     "evaluate_on_vector_env",
     "evaluate_with_rollout",
-    "first_episode_mask",
     "play_greedy_episodes",
 ]
 
@@ -81,15 +80,6 @@ class EvalResult:
     @property
     def initial_value(self) -> float:
         return float(torch.tensor(self.initial_values).mean())
-
-
-def first_episode_mask(done: torch.Tensor) -> torch.Tensor:
-    """``[E, T]`` bool: True for the steps of each env's first episode, its last step included.
-
-    ``done`` is ``[E, T]``; a step belongs to the first episode while no earlier step was done.
-    """
-    done = done.long()
-    return (done.cumsum(-1) - done) == 0
 
 
 class EpsilonGreedy(TensorDictModuleBase):
