@@ -8,11 +8,11 @@
 ``OUT/policy.pt2`` (``torch.export``), plays ``--games`` whole games of the run's game in a
 loop of Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``,
 ``AtariPreprocessing`` (30 NOOPs, frame skip 4, 84x84 gray) and ``FrameStackObservation(4)``;
-the one rule of this project's preprocessing Gymnasium has no wrapper for, FIRE after a reset
-and after a lost life, is three lines of the loop. The stacks then differ a little from the
-project's for three steps after each FIRE: here the FIRE step's frame is pushed onto the stack
-of the frame before it, where the project's stack after a reset is the FIRE frame four times and
-drops the lost life's frame. Prints the mean score over the games beside
+the one rule of this project's preprocessing Gymnasium has no wrapper for, ``fire_steps`` FIRE
+steps after a reset and after a lost life, is a few lines of the loop. The stacks then differ a
+little from the project's for three steps after each FIRE: here the frames of the lost life and
+of each FIRE step are pushed onto the stack, where the project's stack gets only the last FIRE
+step's frame (four times after a reset). Prints the mean score over the games beside
 the run's own final evaluation (``summary.json``); ``--record`` writes each run's summary with
 its plain-loop scores, and where and when they were measured, to a results file (docs/atari.md
 is generated from it).
@@ -39,6 +39,7 @@ from torchrl.envs.utils import step_mdp
 
 from trl_cartpole.config.compose import compose_config
 from trl_cartpole.env_ids import register_atari_games
+from trl_cartpole.parts.atari import ATARI_DEFAULTS
 
 SEEDS = [0]
 OUT = "runs/bench/atari"
@@ -56,8 +57,6 @@ def _gymnasium_game(env_id: str, make_kwargs: dict, atari: dict | None = None) -
     """Gymnasium's own preprocessing with the run's ``env.atari`` settings (the defaults
     without it)."""
     from gymnasium.wrappers import AtariPreprocessing, FrameStackObservation
-
-    from trl_cartpole.parts.atari import ATARI_DEFAULTS
 
     settings = {**ATARI_DEFAULTS, **(atari or {})}
     register_atari_games()
@@ -81,21 +80,25 @@ def play_in_gymnasium(program: Path, config: dict, games: int, seed: int) -> lis
     meanings = env.unwrapped.get_action_meanings()
     fires = atari.get("fire_on_reset", True) and "FIRE" in meanings
     fire = meanings.index("FIRE") if fires else None
+    fire_steps = atari.get("fire_steps", ATARI_DEFAULTS["fire_steps"])
     scores = []
     for game in range(games):
         observation, info = env.reset(seed=seed + game)
-        score, lives, over = 0.0, info["lives"], False
-        if fire is not None:  # FIRE after the reset, as the project's FireOnReset
-            observation, reward, over, truncated, info = env.step(fire)
-            score, lives, over = score + reward, info["lives"], over or truncated
+        score, lives, over, fire_due = 0.0, info["lives"], False, fire is not None
         while not over:
-            with torch.no_grad():
-                values = network(torch.from_numpy(np.asarray(observation))[None])  # [1, A]
-            observation, reward, terminated, truncated, info = env.step(int(values.argmax()))
-            score, over = score + reward, terminated or truncated
-            if fire is not None and not over and info["lives"] < lives:  # and after a lost life
-                observation, reward, terminated, truncated, info = env.step(fire)
+            firing = fire_due
+            if firing:  # FIRE after the reset and after a lost life, as FireOnReset
+                action, steps = fire, fire_steps
+            else:
+                with torch.no_grad():
+                    values = network(torch.from_numpy(np.asarray(observation))[None])  # [1, A]
+                action, steps = int(values.argmax()), 1
+            for _ in range(steps):
+                observation, reward, terminated, truncated, info = env.step(action)
                 score, over = score + reward, terminated or truncated
+                if over:
+                    break
+            fire_due = fire is not None and not firing and not over and info["lives"] < lives
             lives = info["lives"]
         scores.append(score)
     env.close()

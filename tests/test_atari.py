@@ -77,16 +77,43 @@ def test_the_preprocessing_gives_gymnasiums_frames_rewards_and_ends():
 
 
 def test_noop_starts_and_fire_count_their_frames():
-    """After a reset: 1 to noop_max NOOP frames (drawn from the game's seeded RNG), then FIRE
-    held for the frame skip (4)."""
+    """After a reset: 1 to noop_max NOOP frames (drawn from the game's seeded RNG), then two
+    FIRE steps, each held for the frame skip (4)."""
     counts = set()
     for seed in range(6):
         env = make_atari_env(BREAKOUT, seed=seed, preprocessing={"noop_max": 5})
         env.reset()
         ale = gym_env(env).unwrapped.ale
-        counts.add(ale.getEpisodeFrameNumber() - 4)
+        counts.add(ale.getEpisodeFrameNumber() - 2 * 4)
         env.close()
     assert counts <= set(range(1, 6)) and len(counts) > 1
+
+
+def test_a_lost_life_is_followed_by_fire_steps_fire_steps_in_the_same_step():
+    """``fire_steps`` FIRE steps of 4 frames after the reset and inside the step that loses a
+    life: the next state the policy sees is the served game's."""
+    env = make_atari_env(
+        BREAKOUT,
+        seed=0,
+        repeat_action_probability=0.0,
+        preprocessing={"noop_max": 0, "fire_steps": 3},
+    )
+    state = env.reset()
+    ale = gym_env(env).unwrapped.ale
+    assert ale.getEpisodeFrameNumber() == 3 * 4
+    jumps = []
+    for _ in range(2000):
+        state["action"] = torch.tensor(0)  # NOOP: the paddle stays, the served ball is lost
+        before = ale.getEpisodeFrameNumber()
+        stepped = env.step(state)
+        jumps.append((ale.getEpisodeFrameNumber() - before, bool(stepped["next", EOL_KEY])))
+        if stepped["next", EOL_KEY]:
+            break
+        state = step_mdp(stepped)
+    assert jumps[-1] == (4 + 3 * 4, True)  # the lost life's step, then three FIRE steps
+    assert {jump for jump, _ in jumps[:-1]} == {4}
+    with pytest.raises(ValueError, match="steps=0 must be >= 1"):
+        make_atari_env(BREAKOUT, preprocessing={"fire_steps": 0})
 
 
 def test_a_lost_life_fires_again_and_the_game_goes_on():

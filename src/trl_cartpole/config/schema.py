@@ -50,8 +50,10 @@ class AtariConfig:
     frame_skip: int = 4  # frames each action is held; the max of the last two is seen
     screen_size: int = 84  # the screen resized to screen_size x screen_size gray (INTER_AREA)
     frames: int = 4  # the last N screens stacked (CatFrames)
-    # one FIRE step after a reset and after a lost life, where the game has FIRE
+    # FIRE steps after a reset and after a lost life, where the game has FIRE
     fire_on_reset: bool = True
+    # 2: sticky actions swallow one 4-frame FIRE step once in 256 and the game would wait
+    fire_steps: int = 2
     life_loss_ends: bool = True  # a lost life ends the learner's episode (never the game)
     clip_rewards: bool = True  # the learner's rewards clipped to their sign (the score is not)
 

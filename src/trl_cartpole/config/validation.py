@@ -264,6 +264,11 @@ def _atari_rules(cfg: Config) -> list[tuple[bool, str]]:
         (atari.screen_size >= 8, f"env.atari.screen_size={atari.screen_size} must be >= 8"),
         (atari.frames >= 1, f"env.atari.frames={atari.frames} must be >= 1"),
         (
+            atari.fire_steps >= 1,
+            f"env.atari.fire_steps={atari.fire_steps} must be >= 1 (no FIRE: "
+            "env.atari.fire_on_reset=false)",
+        ),
+        (
             not {"frameskip", "obs_type"} & set(cfg.env.make_kwargs),
             "env.make_kwargs: frameskip and obs_type are the Atari preprocessing's (ALE's "
             "frameskip=1, grayscale); set env.atari.frame_skip instead",
