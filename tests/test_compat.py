@@ -95,6 +95,16 @@ def test_weight_sync_schemes_attribute_exists_and_closing_them_is_safe():
     compat.close_weight_sync_schemes(collector)
 
 
+def test_only_a_synchronous_ray_collector_counts_as_one():
+    # the Ray case itself (RayCollector._sync read on a live one) is the slow resume test's
+    # test_resumed_run_equals_the_uninterrupted_one[ray]: a moved name makes its actors start
+    # new episodes there
+    env = make_env("CartPole-v1", seed=0)
+    collector = make_collector(env, None, frames_per_batch=8, total_frames=16)
+    assert not compat.is_synchronous_ray_collector(collector)
+    collector.shutdown()
+
+
 def test_first_greedy_action_breaks_ties_with_a_single_one_hot():
     env = make_env("CartPole-v1", seed=0)
     actor = make_q_actor(env.observation_spec, env.action_spec, support=torch.linspace(0.0, 1.0, 5))

@@ -147,6 +147,15 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
                 pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
             ],
         ),
+        # two Ray actors (a Ray instance started here): each actor's envs, carrier and RNG
+        # through RayCollector's own remote calls, between two synchronous batches
+        pytest.param(
+            ["collector.workers=2", "env.num_envs=2", "collector.backend=ray"],
+            marks=[
+                pytest.mark.slow,
+                pytest.mark.skipif(find_spec("ray") is None, reason="the distributed extra"),
+            ],
+        ),
     ],
     ids=[
         "dqn",
@@ -159,6 +168,7 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         "pixels-workers",
         "breakout",
         "breakout-workers",
+        "ray",
     ],
 )
 def test_resumed_run_equals_the_uninterrupted_one(compose, tmp_path, overrides):

@@ -10,6 +10,8 @@ Private names read (each through one function below):
   (the env's mid-episode step), saved for an exact resume; a multi-process collector's
   workers' carriers are read and written by that name through its ``get_distant_attr`` and
   ``map_fn`` (tested with worker processes in tests/test_worker_state.py);
+- ``RayCollector._sync``: whether a Ray collector asks every actor for a batch and waits for all
+  (its actors then idle between batches, when a checkpoint reads them);
 - ``VecGymEnvTransform._memo``: the last step of a Gymnasium vector env's same-step autoreset,
   which decides what the next ``reset()`` returns;
 - ``ReplayBuffer._transform`` and ``MultiStepTransform._buffer``: the n-step window the
@@ -38,6 +40,7 @@ Stand-ins for TorchRL parts:
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from functools import partial
 from typing import Any
@@ -96,6 +99,16 @@ def worker_carriers(collector: BaseCollector) -> list[TensorDictBase]:
 def set_worker_carriers(collector: BaseCollector, carriers: list[TensorDictBase]) -> None:
     """Update each worker's carrier in place from ``carriers`` (the collector's ``map_fn``)."""
     collector.map_fn("_carrier.update", [(carrier,) for carrier in carriers])
+
+
+def is_synchronous_ray_collector(collector: BaseCollector) -> bool:
+    """Whether ``collector`` is TorchRL's ``RayCollector`` in its synchronous mode: each batch
+    asks every actor for its part and waits for all, so the actors idle between batches."""
+    if "ray" not in sys.modules:  # a RayCollector has imported Ray; no need to import it here
+        return False
+    from torchrl.collectors.distributed import RayCollector
+
+    return isinstance(collector, RayCollector) and bool(collector._sync)
 
 
 # --- Gymnasium envs behind TorchRL's GymWrapper ----------------------------------------------

@@ -32,6 +32,7 @@ from trl_cartpole.store.checkpoint import (
     save_training_state,
     state_bytes,
 )
+from trl_cartpole.store.collection_state import EnvState
 from trl_cartpole.store.files import free_bytes, megabytes, tree_bytes
 
 __all__ = ["Checkpointer"]
@@ -181,7 +182,11 @@ class Checkpointer:
 
     def stop_for_lost_worker(self, progress: Progress, lost: str) -> WorkerLost:
         """Save a periodic state of the batches trained so far; return the error that ends the
-        run, naming the ``lost`` worker and the resume command."""
+        run, naming the ``lost`` worker and the resume command. The workers' envs are left out
+        of it (a lost worker never answers): a resume starts their episodes anew."""
+        envs = self.components.get("envs")
+        if isinstance(envs, EnvState):
+            envs.forget_workers()
         self._save_periodic(progress)
         return WorkerLost(
             f"{lost}; the run stopped at frame {progress.frames} with a checkpoint; resume with: "

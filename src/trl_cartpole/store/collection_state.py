@@ -50,12 +50,21 @@ class EnvState:
         self.env, self.eval_env = env, eval_env  # env: None when workers hold the training envs
         self.collector, self.buffer = collector, buffer
         self.trust_pickle = trust_pickle
+        self.workers_answer = True  # False once a worker or Ray actor is lost
+
+    def forget_workers(self) -> None:
+        """A worker or Ray actor is lost: the next checkpoints do not ask the workers for their
+        envs (a lost one never answers), and a resume from them starts the workers' episodes
+        anew."""
+        self.workers_answer = False
 
     def state_dict(self) -> dict[str, Any]:
         window = n_step_window(self.buffer)
         in_process = self.env is not None  # else the training envs live in the workers
         return {
-            "workers": None if in_process else worker_states(self.collector),
+            "workers": None
+            if in_process or not self.workers_answer
+            else worker_states(self.collector),
             "env": env_snapshot(self.env, self.trust_pickle) if in_process else None,
             "eval_env": env_snapshot(self.eval_env, self.trust_pickle),
             "env_autoreset": autoreset_snapshot(self.env) if in_process else None,
@@ -71,7 +80,8 @@ class EnvState:
             restored["env"] = restore_worker_states(self.collector, state.get("workers"))
             if not restored["env"]:
                 warnings.warn(
-                    "collection runs in Ray actors, asynchronous workers or worker envs whose "
+                    "collection runs in asynchronous workers or Ray actors (collector.sync="
+                    "false: no moment between batches to read them), or in worker envs whose "
                     "state is not stored as data: the resumed run's workers start new episodes "
                     "(not an exact continuation)",
                     stacklevel=2,

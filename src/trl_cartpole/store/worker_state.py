@@ -10,9 +10,11 @@ its vector env's autoreset memo and its torch RNG state; ``restore()`` puts them
 
 The training process calls them with the collector's own ``map_fn`` and reads and writes each
 worker's carrier with ``get_distant_attr`` / ``map_fn`` (TorchRL's remote-call methods on its
-worker pipes), between two batches, when every worker of a synchronous collector waits for
-the next ``continue``. A ``MultiAsyncCollector``'s workers collect ahead and Ray actors are
-not reached this way: their resumed runs start new episodes.
+worker pipes, and on its Ray actors: ``RayCollector`` has both, calling each actor's
+``cascade_execute``), between two batches, when every worker of a synchronous collector waits
+for the next ``continue`` (a synchronous ``RayCollector`` asks its actors for nothing between
+two batches). A ``MultiAsyncCollector``'s workers and an asynchronous ``RayCollector``'s actors
+collect ahead, so they have no such moment: their resumed runs start new episodes.
 """
 
 from __future__ import annotations
@@ -24,7 +26,11 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector, MultiSyncCollector
 from torchrl.envs import Transform
 
-from trl_cartpole.parts.compat import set_worker_carriers, worker_carriers
+from trl_cartpole.parts.compat import (
+    is_synchronous_ray_collector,
+    set_worker_carriers,
+    worker_carriers,
+)
 from trl_cartpole.store.env_state import (
     autoreset_snapshot,
     env_snapshot,
@@ -70,8 +76,8 @@ class WorkerSnapshot(Transform):
 
 
 def _reachable(collector: BaseCollector) -> bool:
-    """Whether ``collector``'s workers are processes that wait between batches."""
-    return isinstance(collector, MultiSyncCollector)
+    """Whether ``collector``'s workers (processes or Ray actors) wait between batches."""
+    return isinstance(collector, MultiSyncCollector) or is_synchronous_ray_collector(collector)
 
 
 def worker_states(collector: BaseCollector) -> list[dict[str, Any]] | None:
