@@ -131,6 +131,21 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
                 pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
             ],
         ),
+        # the preset's one game, whose collector's own state is saved with it
+        pytest.param(
+            [
+                "env=breakout",
+                "env.num_envs=1",
+                "buffer.size=1000",
+                "eval.max_steps=300",
+                "eval.candidates=1",
+                "logger.plots=false",
+            ],
+            marks=[
+                pytest.mark.slow,
+                pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
+            ],
+        ),
         # and in two worker processes, a batch of 2 games each
         pytest.param(
             [
@@ -167,6 +182,7 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         "pixels",
         "pixels-workers",
         "breakout",
+        "breakout-one-game",
         "breakout-workers",
         "ray",
     ],
