@@ -50,6 +50,13 @@ VARIANTS = {
     "two-workers": ["collector.workers=2", "env.num_envs=16"],
     # Box2D's state is not plain data: the envs play their logged episodes again
     "lunarlander": ["env=lunarlander", "collector.total_frames=8000", "eval.max_steps=300"],
+    # two Ray actors on a Ray instance each life starts (the kill takes its session with it)
+    "ray": [
+        "collector.workers=2",
+        "env.num_envs=16",
+        "collector.backend=ray",
+        "collector.total_frames=8000",
+    ],
     # drawn frames stacked by CatFrames, a share painted by Gymnasium, a CNN: a short budget
     "pixels": [
         "env=cartpole_pixels",

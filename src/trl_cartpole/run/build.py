@@ -235,6 +235,8 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         )
         if resume is not None:
             components.checkpointer.load(resume, components.progress)
+            if components.sync_policy_weights:  # the workers got the weights before the load
+                components.collector.update_policy_weights_()
         on_error.pop_all()
     components.progress_bar.open(components.progress.frames)
     return components
