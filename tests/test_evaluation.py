@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import weakref
 
 import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.data import OneHot
+from torchrl.envs import Transform
 
 from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import make_env
@@ -113,3 +115,39 @@ def test_evaluate_refuses_unreadable_or_impossible_arguments_in_one_line(
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr[-1500:]
     assert not output.exists()
+
+
+class _ObservationsAlive(Transform):
+    """Gives each step's observation a tensor of its own and counts, at every step, how many
+    of the earlier ones something still holds (weak references: a kept trajectory holds
+    them all)."""
+
+    def __init__(self) -> None:
+        super().__init__(in_keys=[], out_keys=[])
+        self.made: list[weakref.ref] = []
+        self.most_alive = 0
+
+    def _own(self, tensordict):
+        observation = tensordict["observation"].clone()
+        self.made.append(weakref.ref(observation))
+        self.most_alive = max(self.most_alive, sum(ref() is not None for ref in self.made))
+        return tensordict.set("observation", observation)
+
+    def _step(self, tensordict, next_tensordict):
+        return self._own(next_tensordict)
+
+    def _reset(self, tensordict, tensordict_reset):
+        return self._own(tensordict_reset)
+
+
+def test_an_evaluation_holds_a_few_steps_not_the_episode():
+    # MountainCar's episodes last their 200-step limit under an untrained greedy policy: an
+    # evaluation that kept its trajectory (as env.rollout does) would hold all 200 steps
+    env = make_env("MountainCar-v0", seed=0).append_transform(_ObservationsAlive())
+    actor = make_q_actor(env.observation_spec, env.action_spec)
+    counter = env.transform[-1]
+    result = evaluate_with_rollout(actor, env, max_steps=1000, epsilon=0.0)
+    assert result.lengths == [200]
+    assert len(counter.made) == 201 and counter.most_alive <= 4
+    kept = env.rollout(200, actor)  # the trajectory kept: every observation alive at once
+    assert kept.shape == (200,) and counter.most_alive >= 200
