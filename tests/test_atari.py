@@ -417,3 +417,13 @@ def test_frames_stored_once_take_single_adds_refuse_rows_written_twice_and_empty
         buffer.storage.set(torch.tensor([0, 0]), buffer.storage.get(torch.tensor([1, 2])))
     buffer.empty()
     assert len(buffer) == 0 and buffer.storage.pool is None
+
+
+def test_a_run_saved_before_fire_steps_keeps_its_one_fire_step():
+    from trl_cartpole.parts.earlier_forms import upgrade_stored_config
+
+    saved = {"env": {"id": BREAKOUT, "atari": {"noop_max": 30, "fire_on_reset": True}}}
+    assert upgrade_stored_config(saved)["env"]["atari"]["fire_steps"] == 1
+    assert "fire_steps" not in saved["env"]["atari"]  # the caller's dict is left as it was
+    today = {"env": {"id": BREAKOUT, "atari": {"fire_on_reset": True, "fire_steps": 2}}}
+    assert upgrade_stored_config(today) == today

@@ -6,6 +6,8 @@ compatibility module reads it, and that reading and writing it does what the cal
 
 from __future__ import annotations
 
+import inspect
+
 import gymnasium as gym
 import pytest
 import torch
@@ -96,9 +98,16 @@ def test_weight_sync_schemes_attribute_exists_and_closing_them_is_safe():
 
 
 def test_only_a_synchronous_ray_collector_counts_as_one():
-    # the Ray case itself (RayCollector._sync read on a live one) is the slow resume test's
-    # test_resumed_run_equals_the_uninterrupted_one[ray]: a moved name makes its actors start
-    # new episodes there
+    # a live Ray collector is the slow tier's (test_resumed_run_equals_the_uninterrupted_one
+    # [ray]); here, without starting Ray: where RayCollector keeps its sync flag, and the answer
+    # for each flag and for a collector of another kind
+    pytest.importorskip("ray")
+    ray_module = pytest.importorskip("torchrl.collectors.distributed.ray")
+    assert "self._sync = sync" in inspect.getsource(ray_module.RayCollector.__init__)
+    for sync in (True, False):
+        ray_collector = object.__new__(ray_module.RayCollector)
+        ray_collector._sync = sync
+        assert compat.is_synchronous_ray_collector(ray_collector) is sync
     env = make_env("CartPole-v1", seed=0)
     collector = make_collector(env, None, frames_per_batch=8, total_frames=16)
     assert not compat.is_synchronous_ray_collector(collector)

@@ -148,6 +148,6 @@ def test_an_evaluation_holds_a_few_steps_not_the_episode():
     counter = env.transform[-1]
     result = evaluate_with_rollout(actor, env, max_steps=1000, epsilon=0.0)
     assert result.lengths == [200]
-    assert len(counter.made) == 201 and counter.most_alive <= 4
+    assert len(counter.made) == 201 and counter.most_alive <= 3  # 2 here
     kept = env.rollout(200, actor)  # the trajectory kept: every observation alive at once
     assert kept.shape == (200,) and counter.most_alive >= 200

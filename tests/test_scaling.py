@@ -691,6 +691,8 @@ def test_a_killed_ray_actor_stops_the_run_with_a_checkpoint_that_resumes(tmp_pat
     )
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert json.loads((run_dir / "summary.json").read_text())["frames"] >= frames + 4000
+    # the actors' envs were not read once one was lost: new episodes, and the warning says why
+    assert "after a worker or Ray actor was lost" in resumed.stdout + resumed.stderr
 
 
 # --- the run's own Ray instance stays closed ------------------------------------------------

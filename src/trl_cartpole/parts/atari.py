@@ -224,7 +224,9 @@ class FireOnReset(Transform):
         stepped = self._fire(tensordict_reset)
         self.lives_before.fill_(self._lives())
         if stepped.get("done").any():  # the game ended on its first moves: start again
-            return self.parent._reset(tensordict_reset.clone(False))
+            restarted = self.parent._reset(tensordict_reset.clone(False))
+            self.lives_before.fill_(self._lives())  # the new game's, not the ended one's
+            return restarted
         return tensordict_reset.update(stepped.exclude("reward", "action"))
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase):

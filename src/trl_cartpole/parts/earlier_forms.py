@@ -11,7 +11,8 @@ deprecates); CHANGELOG.md's "Deprecations" lists them:
 - ``make_target_updater(loss, "soft")``: the kind as the second positional argument;
 - a plain Q-network saved before it became one TorchRL ``MLP`` (:class:`EarlierLayoutKeys`);
 - an evaluator state saved before its memory curve or its candidates
-  (:func:`upgrade_evaluator_state`).
+  (:func:`upgrade_evaluator_state`);
+- a run's config saved before ``env.atari.fire_steps`` (:func:`upgrade_stored_config`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ __all__ = [
     "EarlierLayoutKeys",
     "resolve_alias",
     "upgrade_evaluator_state",
+    "upgrade_stored_config",
     "warn_earlier_form",
 ]
 
@@ -108,3 +110,15 @@ def upgrade_evaluator_state(state: dict[str, Any]) -> dict[str, Any]:
             "states": [state["best_state"]],
         }
     return state
+
+
+def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
+    """A run's stored config (a dict) in today's layout, meaning what it meant when saved: a
+    config saved before ``env.atari.fire_steps`` trained and was judged with one FIRE step
+    after a reset and a lost life, so it reads as ``fire_steps: 1`` (today's default is 2),
+    and its evaluations, exports, plain-loop replays and resumes keep that rule."""
+    atari = (config.get("env") or {}).get("atari")
+    if atari is None or "fire_steps" in atari:
+        return config
+    env = {**config["env"], "atari": {**atari, "fire_steps": 1}}
+    return {**config, "env": env}

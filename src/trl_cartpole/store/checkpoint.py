@@ -31,6 +31,7 @@ from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, 
 from trl_cartpole.config.schema import Config, flat_fields, to_config
 from trl_cartpole.config.validation import check_boolean_overrides, validate
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.parts.earlier_forms import upgrade_stored_config
 from trl_cartpole.store.files import write_json_atomic
 from trl_cartpole.store.pickle_scan import no_unpickling, refuse_code
 
@@ -367,7 +368,7 @@ def read_checkpoint_config(path: str | Path) -> Config:
         raise ConfigError(f"checkpoint={str(path)!r} does not exist; pass a checkpoint directory")
     try:
         manifest = Checkpoint.manifest(path)
-        return to_config(manifest["metadata"]["config"])
+        return to_config(upgrade_stored_config(manifest["metadata"]["config"]))
     except (CheckpointError, KeyError, TypeError, ValueError, OSError) as error:
         raise ConfigError(
             f"checkpoint={str(path)!r} is not a trl_cartpole checkpoint ({error})"

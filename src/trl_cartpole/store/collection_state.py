@@ -65,6 +65,7 @@ class EnvState:
             "workers": None
             if in_process or not self.workers_answer
             else worker_states(self.collector),
+            "workers_lost": not self.workers_answer,
             "env": env_snapshot(self.env, self.trust_pickle) if in_process else None,
             "eval_env": env_snapshot(self.eval_env, self.trust_pickle),
             "env_autoreset": autoreset_snapshot(self.env) if in_process else None,
@@ -79,13 +80,7 @@ class EnvState:
         if self.env is None:
             restored["env"] = restore_worker_states(self.collector, state.get("workers"))
             if not restored["env"]:
-                warnings.warn(
-                    "collection runs in asynchronous workers or Ray actors (collector.sync="
-                    "false: no moment between batches to read them), or in worker envs whose "
-                    "state is not stored as data: the resumed run's workers start new episodes "
-                    "(not an exact continuation)",
-                    stacklevel=2,
-                )
+                warnings.warn(self._workers_not_restored(state), stacklevel=2)
         for env, key in ((self.env, "env"), (self.eval_env, "eval_env")):
             if env is None:
                 continue
@@ -106,6 +101,22 @@ class EnvState:
             if state["n_step_window"] is not None:
                 window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
                 set_n_step_window(self.buffer, window)
+
+    @staticmethod
+    def _workers_not_restored(state: dict[str, Any]) -> str:
+        """Why the workers' envs start new episodes, in one line."""
+        if state.get("workers_lost"):
+            reason = (
+                "the checkpoint was written after a worker or Ray actor was lost, when the "
+                "workers could no longer all be read"
+            )
+        else:
+            reason = (
+                "collection runs in asynchronous workers or Ray actors (collector.sync=false: "
+                "no moment between batches to read them), or in worker envs whose state is not "
+                "stored as data"
+            )
+        return f"{reason}: the resumed run's workers start new episodes (not an exact continuation)"
 
     def _not_restored(self, key: str, snapshot: Any) -> str:
         name = key.replace("_", " ")
