@@ -44,6 +44,16 @@ RUN = [
     "logger.plots=false",
     "seed=5",
 ]
+# an Atari preset's short budget
+ATARI_RUN = [
+    "buffer.size=2000",
+    "collector.total_frames=1500",
+    "collector.init_random_frames=64",
+    "eval.interval_frames=500",
+    "eval.max_steps=300",
+    "eval.candidates=1",
+    "checkpoint.interval_frames=128",
+]
 VARIANTS = {
     "default": [],
     "prioritized": ["algo=prioritized"],
@@ -57,17 +67,12 @@ VARIANTS = {
         "collector.backend=ray",
         "collector.total_frames=8000",
     ],
+    # the other classic-control presets: the same state as data, their own envs and settings
+    "acrobot": ["env=acrobot", "collector.total_frames=8000", "eval.max_steps=200"],
+    "mountaincar": ["env=mountaincar", "collector.total_frames=8000"],
     # an Atari game (the preset's one game, its frames stored once): ALE's state with its RNG
-    "breakout": [
-        "env=breakout",
-        "buffer.size=2000",
-        "collector.total_frames=1500",
-        "collector.init_random_frames=64",
-        "eval.interval_frames=500",
-        "eval.max_steps=300",
-        "eval.candidates=1",
-        "checkpoint.interval_frames=128",
-    ],
+    "breakout": [*ATARI_RUN, "env=breakout"],
+    # (Boxing under the same kills differs from its first evaluation on: docs/reliability.md)
     # drawn frames stacked by CatFrames, a share painted by Gymnasium, a CNN: a short budget
     "pixels": [
         "env=cartpole_pixels",
