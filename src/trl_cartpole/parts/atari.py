@@ -38,6 +38,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from tensordict import TensorDictBase
@@ -62,6 +63,7 @@ __all__ = [
     "ATARI_DEFAULTS",
     "EOL_KEY",
     "FireOnReset",
+    "LastAction",
     "LearnerView",
     "MaxPoolFrameSkip",
     "NoopStarts",
@@ -241,6 +243,30 @@ class FireOnReset(Transform):
         return fired
 
 
+class LastAction(gym.Wrapper):
+    """Remembers the action of the game's last frame (``last_action``, an index of its action
+    set; None before the first), which a checkpoint stores with the game.
+
+    ALE's ``cloneState`` holds the emulator and the random generator of sticky actions, but not
+    the action a sticky frame repeats (the last frame's): a game restored into an env whose last
+    action was another repeats that one on its first sticky frame and plays on differently.
+    :func:`trl_cartpole.store.env_state` puts this action back with the state. It is the action
+    asked for; the frame's own action differs only when all frames of a step stuck to the one
+    before, 0.25^4 = 1 step in 256 with Gymnasium's sticky actions."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.last_action: int | None = None
+
+    def step(self, action: Any):
+        self.last_action = int(action)
+        return self.env.step(action)
+
+    def reset(self, **kwargs: Any):
+        self.last_action = None
+        return self.env.reset(**kwargs)
+
+
 def fire_action(gym_env: Any) -> int | None:
     """FIRE's index in the game's action set, or None when the game has none."""
     meanings = gym_env.unwrapped.get_action_meanings()
@@ -335,8 +361,6 @@ def make_atari_env(
         obs_type="grayscale", ...)), <the transforms>)``: ``"pixels"`` ``[frames, 84, 84]``
         uint8, categorical actions.
     """
-    import gymnasium as gym
-
     for fixed in ("frameskip", "obs_type"):
         if fixed in kwargs:
             raise ValueError(
@@ -345,7 +369,7 @@ def make_atari_env(
             )
     register_atari_games()
     settings = {**ATARI_DEFAULTS, **(preprocessing or {})}
-    gym_env = gym.make(env_name, frameskip=1, obs_type="grayscale", **kwargs)
+    gym_env = LastAction(gym.make(env_name, frameskip=1, obs_type="grayscale", **kwargs))
     base = GymWrapper(gym_env, device=device, categorical_action_encoding=True)
     env = TransformedEnv(base)
     for transform in atari_transforms(gym_env, **settings):

@@ -17,6 +17,8 @@ Private names read (each through one function below):
 - ``ReplayBuffer._transform`` and ``MultiStepTransform._buffer``: the n-step window the
   transform holds back until it is complete;
 - ``GymWrapper._env``: the Gymnasium env behind the wrapper (rendering, pickling its state);
+- ale-py's ``AtariEnv._action_set``: the game's actions, by the index the agent picks (a
+  restored game is given its last action again: :mod:`trl_cartpole.store.env_state`);
 - ``BaseCollector._weight_sync_schemes``: the shared-memory weight-sync schemes a multi-process
   collector's ``shutdown()`` leaves open (the process hung at exit);
 - ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action;
@@ -130,6 +132,11 @@ def next_step_input(env: EnvBase, stepped: TensorDictBase) -> TensorDictBase:
 def gym_env(env: EnvBase) -> Any:
     """The Gymnasium env (or vector env) behind ``env``'s ``GymWrapper``."""
     return env.base_env._env
+
+
+def ale_action_set(atari_env: Any) -> Any:
+    """The ALE actions of ale-py's ``AtariEnv``, indexed as its ``step`` takes them."""
+    return atari_env._action_set
 
 
 def serial_envs(env: EnvBase) -> list[EnvBase]:

@@ -47,6 +47,7 @@ from torchrl.envs import CatFrames, EnvBase, GymWrapper, SerialEnv, TransformedE
 
 from trl_cartpole.parts.atari import ResizeFrame
 from trl_cartpole.parts.compat import (
+    ale_action_set,
     autoreset_state,
     gym_env,
     serial_envs,
@@ -173,9 +174,12 @@ def _atari_snapshot(game: TransformedEnv) -> dict[str, Any]:
     unwrapped = gym_env(game).unwrapped
     state = unwrapped.ale.cloneState(include_rng=True).serialize()
     rng = unwrapped._np_random
+    last_action = getattr(gym_env(game), "last_action", None)  # LastAction's
     return {
         "ale": np.frombuffer(state, dtype=np.uint8).copy(),
         "rng": None if rng is None else rng.bit_generator.state,
+        # the action a sticky frame repeats, which ALE's state leaves out (-1: none yet)
+        "last_action": -1 if last_action is None else last_action,
         # the preprocessing's state: the stacked frames, the lives at the last step
         "transforms": _transform_buffers(game),
     }
@@ -186,7 +190,12 @@ def _restore_atari(game: TransformedEnv, snapshot: dict[str, Any]) -> None:
 
     _load_transform_buffers(game, snapshot["transforms"])  # first: it may reset the game
     unwrapped = gym_env(game).unwrapped
-    unwrapped.ale.restoreState(ale_py.ALEState(snapshot["ale"].tobytes()))
+    state = ale_py.ALEState(snapshot["ale"].tobytes())
+    last = snapshot.get("last_action")  # absent from a checkpoint written before it was kept
+    if last is not None:  # a frame of it, then the state again: ALE keeps it as the last action
+        unwrapped.ale.act(ale_action_set(unwrapped)[max(int(last), 0)])  # -1: NOOP, a reset's
+        gym_env(game).last_action = None if last < 0 else int(last)
+    unwrapped.ale.restoreState(state)
     if snapshot["rng"] is not None:
         unwrapped.np_random.bit_generator.state = snapshot["rng"]
 
