@@ -357,9 +357,9 @@ def make_atari_env(
     :param preprocessing: the keywords of :func:`atari_transforms` (``noop_max``,
         ``frame_skip``, ``screen_size``, ``frames``, ``fire_on_reset``, ``fire_steps``); left out:
         :data:`ATARI_DEFAULTS`.
-    :returns: ``TransformedEnv(GymWrapper(gymnasium.make(env_name, frameskip=1,
-        obs_type="grayscale", ...)), <the transforms>)``: ``"pixels"`` ``[frames, 84, 84]``
-        uint8, categorical actions.
+    :returns: ``TransformedEnv(GymWrapper(LastAction(gymnasium.make(env_name,
+        frameskip=1, obs_type="grayscale", ...))), <the transforms>)``: ``"pixels"``
+        ``[frames, 84, 84]`` uint8, categorical actions.
     """
     for fixed in ("frameskip", "obs_type"):
         if fixed in kwargs:

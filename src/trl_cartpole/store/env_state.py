@@ -12,7 +12,8 @@ stopped:
 - TorchRL's autoreset memo of the last vector-env step, which the next reset reads.
 
 An Atari game's state is ALE's own: ``cloneState(include_rng=True)`` holds the emulator and
-its random generator (sticky actions), stored as its serialized bytes (a uint8 array), with
+its random generator (sticky actions), stored as its serialized bytes (a uint8 array), with the
+game's last action (which a sticky frame repeats and ALE's state leaves out: ``LastAction``),
 the Gymnasium env's RNG (the NOOP starts) and the preprocessing's own state (the stacked
 frames, the lives at the last step: the transforms' ``state_dict``), for each game of the env.
 
@@ -45,7 +46,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch.nn.parameter import is_lazy
 from torchrl.envs import CatFrames, EnvBase, GymWrapper, SerialEnv, TransformedEnv
 
-from trl_cartpole.parts.atari import ResizeFrame
+from trl_cartpole.parts.atari import LastAction, ResizeFrame
 from trl_cartpole.parts.compat import (
     ale_action_set,
     autoreset_state,
@@ -64,6 +65,8 @@ __all__ = [
 ]
 
 DATA_STATE_MODULE = "gymnasium.envs.classic_control"  # envs whose whole state is plain data
+# Frames of a restored game's last action before its state is put back (_restore_atari)
+LAST_ACTION_FRAMES = 32
 
 
 def _is_plain(value: Any) -> bool:
@@ -174,7 +177,8 @@ def _atari_snapshot(game: TransformedEnv) -> dict[str, Any]:
     unwrapped = gym_env(game).unwrapped
     state = unwrapped.ale.cloneState(include_rng=True).serialize()
     rng = unwrapped._np_random
-    last_action = getattr(gym_env(game), "last_action", None)  # LastAction's
+    wrapper = gym_env(game)
+    last_action = wrapper.last_action if isinstance(wrapper, LastAction) else None
     return {
         "ale": np.frombuffer(state, dtype=np.uint8).copy(),
         "rng": None if rng is None else rng.bit_generator.state,
@@ -192,8 +196,13 @@ def _restore_atari(game: TransformedEnv, snapshot: dict[str, Any]) -> None:
     unwrapped = gym_env(game).unwrapped
     state = ale_py.ALEState(snapshot["ale"].tobytes())
     last = snapshot.get("last_action")  # absent from a checkpoint written before it was kept
-    if last is not None:  # a frame of it, then the state again: ALE keeps it as the last action
-        unwrapped.ale.act(ale_action_set(unwrapped)[max(int(last), 0)])  # -1: NOOP, a reset's
+    if last is not None and isinstance(gym_env(game), LastAction):
+        # frames of it, then the state again (which undoes them): ALE keeps it as the last
+        # action. A frame is itself sticky (it keeps the previous action with probability 0.25),
+        # so one frame could leave the old one; 32 leave it once in 0.25^32
+        action = ale_action_set(unwrapped)[max(int(last), 0)]  # -1: NOOP, as after a reset
+        for _ in range(LAST_ACTION_FRAMES):
+            unwrapped.ale.act(action)
         gym_env(game).last_action = None if last < 0 else int(last)
     unwrapped.ale.restoreState(state)
     if snapshot["rng"] is not None:
