@@ -68,8 +68,8 @@ VARIANTS = {
         "collector.total_frames=8000",
     ],
     # the other classic-control presets: the same state as data, their own envs and settings
-    "acrobot": ["env=acrobot", "collector.total_frames=8000", "eval.max_steps=200"],
-    "mountaincar": ["env=mountaincar", "collector.total_frames=8000"],
+    "acrobot": ["env=acrobot", "eval.max_steps=200"],  # the default's 20 000 frames: six lives
+    "mountaincar": ["env=mountaincar"],
     # an Atari game (the preset's one game, its frames stored once): ALE's state with its RNG
     "breakout": [*ATARI_RUN, "env=breakout"],
     # a game whose restored state often plays on otherwise unless its last action comes back
