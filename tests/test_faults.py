@@ -38,6 +38,20 @@ RESUMABLE = [
 ]
 
 
+# Breakout's short resumable run, and the marks of a slow test that needs the atari extra
+BREAKOUT_RESUMED = [
+    "env=breakout",
+    "buffer.size=1000",
+    "eval.max_steps=300",  # an untrained policy's game can last its 27 000 steps
+    "eval.candidates=1",
+    "logger.plots=false",
+]
+ATARI_SLOW = [
+    pytest.mark.slow,
+    pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
+]
+
+
 def _comparable(summary: dict) -> dict:
     summary = {key: value for key, value in summary.items() if key not in TIMING_KEYS}
     measured = ("seconds", "rss_mb")  # timings and memory differ between two runs
@@ -118,49 +132,12 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
         ),
         # An Atari game: ALE's cloneState (the emulator and its RNG), the NOOP starts' RNG and
         # the preprocessing's stacks and lives, each of 4 games, the frames stored once
-        pytest.param(
-            [
-                "env=breakout",
-                "buffer.size=1000",
-                "eval.max_steps=300",  # an untrained policy's game can last its 27 000 steps
-                "eval.candidates=1",
-                "logger.plots=false",
-            ],
-            marks=[
-                pytest.mark.slow,
-                pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
-            ],
-        ),
+        pytest.param([*BREAKOUT_RESUMED], marks=ATARI_SLOW),
         # the preset's one game, whose collector's own state is saved with it
-        pytest.param(
-            [
-                "env=breakout",
-                "env.num_envs=1",
-                "buffer.size=1000",
-                "eval.max_steps=300",
-                "eval.candidates=1",
-                "logger.plots=false",
-            ],
-            marks=[
-                pytest.mark.slow,
-                pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
-            ],
-        ),
+        pytest.param([*BREAKOUT_RESUMED, "env.num_envs=1"], marks=ATARI_SLOW),
         # and in two worker processes, a batch of 2 games each
         pytest.param(
-            [
-                "env=breakout",
-                "collector.workers=2",
-                "env.num_envs=2",
-                "buffer.size=1000",
-                "eval.max_steps=300",
-                "eval.candidates=1",
-                "logger.plots=false",
-            ],
-            marks=[
-                pytest.mark.slow,
-                pytest.mark.skipif(find_spec("ale_py") is None, reason="the atari extra"),
-            ],
+            [*BREAKOUT_RESUMED, "collector.workers=2", "env.num_envs=2"], marks=ATARI_SLOW
         ),
         # two Ray actors (a Ray instance started here): each actor's envs, carrier and RNG
         # through RayCollector's own remote calls, between two synchronous batches
