@@ -89,6 +89,15 @@ def test_n_step_window_is_what_the_multistep_transform_holds_back():
     assert compat.held_steps(compat.replay_transform(buffer)[0]) is held
 
 
+def test_n_step_returns_are_torchrls_window_sums():
+    reward = torch.tensor([[1.0, 2.0, 4.0, 8.0, 16.0]]).unsqueeze(-1)  # [1, 5, 1]
+    ends = torch.tensor([[False, False, True, False, False]])  # a window ends after step 2
+    summed, time_to_obs = compat.n_step_returns(0.5, reward, ends, n_steps=2)
+    # R_t = r_t + 0.5 r_{t+1} inside the window; a step at the window's end sums itself alone
+    assert summed.reshape(-1).tolist() == [2.0, 4.0, 4.0, 16.0, 16.0]
+    assert time_to_obs.reshape(-1).tolist() == [1, 1, 0, 1, 0]  # k - 1
+
+
 def test_weight_sync_schemes_attribute_exists_and_closing_them_is_safe():
     env = make_env("CartPole-v1", seed=0)
     collector = make_collector(env, None, frames_per_batch=8, total_frames=16)

@@ -16,12 +16,14 @@ from tensordict.nn import TensorDictSequential
 from torchrl.trainers.algorithms import DQNTrainer
 
 from trl_cartpole.parts.collectors import make_collector
+from trl_cartpole.parts.compat import n_step_window
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import make_q_actor
+from trl_cartpole.parts.n_step_windows import leaves_of
 from trl_cartpole.parts.optim import make_optimizer
-from trl_cartpole.parts.replay import make_replay_buffer, trajectory_ends
+from trl_cartpole.parts.replay import NStepTransform, make_replay_buffer, trajectory_ends
 
 N_STEPS, GAMMA = 3, 0.99
 
@@ -172,6 +174,19 @@ def test_trajectory_ends_reads_done_resets_and_seams_not_a_truncated_mark():
     assert trajectory_ends(flat).reshape(-1).nonzero().reshape(-1).tolist() == [2, 5]
 
 
+def test_trajectory_ends_reads_a_new_trajectory_id_where_the_observations_match():
+    observation = torch.zeros(5, 1)  # every observation alike: only the ids tell the seam
+    steps = TensorDict(
+        {
+            "observation": observation,
+            "collector": {"traj_ids": torch.tensor([7, 7, 8, 8, 8])},
+            "next": {"observation": observation, "done": torch.zeros(5, 1, dtype=torch.bool)},
+        },
+        batch_size=[5],
+    )
+    assert trajectory_ends(steps).reshape(-1).tolist() == [False, True, False, False, False]
+
+
 def test_data_that_cannot_tell_trajectories_apart_is_refused_in_one_line():
     steps = TensorDict(
         {
@@ -185,3 +200,92 @@ def test_data_that_cannot_tell_trajectories_apart_is_refused_in_one_line():
         buffer.extend(steps)
     assert "\n" not in str(error.value)
     assert len(buffer) == 0
+
+
+class StockNStepTransform(NStepTransform):
+    """The windows by TorchRL's own ``MultiStepTransform._inv_call`` only (the reference)."""
+
+    def _windows_apply(self, new, held) -> bool:
+        return False
+
+
+def _steps(envs: int, length: int, generator: torch.Generator, extra: bool) -> TensorDict:
+    """``[envs, length]`` steps of counter envs: the observation counts the steps of the
+    episode, an episode ends at random (a termination or a truncation), a new one starts at 0."""
+    done = torch.rand(envs, length, 1, generator=generator) < 0.2
+    terminated = done & (torch.rand(envs, length, 1, generator=generator) < 0.5)
+    count = torch.zeros(envs, length + 1, 1)
+    for t in range(length):
+        count[:, t + 1] = torch.where(done[:, t], 0.0, count[:, t] + 1)
+    observation = count[:, :-1].expand(envs, length, 3) + torch.rand(envs, length, 3)
+    steps = TensorDict(
+        {
+            "observation": observation,
+            "action": torch.randint(0, 4, (envs, length, 1), generator=generator),
+            "next": {
+                "observation": observation.roll(-1, 1),  # [.., t] = step t + 1's
+                "reward": torch.randn(envs, length, 1, generator=generator),
+                "done": done,
+                "terminated": terminated,
+                "truncated": done & ~terminated,
+            },
+        },
+        batch_size=[envs, length],
+    )
+    steps["next", "observation"][:, -1] = torch.rand(envs, 3)
+    if extra:  # an Atari game's end of life under "next", and the collector's trajectory ids
+        steps["next", "end-of-life"] = torch.rand(envs, length, 1, generator=generator) < 0.1
+        steps["collector", "traj_ids"] = done.squeeze(-1).cumsum(-1)
+    return steps
+
+
+@pytest.mark.parametrize(
+    ("batches", "n_steps"),
+    [
+        ([(4, 1)] * 12, 3),  # the default's 32 envs, one step each, in miniature
+        ([(2, 5), (2, 1), (2, 2), (2, 7)], 3),
+        ([(3, 8)] * 3, 10),  # windows longer than a batch
+        ([(1, 6)] * 4, 2),
+    ],
+)
+@pytest.mark.parametrize("extra", [False, True], ids=["plain", "atari-entries"])
+@pytest.mark.parametrize("layout", ["as-collected", "flattened", "one-env"])
+def test_the_windows_built_on_tensors_store_bitwise_what_torchrls_transform_stores(
+    batches, n_steps, extra, layout
+):
+    generator = torch.Generator().manual_seed(n_steps + len(batches))
+    ours = make_replay_buffer(max_size=1_000, n_steps=n_steps, gamma=GAMMA)
+    stock = make_replay_buffer(max_size=1_000, transform=StockNStepTransform(n_steps, GAMMA))
+    for envs, length in batches:
+        steps = _steps(envs, length, generator, extra)
+        if layout == "flattened":  # as TorchRL's trainers extend: every step marked truncated
+            steps = steps.reshape(-1)
+            steps["next", "truncated"].fill_(True)
+        elif layout == "one-env":
+            steps = steps[0]
+        ours.extend(steps.clone())
+        stock.extend(steps.clone())
+    assert len(ours) == len(stock) > 0
+    got, want = ours.storage[: len(ours)], stock.storage[: len(stock)]
+    assert set(got.keys(True, True)) == set(want.keys(True, True))
+    for key in want.keys(True, True):
+        assert got[key].dtype == want[key].dtype, key
+        assert torch.equal(got[key], want[key]), key
+    held, held_stock = n_step_window(ours), n_step_window(stock)
+    assert held.batch_size == held_stock.batch_size
+    assert set(held.keys(True, True)) == set(held_stock.keys(True, True))
+    for key in held_stock.keys(True, True):
+        assert torch.equal(held[key], held_stock[key]), key
+
+
+def test_a_batch_the_tensor_windows_do_not_cover_is_stored_by_torchrls_transform():
+    generator = torch.Generator().manual_seed(0)
+    steps = _steps(2, 6, generator, extra=False)
+    steps["mask"] = torch.ones(2, 6, dtype=torch.bool)  # MultiStepTransform's own mask entry
+    transform = NStepTransform(N_STEPS, GAMMA)
+    assert not transform._windows_apply(leaves_of(steps), None)
+    buffer = make_replay_buffer(max_size=100, transform=transform)
+    stock = make_replay_buffer(max_size=100, transform=StockNStepTransform(N_STEPS, GAMMA))
+    buffer.extend(steps.clone())
+    stock.extend(steps.clone())
+    assert torch.equal(buffer.storage[:6]["next", "reward"], stock.storage[:6]["next", "reward"])

@@ -16,6 +16,9 @@ Private names read (each through one function below):
   which decides what the next ``reset()`` returns;
 - ``ReplayBuffer._transform`` and ``MultiStepTransform._buffer``: the n-step window the
   transform holds back until it is complete;
+- ``torchrl.data.postprocs.postprocs._get_reward``: ``MultiStepTransform``'s discounted sum of
+  a window's rewards, which the n-step windows built on tensors call so that their returns
+  are the transform's, bit for bit (:func:`n_step_returns`);
 - ``GymWrapper._env``: the Gymnasium env behind the wrapper (rendering, pickling its state);
 - ale-py's ``AtariEnv._action_set``: the game's actions, by the index the agent picks (a
   restored game is given its last action again: :mod:`trl_cartpole.store.env_state`);
@@ -53,6 +56,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torchrl.collectors import BaseCollector
 from torchrl.data import ReplayBuffer
+from torchrl.data.postprocs.postprocs import _get_reward
 from torchrl.envs import Compose, EnvBase, MultiStepTransform
 from torchrl.envs.transforms import VecGymEnvTransform
 
@@ -69,6 +73,7 @@ __all__ = [
     "held_steps",
     "install_segment_trees_if_missing",
     "loss_mask_keys",
+    "n_step_returns",
     "n_step_transform",
     "n_step_window",
     "replay_transform",
@@ -212,6 +217,18 @@ def n_step_window(buffer: ReplayBuffer) -> TensorDictBase | None:
 def set_n_step_window(buffer: ReplayBuffer, window: TensorDict) -> None:
     """Give the buffer's ``MultiStepTransform`` the held-back steps ``window``."""
     n_step_transform(buffer)._buffer = window
+
+
+def n_step_returns(
+    gamma: float, reward: torch.Tensor, window_ends: torch.Tensor, n_steps: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``MultiStepTransform``'s window sums: ``(R [*B, T, 1], k - 1 [*B, T])``.
+
+    R_t = sum_{j<k} gamma^j r_{t+j}, k = min(n_steps, steps to the next window end, inclusive),
+    for ``reward`` ``[*B, T, 1]`` and ``window_ends`` ``[*B, T]`` bool (TorchRL's ``_get_reward``,
+    whose ``max_steps`` is ``n_steps - 1``).
+    """
+    return _get_reward(gamma, reward, window_ends, n_steps - 1)
 
 
 # --- collectors ------------------------------------------------------------------------------

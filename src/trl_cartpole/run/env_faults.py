@@ -153,16 +153,20 @@ _NOT_THE_ENVS = ("action", "action_value", "chosen_action_value", "episode_rewar
 def check_finite_batch(batch: TensorDictBase, env_id: str, frames: int) -> None:
     """Raise :class:`TrainingFailed` if a floating entry of ``batch`` ``[*B, T]`` that the env
     wrote (its observations and rewards) holds a NaN or an infinity. ``frames`` is the frame
-    count before the batch; the message names the first bad step and its value."""
-    keys = sorted(batch.keys(True, True), key=lambda k: not isinstance(k, tuple))  # next first
-    for key in keys:
-        name = key[-1] if isinstance(key, tuple) else key
-        if name in _NOT_THE_ENVS:
-            continue
-        value = batch.get(key)
-        if not torch.is_floating_point(value):
-            continue
-        bad = ~torch.isfinite(value.reshape(*batch.batch_size, -1)).all(-1)  # [*B, T]
+    count before the batch; the message names the first bad step and its value.
+
+    The entries are checked together first, with one read of the result (the usual case: no
+    bad value); only a batch that holds one is searched entry by entry for the message."""
+    entries = [
+        (key, value)
+        for key, value in batch.items(include_nested=True, leaves_only=True)
+        if (key[-1] if isinstance(key, tuple) else key) not in _NOT_THE_ENVS
+        and torch.is_floating_point(value)
+    ]
+    if not entries or bool(torch.stack([torch.isfinite(v).all() for _, v in entries]).all()):
+        return
+    for key, value in sorted(entries, key=lambda entry: not isinstance(entry[0], tuple)):
+        bad = ~torch.isfinite(value.reshape(*batch.batch_size, -1)).all(-1)  # [*B, T], next first
         if bad.any():
             index = bad.nonzero()[0].tolist()  # [env, t] of a vector env's batch, or [t]
             where = value.reshape(*batch.batch_size, -1)[tuple(index)]
