@@ -68,6 +68,14 @@ ATARI_RECORDS = (
         "named for it before any ran, 106 and 107 side by side, each on one core, beside the "
         "project's own tests and checks at times",
     ),
+    (
+        ROOT / "docs" / "results" / "atari_breakout_bf16.json",
+        "the bfloat16 form's seeds",
+        "The fourth form of the recipe (the third with its update in bfloat16, "
+        "`optim.autocast=bfloat16`, and two FIRE steps); seeds 109, 110 and 111 named for it "
+        "before any ran, 109 beside seed 108 of the third form, each on one core, beside the "
+        "project's own tests and checks at times",
+    ),
 )
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
 RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in RACE_ENVS}
