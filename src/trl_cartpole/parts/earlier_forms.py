@@ -12,7 +12,9 @@ deprecates); CHANGELOG.md's "Deprecations" lists them:
 - a plain Q-network saved before it became one TorchRL ``MLP`` (:class:`EarlierLayoutKeys`);
 - an evaluator state saved before its memory curve or its candidates
   (:func:`upgrade_evaluator_state`);
-- a run's config saved before ``env.atari.fire_steps`` (:func:`upgrade_stored_config`).
+- a run's config saved before ``env.atari.fire_steps`` (:func:`upgrade_stored_config`);
+- a training state whose curves were saved as lists, before they became tensors
+  (:func:`history_curves`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import Any, TypeVar
 __all__ = [
     "REMOVED_IN",
     "EarlierLayoutKeys",
+    "history_curves",
     "resolve_alias",
     "upgrade_evaluator_state",
     "upgrade_stored_config",
@@ -122,3 +125,12 @@ def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
         return config
     env = {**config["env"], "atari": {**atari, "fire_steps": 1}}
     return {**config, "env": env}
+
+
+def history_curves(state: dict[str, Any]) -> dict[str, list]:
+    """A saved history's curves as lists: today's tensors read back, or the lists a training
+    state held before its curves became tensors (as they were)."""
+    return {
+        name: values.tolist() if hasattr(values, "tolist") else list(values)
+        for name, values in state.items()
+    }

@@ -9,14 +9,19 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import torch
 from tensordict import TensorDictBase
 from torch import Tensor
 
+from trl_cartpole.parts.earlier_forms import history_curves
 from trl_cartpole.report.plotting import FinalEvaluation, LearningCurves
 from trl_cartpole.run.evaluation import EvalCurve
 from trl_cartpole.run.learner import UpdateReport
 
 __all__ = ["Episode", "History"]
+
+# the curves of floats (the others count frames and steps: integers)
+_FLOATS = {"episode_returns", "td_losses", "grad_norms", "epsilons"}
 
 
 @dataclass(frozen=True)
@@ -102,9 +107,17 @@ class History:
             return_label=return_label,
         )
 
-    def state_dict(self) -> dict[str, Any]:
-        return asdict(self)
+    def state_dict(self) -> dict[str, Tensor]:
+        """Each curve as one tensor, float64 or int64, so its values come back exactly: a
+        checkpoint stores tensors as binary data, where a list went into its JSON schema, which
+        Python's ``json.dump`` writes item by item (about a third of a second per save for a
+        default CartPole run, seconds for an Atari run's tens of thousands of updates)."""
+        return {
+            name: torch.tensor(values, dtype=torch.float64 if name in _FLOATS else torch.int64)
+            for name, values in asdict(self).items()
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        for name, values in state.items():
+        """Read :meth:`state_dict`'s tensors, or the lists a checkpoint held before them."""
+        for name, values in history_curves(state).items():
             getattr(self, name)[:] = values
