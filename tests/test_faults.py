@@ -664,7 +664,7 @@ def test_damaged_checkpoint_is_refused_in_one_line(tmp_path, finished_run, how, 
     assert sorted(p.relative_to(damaged) for p in damaged.rglob("*")) == before  # untouched
 
 
-@pytest.mark.parametrize("found", [3, 5])  # an earlier version's state, a later one's
+@pytest.mark.parametrize("found", [3, 6])  # an earlier version's state, a later one's
 def test_a_training_state_of_another_format_is_refused_naming_both(tmp_path, finished_run, found):
     from .test_checkpoint_safety import _rewrite_integrity
 
@@ -678,7 +678,7 @@ def test_a_training_state_of_another_format_is_refused_naming_both(tmp_path, fin
             _rewrite_integrity(checkpoint.parent)
     proc = run_script_in_process("train.py", f"resume={other}", "collector.total_frames=900")
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
-    expected = f"is a training state of format {found}, and this version reads format 4"
+    expected = f"is a training state of format {found}, and this version reads formats 4 and 5"
     assert proc.returncode == 2 and len(lines) == 1 and expected in lines[0], proc.stderr
 
 

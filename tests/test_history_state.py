@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import torch
 from torchrl.checkpoint import Checkpoint
 
@@ -22,8 +24,10 @@ def _history() -> History:
 def test_the_curves_are_saved_as_tensors_and_read_back_exactly(tmp_path):
     history = _history()
     state = history.state_dict()
-    assert state["episode_returns"].dtype == torch.float64
-    assert state["episode_lengths"].dtype == torch.int64
+    for curve in fields(History):  # each curve's type from its annotation
+        assert curve.type in ("list[float]", "list[int]"), curve
+        float_curve = curve.type == "list[float]"
+        assert state[curve.name].dtype == (torch.float64 if float_curve else torch.int64)
     assert state["epsilons"].shape == (0,)  # an empty curve stays one
     saved = Checkpoint(history=history).save(tmp_path / "state")
     schema = list(tmp_path.rglob("*.json"))
@@ -34,8 +38,16 @@ def test_the_curves_are_saved_as_tensors_and_read_back_exactly(tmp_path):
     assert type(restored.episode_lengths[2]) is int and type(restored.td_losses[1]) is float
 
 
-def test_a_training_state_saved_with_lists_still_loads():
+class ListsHistory(History):
+    """A history saved as training states of format 4 saved it: its curves as lists."""
+
+    def state_dict(self):
+        return {name: list(values) for name, values in vars(self).items()}
+
+
+def test_a_training_state_saved_with_lists_still_loads(tmp_path):
     history = _history()
+    saved = Checkpoint(history=ListsHistory(**vars(history))).save(tmp_path / "format4")
     restored = History()
-    restored.load_state_dict({name: list(values) for name, values in vars(history).items()})
+    Checkpoint(history=restored).load(saved)
     assert restored == history

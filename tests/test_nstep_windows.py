@@ -278,6 +278,24 @@ def test_the_windows_built_on_tensors_store_bitwise_what_torchrls_transform_stor
         assert torch.equal(held[key], held_stock[key]), key
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA GPU here")
+def test_the_windows_built_on_tensors_match_torchrls_on_a_gpu():
+    generator = torch.Generator().manual_seed(1)
+    device = torch.device("cuda")
+    ours = make_replay_buffer(max_size=100, n_steps=N_STEPS, gamma=GAMMA, device=device)
+    stock = make_replay_buffer(
+        max_size=100, transform=StockNStepTransform(N_STEPS, GAMMA), device=device
+    )
+    for _ in range(3):
+        steps = _steps(2, 4, generator, extra=True).to(device)
+        ours.extend(steps.clone())
+        stock.extend(steps.clone())
+    got, want = ours.storage[: len(ours)], stock.storage[: len(stock)]
+    assert len(ours) == len(stock) > 0
+    for key in want.keys(True, True):
+        assert got[key].device.type == "cuda" and torch.equal(got[key], want[key]), key
+
+
 def test_a_batch_the_tensor_windows_do_not_cover_is_stored_by_torchrls_transform():
     generator = torch.Generator().manual_seed(0)
     steps = _steps(2, 6, generator, extra=False)

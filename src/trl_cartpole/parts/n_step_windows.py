@@ -77,7 +77,8 @@ def n_step_windows(
     kept = length - n_steps
     # TorchRL's sum: R [*B, T, 1] and k - 1 [*B, T] (0 where the window ends at t)
     summed, time_to_obs = n_step_returns(gamma, reward, window_ends, n_steps)
-    last = torch.arange(length, dtype=time_to_obs.dtype).expand_as(time_to_obs) + time_to_obs
+    steps_now = torch.arange(length, dtype=time_to_obs.dtype, device=time_to_obs.device)
+    last = steps_now.expand_as(time_to_obs) + time_to_obs  # [*B, T]: the window's last step
     window = {  # [*B, T] entries the stock transform adds
         ("steps_to_next_obs",): time_to_obs + 1,
         ("gamma",): gamma ** (time_to_obs + 1),

@@ -6,7 +6,7 @@ run's plots cover the whole run.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import torch
@@ -19,9 +19,6 @@ from trl_cartpole.run.evaluation import EvalCurve
 from trl_cartpole.run.learner import UpdateReport
 
 __all__ = ["Episode", "History"]
-
-# the curves of floats (the others count frames and steps: integers)
-_FLOATS = {"episode_returns", "td_losses", "grad_norms", "epsilons"}
 
 
 @dataclass(frozen=True)
@@ -121,3 +118,7 @@ class History:
         """Read :meth:`state_dict`'s tensors, or the lists a checkpoint held before them."""
         for name, values in history_curves(state).items():
             getattr(self, name)[:] = values
+
+
+# the curves of floats, by their annotation (the others, list[int], count frames and steps)
+_FLOATS = {curve.name for curve in fields(History) if curve.type == "list[float]"}

@@ -73,11 +73,14 @@ RESUMABLE_FIELDS = (
 )
 
 
-# The layout of a training state's components; a state of another format is refused in one line
-# (format 4: a buffer in memory or of frames in files of rows linked between checkpoints,
-# parts/chunked_storage.py; format 3, the plain Q-network in TorchRL's MLP layout, and
-# format 2, the loop's history under "history", are not read any more).
-TRAINING_STATE_FORMAT = 4
+# The layout of a training state's components; a state of a format not in
+# READABLE_TRAINING_STATE_FORMATS is refused in one line (format 5: the history's curves as
+# tensors; format 4, the same with the curves as lists, still read
+# (parts/earlier_forms.history_curves); both keep a buffer in memory or of frames in files of
+# rows linked between checkpoints, parts/chunked_storage.py; format 3, the plain Q-network in
+# TorchRL's MLP layout, and format 2, the loop's history under "history", are not read any more).
+TRAINING_STATE_FORMAT = 5
+READABLE_TRAINING_STATE_FORMATS = (4, 5)
 
 # Room asked for beyond a checkpoint's expected size before it is written (file-system blocks,
 # the manifest, the integrity record): a full disk would otherwise end the run mid-write, where
@@ -110,11 +113,12 @@ def _config_metadata(cfg: Config, kind: str, **extra: Any) -> dict[str, Any]:
 def check_training_state_format(path: str | Path) -> None:
     """Raise a one-line :class:`ConfigError` unless ``path`` has this version's state format."""
     found = Checkpoint.manifest(path).get("metadata", {}).get("format", 1)
-    if found != TRAINING_STATE_FORMAT:
+    if found not in READABLE_TRAINING_STATE_FORMATS:
+        readable = " and ".join(str(number) for number in READABLE_TRAINING_STATE_FORMATS)
         raise ConfigError(
             f"resume={str(path)!r} is a training state of format {found}, and this version "
-            f"reads format {TRAINING_STATE_FORMAT}; resume it with the version that wrote it, or "
-            "start a new run (its best policy still evaluates and exports)"
+            f"reads formats {readable}; resume it with the version that wrote it, or start a "
+            "new run (its best policy still evaluates and exports)"
         )
 
 
