@@ -284,6 +284,25 @@ def test_random_shift_moves_each_frame_by_at_most_pad_pixels_independently():
     assert moves["pixels"] != moves["next", "pixels"]  # ... independently for now and next
 
 
+@pytest.mark.parametrize(("shape", "pad"), [((6, 4, 84, 84), 4), ((3, 5, 2, 20, 60), 1)])
+def test_random_shift_is_the_edge_repeating_pad_cropped_at_the_drawn_offsets(shape, pad):
+    frames = torch.randint(0, 256, shape, dtype=torch.uint8)  # [*B, C, H, W]
+    batch = TensorDict({"pixels": frames, ("next", "pixels"): frames.clone()}, shape[:-3])
+    torch.manual_seed(3)
+    out = RandomShift(pad=pad)(batch.clone())
+    torch.manual_seed(3)  # the same draws, in the same order: now, then next
+    for key in ("pixels", ("next", "pixels")):
+        images = frames.reshape(-1, *shape[-3:])
+        tops, lefts = torch.randint(0, 2 * pad + 1, (2, len(images))).tolist()
+        expected = torch.stack(
+            [
+                _shifted(image, top - pad, left - pad, pad)
+                for image, top, left in zip(images, tops, lefts, strict=True)
+            ]
+        )
+        assert torch.equal(out[key], expected.reshape(shape)), key
+
+
 def test_a_shifting_buffer_stores_the_frames_as_collected(compose):
     cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "buffer.pixels_shift=1", "buffer.n_steps=1")))
     buffer = build_replay_buffer(cfg)
