@@ -65,8 +65,9 @@ ATARI_RECORDS = (
         "the 2-hour form's seeds",
         "The third form of the recipe (the second trained for its whole 2 hours, one FIRE step "
         "after a reset and a lost life: `env.atari.fire_steps=1` today); seeds 106, 107 and 108 "
-        "named for it before any ran, 106 and 107 side by side, each on one core, beside the "
-        "project's own tests and checks at times",
+        "named for it before any ran, 106 and 107 side by side at commit `be31927`, 108 at "
+        "`b98a008` beside seed 109 of the fourth form, each on one core, beside the project's own "
+        "tests and checks at times",
     ),
     (
         ROOT / "docs" / "results" / "atari_breakout_bf16.json",
