@@ -79,9 +79,10 @@ def n_step_windows(
     summed, time_to_obs = n_step_returns(gamma, reward, window_ends, n_steps)
     steps_now = torch.arange(length, dtype=time_to_obs.dtype, device=time_to_obs.device)
     last = steps_now.expand_as(time_to_obs) + time_to_obs  # [*B, T]: the window's last step
+    window_length = time_to_obs + 1  # k [*B, T]
     window = {  # [*B, T] entries the stock transform adds
-        ("steps_to_next_obs",): time_to_obs + 1,
-        ("gamma",): gamma ** (time_to_obs + 1),
+        ("steps_to_next_obs",): window_length,
+        ("gamma",): gamma**window_length,
         ("nonterminal",): time_to_obs != 0,
     }
     out: Leaves = {}

@@ -102,12 +102,12 @@ class NStepTransform(MultiStepTransform):
             raise ValueError("an n-step buffer extends with a batch [T] or [envs, T] in time order")
         held = held_steps(self)  # [*B, n] kept back from the previous extend, or None
         new = leaves_of(tensordict)
-        if not self._windows_apply(new, held):
+        old = None if held is None else leaves_of(held)
+        if not self._windows_apply(new, old):
             return self._stock_inv_call(tensordict, held)
         time_dim = tensordict.batch_dims - 1
         steps = new
-        if held is not None:  # [*B, n + T]
-            old = leaves_of(held)
+        if old is not None:  # [*B, n + T]
             steps = {key: torch.cat([old[key], value], time_dim) for key, value in new.items()}
         length = next(iter(steps.values())).shape[time_dim]
         ends = _trajectory_ends(steps, tensordict.batch_size[:-1], length, tensordict.device)
@@ -124,7 +124,7 @@ class NStepTransform(MultiStepTransform):
         size = tensordict.batch_size[:-1].numel() * (length - self.n_steps)
         return tensordict_of(windows, (size,), tensordict.device)
 
-    def _windows_apply(self, new: dict, held: TensorDictBase | None) -> bool:
+    def _windows_apply(self, new: Leaves, held: Leaves | None) -> bool:
         """Whether :func:`n_step_windows` covers this extend: the reward at ``("next",
         "reward")`` only, no mask entry, done entries held directly under ``"next"``, and the
         same entries as the held-back steps."""
@@ -133,7 +133,7 @@ class NStepTransform(MultiStepTransform):
             and ("next", "reward") in new
             and all(isinstance(key, str) for key in self.done_keys)
             and (self.mask_key if isinstance(self.mask_key, tuple) else (self.mask_key,)) not in new
-            and (held is None or leaves_of(held).keys() == new.keys())
+            and (held is None or held.keys() == new.keys())
         )
 
     def _stock_inv_call(
