@@ -17,6 +17,8 @@ wrote, never from a hand copy:
   ``docs/results/race_<env>.json`` (``python -m benchmarks run --env <env> ... --record``);
 - ``pixel-seeds`` (docs/environments-measured.md): ``env=cartpole_pixels`` seed by seed, from
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
+- ``lunarlander-in-budget`` (docs/performance.md): LunarLander's runs cut at 300 s of training,
+  from ``docs/results/lunarlander_300s.json`` (``python -m benchmarks envs ... --record``);
 - ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
   and the class it returns, from the signatures (``maintain/reference.py``).
 
@@ -42,6 +44,7 @@ PACKAGE = ROOT / "src" / "trl_cartpole"
 RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
+LUNARLANDER_IN_BUDGET = ROOT / "docs" / "results" / "lunarlander_300s.json"
 # Breakout's results files, each a form of the recipe, with the words that name its seeds in the
 # README and the line that names it in docs/atari.md
 ATARI_RECORDS = (
@@ -189,15 +192,10 @@ def _spaced(number: float) -> str:
     return f"{number:,.0f}".replace(",", " ")
 
 
-def pixel_seeds() -> str:
-    """docs/environments-measured.md's per-seed table of ``env=cartpole_pixels``, from
-    ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs --envs cartpole_pixels
-    ... --record`` writes it), with the target's verdict."""
-    from benchmarks.envs import target_met, target_text
-    from benchmarks.harness import ENV_MEDIAN_TARGETS, PIXEL_BUDGET
-
-    record = json.loads(PIXELS.read_text())
-    runs, target = record["runs"], ENV_MEDIAN_TARGETS["cartpole_pixels"]
+def _seed_rows(runs: list[dict], target: float) -> list[str]:
+    """A table of env runs seed by seed (``python -m benchmarks envs ... --record``): frames,
+    training seconds, the evaluation curve, the first evaluation at or above ``target``, the
+    policies played again before one was kept, the final 100 episodes, speed and memory."""
     rows = [
         "| seed | frames | train s | greedy return at each evaluation | first evaluation >= "
         f"{target:g}: frames, train s | best | candidates: frames, evaluation -> new "
@@ -226,6 +224,19 @@ def pixel_seeds() -> str:
             f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "
             f"{_spaced(run['peak_rss_mb'])} |"
         )
+    return rows
+
+
+def pixel_seeds() -> str:
+    """docs/environments-measured.md's per-seed table of ``env=cartpole_pixels``, from
+    ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs --envs cartpole_pixels
+    ... --record`` writes it), with the target's verdict."""
+    from benchmarks.envs import target_met, target_text
+    from benchmarks.harness import ENV_MEDIAN_TARGETS, PIXEL_BUDGET
+
+    record = json.loads(PIXELS.read_text())
+    runs = record["runs"]
+    rows = _seed_rows(runs, ENV_MEDIAN_TARGETS["cartpole_pixels"])
     finals = [run["final_eval_return_mean"] for run in runs]
     within = all(run[key] <= limit for run in runs for key, limit in PIXEL_BUDGET.items())
     verdict = "met" if target_met("cartpole_pixels", finals) and within else "**not met**"
@@ -238,6 +249,28 @@ def pixel_seeds() -> str:
         rows,
         f"Target ({target_text('cartpole_pixels')}, final 100-episode return on Gymnasium's "
         f"render() frames, {budget}): {verdict}.",
+    )
+
+
+def lunarlander_in_budget() -> str:
+    """docs/performance.md's LunarLander runs stopped after a few minutes of training, seed
+    by seed, from ``docs/results/lunarlander_300s.json`` (``python -m benchmarks envs --envs
+    lunarlander ... collector.max_train_seconds=300 --record`` writes it), with the verdict of
+    its target: every seed's kept policy at or above 200 over 100 episodes in the budget."""
+    from benchmarks.harness import ENV_TARGETS, LUNARLANDER_BUDGET_SECONDS
+
+    record = json.loads(LUNARLANDER_IN_BUDGET.read_text())
+    runs, target = record["runs"], ENV_TARGETS["lunarlander"]
+    # the loop reads its time limit after each batch: a run ends up to one batch past it
+    within = all(run["train_seconds"] <= LUNARLANDER_BUDGET_SECONDS + 1.0 for run in runs)
+    met = [run["seed"] for run in runs if run["final_eval_return_mean"] >= target]
+    verdict = "met" if within and len(met) == len(runs) else "**not met**"
+    return _results_block(
+        record,
+        _seed_rows(runs, target),
+        f"Target (every seed's kept policy >= {target:g} over 100 episodes within "
+        f"{LUNARLANDER_BUDGET_SECONDS:g} s of training): {verdict}; {len(met)} of the "
+        f"{len(runs)} seeds reach it.",
     )
 
 
@@ -462,6 +495,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
+    "lunarlander-in-budget": ("docs/performance.md", lunarlander_in_budget),
     "atari-runs": ("docs/atari.md", atari_runs),
     "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),
     "update-cost": ("docs/performance.md", update_cost),
