@@ -11,6 +11,8 @@ wrote, never from a hand copy:
   and meaning, the source ``--help`` prints;
 - ``algo-presets`` (docs/guide.md): what each ``configs/algo/`` preset sets, read from the YAML;
 - ``train-listing`` (docs/architecture.md): ``train()`` as the code has it;
+- ``readme-speed`` (README.md): the 20-seed comparison's interquartile means, from
+  ``docs/results/performance.json``;
 - ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
   ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
 - ``race-<env>`` (docs/performance.md): each other env preset against Stable-Baselines3, from
@@ -185,6 +187,31 @@ def performance_tables(path: Path = PERFORMANCE) -> str:
         parts.append(f"#### Evaluation every {every} frames, {seeds} seeds")
         parts.append(protocol_text(results, algos, peers))
     return "\n\n".join(parts)
+
+
+def readme_speed() -> str:
+    """The README's sentence on the 20-seed table against Stable-Baselines3: per evaluation
+    protocol, the interquartile means of seconds to solve and their ratio, from
+    ``docs/results/performance.json`` (the headline of docs/performance.md)."""
+    from trl_cartpole.tools.comparison import iqm_to_solve
+
+    record = json.loads(PERFORMANCE.read_text())
+    parts = []
+    for interval, results in record["protocols"].items():
+        ours = iqm_to_solve([run["seconds_to_solve"] for run in results["dqn"]])
+        theirs = iqm_to_solve([run["seconds_to_solve"] for run in results["sb3_dqn"]])
+        parts.append(
+            f"evaluated every {_spaced(int(interval))} frames, {ours.value:.1f} s against "
+            f"{theirs.value:.1f} s ({theirs.value / ours.value:.1f}x)"
+        )
+    seeds = len(next(iter(record["protocols"].values()))["dqn"])
+    return (
+        f"On {seeds} seeds no preset was tuned on, one run at a time on an "
+        f"{record['machine']['cpu']} on {record['date']}, the interquartile mean of seconds to "
+        f"solve against Stable-Baselines3's: {'; '.join(parts)} "
+        "([docs/performance.md](docs/performance.md#headline) has every seed and the 95 % "
+        "intervals)."
+    )
 
 
 def _spaced(number: float) -> str:
@@ -490,6 +517,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "readme-ending": ("README.md", readme_ending),
     "readme-next-steps": ("README.md", readme_next_steps),
     "readme-atari": ("README.md", readme_atari),
+    "readme-speed": ("README.md", readme_speed),
     "config-fields": ("docs/reference/config.md", config_fields),
     "algo-presets": ("docs/guide.md", algo_presets),
     "train-listing": ("docs/architecture.md", train_listing),
