@@ -80,7 +80,8 @@ ATARI_RECORDS = (
         "The fourth form of the recipe (the third with its update in bfloat16, "
         "`optim.autocast=bfloat16`, and two FIRE steps); seeds 109, 110 and 111 named for it "
         "before any ran; 109 trained at commit `0f8d46d` beside seed 108 of the third form, "
-        "each on one core, beside the project's own tests and a CI run at times",
+        "110 and 111 side by side at `b68e802`, each on one core, beside the project's own "
+        "tests, a CI run or benchmarks at times",
     ),
 )
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
