@@ -48,6 +48,9 @@ RESULTS = ROOT / "docs" / "results" / "readme.json"
 PERFORMANCE = ROOT / "docs" / "results" / "performance.json"
 PIXELS = ROOT / "docs" / "results" / "cartpole_pixels.json"
 LUNARLANDER_IN_BUDGET = ROOT / "docs" / "results" / "lunarlander_300s.json"
+# The loop reads its time limit after each batch, so a run ends up to one batch past it (a few
+# milliseconds for LunarLander's 16 frames and 4 updates): 1 s of slack.
+LUNARLANDER_TIME_SLACK_SECONDS = 1.0
 # Breakout's results files, each a form of the recipe, with the words that name its seeds in the
 # README and the line that names it in docs/atari.md
 ATARI_RECORDS = (
@@ -293,15 +296,13 @@ def lunarlander_in_budget() -> str:
 
     record = json.loads(LUNARLANDER_IN_BUDGET.read_text())
     runs, target = record["runs"], ENV_TARGETS["lunarlander"]
-    # the loop reads its time limit after each batch: a run ends up to one batch past it
-    within = all(run["train_seconds"] <= LUNARLANDER_BUDGET_SECONDS + 1.0 for run in runs)
+    budget = LUNARLANDER_BUDGET_SECONDS + LUNARLANDER_TIME_SLACK_SECONDS
     met = [
         run["seed"]
         for run in runs
-        if run["final_eval_return_mean"] >= target
-        and run["train_seconds"] <= LUNARLANDER_BUDGET_SECONDS + 1.0
+        if run["final_eval_return_mean"] >= target and run["train_seconds"] <= budget
     ]
-    verdict = "met" if within and len(met) == len(runs) else "**not met**"
+    verdict = "met" if len(met) == len(runs) else "**not met**"
     return _results_block(
         record,
         _seed_rows(runs, target),
