@@ -15,6 +15,8 @@ wrote, never from a hand copy:
   ``docs/results/performance.json``;
 - ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
   ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
+- ``performance-phases`` (docs/performance.md): the phases of the default's training time, from
+  the same file's summaries;
 - ``race-<env>`` (docs/performance.md): each other env preset against Stable-Baselines3, from
   ``docs/results/race_<env>.json`` (``python -m benchmarks run --env <env> ... --record``);
 - ``pixel-seeds`` (docs/environments-measured.md): ``env=cartpole_pixels`` seed by seed, from
@@ -192,6 +194,29 @@ def performance_tables(path: Path = PERFORMANCE) -> str:
         parts.append(f"#### Evaluation every {every} frames, {seeds} seeds")
         parts.append(protocol_text(results, algos, peers))
     return "\n\n".join(parts)
+
+
+def performance_phases() -> str:
+    """docs/performance.md's table of where the default's training time goes: the phases of
+    the 20-seed run's first protocol (``benchmarks.profile.phase_table``, from the summaries in
+    ``docs/results/performance.json``), with the cost per update and per frame."""
+    import statistics
+
+    from benchmarks.profile import phase_table
+
+    record = json.loads(PERFORMANCE.read_text())
+    interval, results = next(iter(record["protocols"].items()))
+    runs = results["dqn"]
+
+    def per(phase: str, count: str) -> float:  # ms of a phase per update or per frame
+        return statistics.median(1e3 * run["phase_seconds"][phase] / run[count] for run in runs)
+
+    return (
+        f"{phase_table(runs)}\n\nMedians over {len(runs)} seeds, evaluated every "
+        f"{_spaced(int(interval))} frames: {_spaced(statistics.median(r['updates'] for r in runs))}"
+        f" updates at {per('update', 'updates'):.2f} ms each with their sampling; collecting "
+        f"{per('collect', 'frames'):.3f} ms and storing {per('store', 'frames'):.3f} ms a frame."
+    )
 
 
 def readme_speed() -> str:
@@ -534,6 +559,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "algo-presets": ("docs/guide.md", algo_presets),
     "train-listing": ("docs/architecture.md", train_listing),
     "performance-tables": ("docs/performance.md", performance_tables),
+    "performance-phases": ("docs/performance.md", performance_phases),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
     "lunarlander-in-budget": ("docs/performance.md", lunarlander_in_budget),
     "atari-runs": ("docs/atari.md", atari_runs),
