@@ -5,8 +5,9 @@
     python -m benchmarks atari --env-speed [--steps 2000] [env.id=ALE/Breakout-v5]
 
 ``--checkpoint``: the run's kept policy, exported as ``scripts/export.py`` does to
-``OUT/policy.pt2`` (``torch.export``), plays ``--games`` whole games of the run's game in a
-loop of Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``,
+``OUT/policy.pt2`` (``torch.export``), plays ``--games`` whole games (game i seeded
+``--seeds``' first + i, the same games for every run) of the run's game in a loop of
+Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``,
 ``AtariPreprocessing`` (30 NOOPs, frame skip 4, 84x84 gray) and ``FrameStackObservation(4)``;
 the one rule of this project's preprocessing Gymnasium has no wrapper for, ``fire_steps`` FIRE
 steps after a reset and after a lost life, is a few lines of the loop. The stacks then differ a
@@ -14,8 +15,8 @@ little from the project's for three steps after each FIRE: here the frames of th
 of each FIRE step are pushed onto the stack, where the project's stack gets only the last FIRE
 step's frame (four times after a reset). Prints the mean score over the games beside
 the run's own final evaluation (``summary.json``); ``--record`` writes each run's summary with
-its plain-loop scores, and where and when they were measured, to a results file (docs/atari.md
-is generated from it).
+its plain-loop scores (each game's, and the first game's seed), and where and when they were
+measured, to a results file (docs/atari.md is generated from it).
 
 ``--env-speed``: agent steps per second of random play (4 game frames each) through this
 project's TorchRL env (one game; a ``SerialEnv`` of 4), Gymnasium's preprocessing wrappers,
@@ -110,6 +111,7 @@ def _plain_loop(args: argparse.Namespace) -> None:
     from benchmarks.harness import provenance
     from trl_cartpole.policy.export import export_program, greedy_q_network
 
+    torch.set_num_threads(1)  # one game, one observation a step: a second thread only waits
     runs = []
     for number, run_dir in enumerate(args.checkpoint):
         config = _run_config(run_dir)
@@ -129,7 +131,8 @@ def _plain_loop(args: argparse.Namespace) -> None:
             f"{summary['final_eval_return_mean']:.2f} +/- {summary['final_eval_return_std']:.2f}"
         )
         plain = {"games": len(scores), "mean": statistics.mean(scores)}
-        runs.append({**summary, "plain_loop": {**plain, "std": statistics.pstdev(scores)}})
+        plain |= {"std": statistics.pstdev(scores), "first_seed": args.seeds[0], "scores": scores}
+        runs.append({**summary, "plain_loop": plain})
     if args.record:
         command = f"python -m benchmarks atari --checkpoint RUN_DIR --games {args.games}"
         record = _merged_record(args.record, runs, command, provenance())
@@ -137,20 +140,27 @@ def _plain_loop(args: argparse.Namespace) -> None:
 
 
 def _merged_record(path: Path, runs: list[dict], command: str, measured: dict) -> dict:
-    """The results file at ``path`` with ``runs`` added: a seed measured again replaces its
-    old run, the others stay (seeds trained one session apart land in one table), and each run
-    keeps where and when it was measured (``measured``: date, commit, machine)."""
+    """The results file at ``path`` with ``runs`` added: a game and seed measured again
+    replaces its old run, the others stay (seeds trained one session apart, or other games of
+    one seed, land in one table), and each run keeps where and when it was measured
+    (``measured``: date, commit, machine)."""
     kept, commands = [], [command]
     if path.is_file():
         previous = json.loads(path.read_text())
         where = {key: previous[key] for key in ("date", "commit", "machine")}
-        seeds = {run["seed"] for run in runs}
-        kept = [{"measured": where, **run} for run in previous["runs"] if run["seed"] not in seeds]
+        new = {_game_and_seed(run) for run in runs}
+        kept = [
+            {"measured": where, **run} for run in previous["runs"] if _game_and_seed(run) not in new
+        ]
         commands = [line for line in previous["command"].splitlines() if line != command]
         commands.append(command)
     merged = kept + [{**run, "measured": measured} for run in runs]
-    merged.sort(key=lambda run: run["seed"])
+    merged.sort(key=lambda run: (run["seed"], run.get("env_id", "")))
     return {**measured, "command": "\n".join(commands), "runs": merged}
+
+
+def _game_and_seed(run: dict) -> tuple[str, int]:
+    return run.get("env_id", ""), run["seed"]
 
 
 def _run_config(run_dir: Path) -> dict:

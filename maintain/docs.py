@@ -36,6 +36,7 @@ import inspect
 import json
 import math
 import re
+import statistics
 import sys
 from collections.abc import Callable
 from functools import partial
@@ -90,6 +91,20 @@ ATARI_RECORDS = (
         "tests, a CI run or benchmarks at times",
     ),
 )
+# Atari-100k (100 000 agent steps, no sticky actions): this project's runs beside the published
+# means, DrQ(epsilon) (Agarwal et al. 2021, Dopamine's DrQ_eps) and DER (van Hasselt et al. 2019)
+ATARI_100K = ROOT / "docs" / "results" / "atari_100k.json"
+ATARI_100K_PUBLISHED = {
+    "ALE/Breakout-v5": {"DrQ(epsilon)": 16.1, "DER": 1.9},
+    "ALE/Boxing-v5": {"DrQ(epsilon)": 6.0},
+    "ALE/Pong-v5": {"DrQ(epsilon)": -8.5},
+}
+# Kept Breakout policies played 100 games in Gymnasium's loop, the games the loop's 30-game
+# column plays (its first 30) against the 70 after them
+ATARI_LOOP_SEEDS = ROOT / "docs" / "results" / "atari_loop_seeds.json"
+ATARI_LOOP_FIRST_GAMES = 30
+# TorchRL's own DQN Atari example's settings on Breakout, given the preset's 2 hours
+ATARI_TORCHRL_SETTINGS = ROOT / "docs" / "results" / "atari_torchrl_settings.json"
 # the other env presets raced against Stable-Baselines3 (python -m benchmarks run --env ...)
 RACES = {env: ROOT / "docs" / "results" / f"race_{env}.json" for env in RACE_ENVS}
 
@@ -200,8 +215,6 @@ def performance_phases() -> str:
     """docs/performance.md's table of where the default's training time goes: the phases of
     the 20-seed run's first protocol (``benchmarks.profile.phase_table``, from the summaries in
     ``docs/results/performance.json``), with the cost per update and per frame."""
-    import statistics
-
     from benchmarks.profile import phase_table
 
     record = json.loads(PERFORMANCE.read_text())
@@ -376,6 +389,79 @@ def atari_runs() -> str:
             record = json.loads(path.read_text())
             blocks.append(f"**{title}.**\n\n{_results_block(record, *_atari_table(record))}")
     return "\n\n".join(blocks)
+
+
+def atari_100k() -> str:
+    """docs/atari.md's table of the Atari-100k runs (:data:`ATARI_100K`, written by ``python -m
+    benchmarks atari --checkpoint RUN_DIR ... --record``) beside the published means of
+    :data:`ATARI_100K_PUBLISHED`."""
+    if not ATARI_100K.is_file():
+        return "Not measured yet."
+    record = json.loads(ATARI_100K.read_text())
+    authors = list(dict.fromkeys(name for means in ATARI_100K_PUBLISHED.values() for name in means))
+    rows = [
+        "| game | seed | agent steps | train time | greedy score at each evaluation | "
+        "kept policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
+        + " | ".join(f"{name}, published" for name in authors)
+        + " |",
+        "| --- " * (8 + len(authors)) + "|",
+    ]
+    order = list(ATARI_100K_PUBLISHED)
+    runs = sorted(record["runs"], key=lambda run: (order.index(run["env_id"]), run["seed"]))
+    for run in runs:
+        published = ATARI_100K_PUBLISHED[run["env_id"]]
+        rows.append(
+            f"| {run['env_id'].split('/')[-1].split('-')[0]} | {run['seed']} | "
+            f"{_spaced(run['frames'])} | {_duration(run['train_seconds'])} | "
+            f"{', '.join(f'{value:.1f}' for value in run['eval_curve']['returns'])} | "
+            f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
+            f"{run['final_eval_return_std']:.1f} | {run['plain_loop']['mean']:.1f} +/- "
+            f"{run['plain_loop']['std']:.1f} | "
+            + " | ".join(f"{published[name]:g}" if name in published else "" for name in authors)
+            + " |"
+        )
+    return "\n".join([_fenced(record["command"], "bash"), provenance_line(record), "", *rows])
+
+
+def atari_loop_seeds() -> str:
+    """docs/atari.md's table of kept policies over 100 games of Gymnasium's loop
+    (:data:`ATARI_LOOP_SEEDS`): its first 30 games, which the recipe's tables play, against the
+    70 after them, and the run's own final evaluation on its own games."""
+    record = json.loads(ATARI_LOOP_SEEDS.read_text())
+    first = ATARI_LOOP_FIRST_GAMES
+    rows = [
+        "| seed | the run's own final evaluation: 30 games | Gymnasium's loop: the first 30 "
+        "games | the 70 after them | first 30 minus the 70 | own evaluation minus the 70 |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    kinder, own_gaps = [], []
+    for run in record["runs"]:
+        scores, start = run["plain_loop"]["scores"], run["plain_loop"]["first_seed"]
+        head, tail = statistics.mean(scores[:first]), statistics.mean(scores[first:])
+        own = run["final_eval_return_mean"]
+        kinder.append(head - tail)
+        own_gaps.append(own - tail)
+        rows.append(
+            f"| {run['seed']} | {own:.1f} | {head:.1f} (seeds {start} to {start + first - 1}) | "
+            f"{tail:.1f} | {head - tail:+.1f} | {own - tail:+.1f} |"
+        )
+    higher = sum(gap > 0 for gap in kinder)
+    summary = (
+        f"The first {first} games score higher than the {len(scores) - first} after them for "
+        f"{higher} of the {len(kinder)} policies (by {statistics.median(kinder):+.1f} points, "
+        f"the median); the run's own evaluation against the same {len(scores) - first}: "
+        f"{statistics.median(own_gaps):+.1f} (the median)."
+    )
+    return _results_block(record, rows, summary)
+
+
+def atari_torchrl_settings() -> str:
+    """docs/atari.md's table of the run of TorchRL's DQN Atari example's settings
+    (:data:`ATARI_TORCHRL_SETTINGS`), with the target's verdict as the recipe's tables."""
+    if not ATARI_TORCHRL_SETTINGS.is_file():
+        return "Not measured yet."
+    record = json.loads(ATARI_TORCHRL_SETTINGS.read_text())
+    return _results_block(record, *_atari_table(record))
 
 
 def readme_atari() -> str:
@@ -563,6 +649,9 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
     "lunarlander-in-budget": ("docs/performance.md", lunarlander_in_budget),
     "atari-runs": ("docs/atari.md", atari_runs),
+    "atari-100k": ("docs/atari.md", atari_100k),
+    "atari-loop-seeds": ("docs/atari.md", atari_loop_seeds),
+    "atari-torchrl-settings": ("docs/atari.md", atari_torchrl_settings),
     "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),
     "update-cost": ("docs/performance.md", update_cost),
     **{

@@ -323,3 +323,15 @@ def test_an_atari_record_keeps_the_seeds_measured_before_and_replaces_one_measur
     third = _merged_record(path, [{"seed": 102}], "c0", now)
     assert third["runs"][0]["measured"]["machine"]["cpu"] == "old"
     assert third["command"] == "c0"
+    # two games of one seed are two runs: measuring one again leaves the other
+    path.write_text(json.dumps(third))
+    games = [{"seed": 300, "env_id": "ALE/Breakout-v5"}, {"seed": 300, "env_id": "ALE/Boxing-v5"}]
+    both = _merged_record(path, games, "c3", now)
+    path.write_text(json.dumps(both))
+    again = _merged_record(path, [{"seed": 300, "env_id": "ALE/Boxing-v5", "score": 6}], "c3", now)
+    assert [(run["seed"], run.get("env_id"), run.get("score")) for run in again["runs"]] == [
+        (101, None, None),
+        (102, None, None),
+        (300, "ALE/Boxing-v5", 6),
+        (300, "ALE/Breakout-v5", None),
+    ]
