@@ -481,7 +481,23 @@ def readme_atari() -> str:
         f"Breakout, {whose} named before they ran: {scores or 'none run yet'}. "
         f"{met} of the {ATARI_TARGET['seeds']} seeds the target needs reach the Practical RL "
         f"DQN assignment's {ATARI_TARGET['score']:g} within its time and memory"
-        f"{' so far' if len(runs) < ATARI_TARGET['seeds'] else ''}."
+        f"{' so far' if len(runs) < ATARI_TARGET['seeds'] else ''}.{_readme_atari_100k()}"
+    )
+
+
+def _readme_atari_100k() -> str:
+    """The README's sentence on the Atari-100k runs (:data:`ATARI_100K`), empty before any."""
+    if not ATARI_100K.is_file():
+        return ""
+    runs = json.loads(ATARI_100K.read_text())["runs"]
+    games = [
+        f"{run['final_eval_return_mean']:.1f} on {run['env_id'].split('/')[-1].split('-')[0]} "
+        f"(DrQ(epsilon) reports {ATARI_100K_PUBLISHED[run['env_id']]['DrQ(epsilon)']:g})"
+        for run in runs
+    ]
+    return (
+        " On the Atari-100k protocol (100 000 steps, no sticky actions), one seed a game, the "
+        f"kept policy scores {' and '.join(games)} over 30 whole games."
     )
 
 
