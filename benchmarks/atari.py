@@ -135,22 +135,24 @@ def _plain_loop(args: argparse.Namespace) -> None:
         runs.append({**summary, "plain_loop": plain})
     if args.record:
         command = f"python -m benchmarks atari --checkpoint RUN_DIR --games {args.games}"
+        command += f" --seeds {args.seeds[0]}" if args.seeds[0] != SEEDS[0] else ""
         record = _merged_record(args.record, runs, command, provenance())
         args.record.write_text(json.dumps(record, indent=2) + "\n")
 
 
 def _merged_record(path: Path, runs: list[dict], command: str, measured: dict) -> dict:
     """The results file at ``path`` with ``runs`` added: a game and seed measured again
-    replaces its old run, the others stay (seeds trained one session apart, or other games of
-    one seed, land in one table), and each run keeps where and when it was measured
-    (``measured``: date, commit, machine)."""
+    replaces its old run, the others stay (seeds trained on other days, or other games of one
+    seed, land in one table), and each run keeps where and when it was measured (``measured``:
+    date, commit, machine). A run recorded without its game is taken for any game."""
     kept, commands = [], [command]
     if path.is_file():
         previous = json.loads(path.read_text())
         where = {key: previous[key] for key in ("date", "commit", "machine")}
-        new = {_game_and_seed(run) for run in runs}
         kept = [
-            {"measured": where, **run} for run in previous["runs"] if _game_and_seed(run) not in new
+            {"measured": where, **run}
+            for run in previous["runs"]
+            if not any(_same_run(run, new) for new in runs)
         ]
         commands = [line for line in previous["command"].splitlines() if line != command]
         commands.append(command)
@@ -159,8 +161,11 @@ def _merged_record(path: Path, runs: list[dict], command: str, measured: dict) -
     return {**measured, "command": "\n".join(commands), "runs": merged}
 
 
-def _game_and_seed(run: dict) -> tuple[str, int]:
-    return run.get("env_id", ""), run["seed"]
+def _same_run(old: dict, new: dict) -> bool:
+    """Whether ``new`` measures ``old`` again: the same seed, and the same game where both name
+    theirs."""
+    games = {old.get("env_id"), new.get("env_id")} - {None}
+    return old["seed"] == new["seed"] and len(games) <= 1
 
 
 def _run_config(run_dir: Path) -> dict:

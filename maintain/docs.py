@@ -406,10 +406,8 @@ def atari_100k() -> str:
         + " |",
         "| --- " * (8 + len(authors)) + "|",
     ]
-    order = list(ATARI_100K_PUBLISHED)
-    runs = sorted(record["runs"], key=lambda run: (order.index(run["env_id"]), run["seed"]))
-    for run in runs:
-        published = ATARI_100K_PUBLISHED[run["env_id"]]
+    for run in _atari_100k_runs(record):
+        published = ATARI_100K_PUBLISHED.get(run["env_id"], {})
         rows.append(
             f"| {run['env_id'].split('/')[-1].split('-')[0]} | {run['seed']} | "
             f"{_spaced(run['frames'])} | {_duration(run['train_seconds'])} | "
@@ -417,42 +415,72 @@ def atari_100k() -> str:
             f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
             f"{run['final_eval_return_std']:.1f} | {run['plain_loop']['mean']:.1f} +/- "
             f"{run['plain_loop']['std']:.1f} | "
-            + " | ".join(f"{published[name]:g}" if name in published else "" for name in authors)
+            + " | ".join(f"{published[name]:g}" if name in published else "-" for name in authors)
             + " |"
         )
     return "\n".join([_fenced(record["command"], "bash"), provenance_line(record), "", *rows])
 
 
+def _atari_100k_runs(record: dict) -> list[dict]:
+    """The Atari-100k runs in :data:`ATARI_100K_PUBLISHED`'s order of games (others last)."""
+    order = list(ATARI_100K_PUBLISHED)
+
+    def place(run: dict) -> tuple[int, int]:
+        game = run["env_id"]
+        return order.index(game) if game in order else len(order), run["seed"]
+
+    return sorted(record["runs"], key=place)
+
+
 def atari_loop_seeds() -> str:
-    """docs/atari.md's table of kept policies over 100 games of Gymnasium's loop
-    (:data:`ATARI_LOOP_SEEDS`): its first 30 games, which the recipe's tables play, against the
-    70 after them, and the run's own final evaluation on its own games."""
+    """docs/atari.md's table of kept policies over many games of Gymnasium's loop
+    (:data:`ATARI_LOOP_SEEDS`): its first :data:`ATARI_LOOP_FIRST_GAMES` games, the games of the
+    recipe's tables, against the games after them, and the run's own final evaluation on its own
+    games; each difference with its standard error (from the games' spreads)."""
     record = json.loads(ATARI_LOOP_SEEDS.read_text())
     first = ATARI_LOOP_FIRST_GAMES
+    plays = [run["plain_loop"] for run in record["runs"]]
+    (games,) = {play["games"] for play in plays}  # one count of games for every policy
+    (start,) = {play["first_seed"] for play in plays}
+    (own_games,) = {run["final_eval_episodes"] for run in record["runs"]}
+    rest, seeds = games - first, f"{start} to {start + first - 1}"
     rows = [
-        "| seed | the run's own final evaluation: 30 games | Gymnasium's loop: the first 30 "
-        "games | the 70 after them | first 30 minus the 70 | own evaluation minus the 70 |",
+        f"| run's seed | the run's own final evaluation: {own_games} games | Gymnasium's loop: "
+        f"{first} games seeded {seeds} | the {rest} games after them | first {first} minus the "
+        f"{rest} | own evaluation minus the {rest} |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
-    kinder, own_gaps = [], []
-    for run in record["runs"]:
-        scores, start = run["plain_loop"]["scores"], run["plain_loop"]["first_seed"]
-        head, tail = statistics.mean(scores[:first]), statistics.mean(scores[first:])
+    kinder, own_gaps, errors = _loop_first_games_gaps(record), [], []
+    for run, play in zip(record["runs"], plays, strict=True):
+        head, tail = play["scores"][:first], play["scores"][first:]
+        tail_variance = statistics.pvariance(tail) / rest
+        errors.append(math.sqrt(statistics.pvariance(head) / first + tail_variance))
         own = run["final_eval_return_mean"]
-        kinder.append(head - tail)
-        own_gaps.append(own - tail)
+        own_gaps.append(own - statistics.mean(tail))
         rows.append(
-            f"| {run['seed']} | {own:.1f} | {head:.1f} (seeds {start} to {start + first - 1}) | "
-            f"{tail:.1f} | {head - tail:+.1f} | {own - tail:+.1f} |"
+            f"| {run['seed']} | {own:.1f} | {statistics.mean(head):.1f} | "
+            f"{statistics.mean(tail):.1f} | {kinder[-1]:+.1f} | {own_gaps[-1]:+.1f} |"
         )
     higher = sum(gap > 0 for gap in kinder)
     summary = (
-        f"The first {first} games score higher than the {len(scores) - first} after them for "
-        f"{higher} of the {len(kinder)} policies (by {statistics.median(kinder):+.1f} points, "
-        f"the median); the run's own evaluation against the same {len(scores) - first}: "
-        f"{statistics.median(own_gaps):+.1f} (the median)."
+        f"The first {first} games score higher than the {rest} after them for {higher} of the "
+        f"{len(kinder)} policies (by {statistics.median(kinder):+.1f} points, the median); the "
+        f"run's own evaluation against the same {rest}: {statistics.median(own_gaps):+.1f} (the "
+        f"median). Each row's difference carries about {statistics.median(errors):.1f} points of "
+        "noise (one standard error, the median over the rows)."
     )
     return _results_block(record, rows, summary)
+
+
+def _loop_first_games_gaps(record: dict) -> list[float]:
+    """Each policy's mean over Gymnasium's loop's first :data:`ATARI_LOOP_FIRST_GAMES` games
+    minus its mean over the games after them."""
+    first = ATARI_LOOP_FIRST_GAMES
+    return [
+        statistics.mean(run["plain_loop"]["scores"][:first])
+        - statistics.mean(run["plain_loop"]["scores"][first:])
+        for run in record["runs"]
+    ]
 
 
 def atari_torchrl_settings() -> str:
@@ -477,11 +505,15 @@ def readme_atari() -> str:
         for run in runs
     )
     met = sum(_meets_atari_target(run) for run in runs)
+    kinder = _loop_first_games_gaps(json.loads(ATARI_LOOP_SEEDS.read_text()))
     return (
         f"Breakout, {whose} named before they ran: {scores or 'none run yet'}. "
         f"{met} of the {ATARI_TARGET['seeds']} seeds the target needs reach the Practical RL "
         f"DQN assignment's {ATARI_TARGET['score']:g} within its time and memory"
-        f"{' so far' if len(runs) < ATARI_TARGET['seeds'] else ''}.{_readme_atari_100k()}"
+        f"{' so far' if len(runs) < ATARI_TARGET['seeds'] else ''}. Gymnasium's loop plays the "
+        f"same {ATARI_LOOP_FIRST_GAMES} games for every seed, and they score about "
+        f"{statistics.median(kinder):.1f} points above other games for these policies."
+        f"{_readme_atari_100k()}"
     )
 
 
@@ -489,15 +521,17 @@ def _readme_atari_100k() -> str:
     """The README's sentence on the Atari-100k runs (:data:`ATARI_100K`), empty before any."""
     if not ATARI_100K.is_file():
         return ""
-    runs = json.loads(ATARI_100K.read_text())["runs"]
-    games = [
-        f"{run['final_eval_return_mean']:.1f} on {run['env_id'].split('/')[-1].split('-')[0]} "
-        f"(DrQ(epsilon) reports {ATARI_100K_PUBLISHED[run['env_id']]['DrQ(epsilon)']:g})"
-        for run in runs
-    ]
+    games = []
+    for run in _atari_100k_runs(json.loads(ATARI_100K.read_text())):
+        drq = ATARI_100K_PUBLISHED.get(run["env_id"], {}).get("DrQ(epsilon)")
+        games.append(
+            f"{run['final_eval_return_mean']:.1f} over {run['final_eval_episodes']} whole games "
+            f"of {run['env_id'].split('/')[-1].split('-')[0]}"
+            + (f" (DrQ(epsilon)'s published mean: {drq:g})" if drq is not None else "")
+        )
     return (
         " On the Atari-100k protocol (100 000 steps, no sticky actions), one seed a game, the "
-        f"kept policy scores {' and '.join(games)} over 30 whole games."
+        f"kept policy (chosen among the run's evaluations) scores {' and '.join(games)}."
     )
 
 

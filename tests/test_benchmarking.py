@@ -335,3 +335,9 @@ def test_an_atari_record_keeps_the_seeds_measured_before_and_replaces_one_measur
         (300, "ALE/Boxing-v5", 6),
         (300, "ALE/Breakout-v5", None),
     ]
+    # a run recorded before runs named their game is replaced by its seed measured again
+    gameless = _merged_record(path, [{"seed": 101, "env_id": "ALE/Breakout-v5"}], "c0", now)
+    assert [(run["seed"], run.get("env_id")) for run in gameless["runs"]][:2] == [
+        (101, "ALE/Breakout-v5"),
+        (102, None),
+    ]
