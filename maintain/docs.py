@@ -23,6 +23,15 @@ wrote, never from a hand copy:
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
 - ``lunarlander-in-budget`` (docs/performance.md): LunarLander's runs cut at 300 s of training,
   from ``docs/results/lunarlander_300s.json`` (``python -m benchmarks envs ... --record``);
+- ``atari-runs``, ``readme-atari`` (docs/atari.md, README.md): Breakout seed by seed, a table
+  per form of the recipe, from ``docs/results/atari_breakout*.json`` (``python -m benchmarks
+  atari --checkpoint RUN_DIR ... --record``);
+- ``atari-loop-seeds``, ``atari-100k``, ``atari-torchrl-settings`` (docs/atari.md): kept
+  policies over 100 games of Gymnasium's loop, the Atari-100k runs beside published means, and
+  TorchRL's example's settings, from ``docs/results/atari_loop_seeds.json``,
+  ``atari_100k.json`` and ``atari_torchrl_settings.json`` (the same command);
+- ``checkpoint-cost`` (docs/reliability.md), ``update-cost`` (docs/performance.md): from
+  ``docs/results/checkpoint_cost.json`` and ``update_cost.json``;
 - ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
   and the class it returns, from the signatures (``maintain/reference.py``).
 
