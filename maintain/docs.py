@@ -424,7 +424,7 @@ def atari_100k() -> str:
             f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
             f"{run['final_eval_return_std']:.1f} | {run['plain_loop']['mean']:.1f} +/- "
             f"{run['plain_loop']['std']:.1f} | "
-            + " | ".join(f"{published[name]:g}" if name in published else "-" for name in authors)
+            + " | ".join(f"{published[name]:.1f}" if name in published else "-" for name in authors)
             + " |"
         )
     return "\n".join([_fenced(record["command"], "bash"), provenance_line(record), "", *rows])
@@ -536,7 +536,7 @@ def _readme_atari_100k() -> str:
         games.append(
             f"{run['final_eval_return_mean']:.1f} over {run['final_eval_episodes']} whole games "
             f"of {run['env_id'].split('/')[-1].split('-')[0]}"
-            + (f" (DrQ(epsilon)'s published mean: {drq:g})" if drq is not None else "")
+            + (f" (DrQ(epsilon)'s published mean: {drq:.1f})" if drq is not None else "")
         )
     return (
         " On the Atari-100k protocol (100 000 steps, no sticky actions), one seed a game, the "
