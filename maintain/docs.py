@@ -418,7 +418,7 @@ def atari_100k() -> str:
     for run in _atari_100k_runs(record):
         published = ATARI_100K_PUBLISHED.get(run["env_id"], {})
         rows.append(
-            f"| {run['env_id'].split('/')[-1].split('-')[0]} | {run['seed']} | "
+            f"| {_game_name(run['env_id'])} | {run['seed']} | "
             f"{_spaced(run['frames'])} | {_duration(run['train_seconds'])} | "
             f"{', '.join(f'{value:.1f}' for value in run['eval_curve']['returns'])} | "
             f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
@@ -428,6 +428,11 @@ def atari_100k() -> str:
             + " |"
         )
     return "\n".join([_fenced(record["command"], "bash"), provenance_line(record), "", *rows])
+
+
+def _game_name(env_id: str) -> str:
+    """``ALE/Breakout-v5`` -> ``Breakout``."""
+    return env_id.split("/")[-1].split("-")[0]
 
 
 def _atari_100k_runs(record: dict) -> list[dict]:
@@ -460,7 +465,7 @@ def atari_loop_seeds() -> str:
         "| --- | --- | --- | --- | --- | --- |",
     ]
     kinder, own_gaps, errors = _loop_first_games_gaps(record), [], []
-    for run, play in zip(record["runs"], plays, strict=True):
+    for run, play, gap in zip(record["runs"], plays, kinder, strict=True):
         head, tail = play["scores"][:first], play["scores"][first:]
         tail_variance = statistics.pvariance(tail) / rest
         errors.append(math.sqrt(statistics.pvariance(head) / first + tail_variance))
@@ -468,7 +473,7 @@ def atari_loop_seeds() -> str:
         own_gaps.append(own - statistics.mean(tail))
         rows.append(
             f"| {run['seed']} | {own:.1f} | {statistics.mean(head):.1f} | "
-            f"{statistics.mean(tail):.1f} | {kinder[-1]:+.1f} | {own_gaps[-1]:+.1f} |"
+            f"{statistics.mean(tail):.1f} | {gap:+.1f} | {own_gaps[-1]:+.1f} |"
         )
     higher = sum(gap > 0 for gap in kinder)
     summary = (
@@ -535,7 +540,7 @@ def _readme_atari_100k() -> str:
         drq = ATARI_100K_PUBLISHED.get(run["env_id"], {}).get("DrQ(epsilon)")
         games.append(
             f"{run['final_eval_return_mean']:.1f} over {run['final_eval_episodes']} whole games "
-            f"of {run['env_id'].split('/')[-1].split('-')[0]}"
+            f"of {_game_name(run['env_id'])}"
             + (f" (DrQ(epsilon)'s published mean: {drq:.1f})" if drq is not None else "")
         )
     return (

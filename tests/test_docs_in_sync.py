@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import pytest
@@ -102,3 +103,39 @@ def test_every_documented_command_line_is_one_the_code_accepts():
         except Exception as error:
             refused.append(f"{where}: {name} {' '.join(args)}: {str(error).splitlines()[0]}")
     assert refused == []
+
+
+def test_the_loop_seeds_table_gives_each_policy_its_own_difference(tmp_path, monkeypatch):
+    """Each row of docs/atari.md's loop-seeds table: that policy's first 30 games minus the 70
+    after them, computed here by hand."""
+    first = docs.ATARI_LOOP_FIRST_GAMES
+
+    def run(seed: int, head: float, tail: float) -> dict:
+        scores = [head] * first + [tail] * (100 - first)
+        play = {"games": 100, "first_seed": 0, "scores": scores, "mean": 0.0, "std": 0.0}
+        return {
+            "seed": seed,
+            "final_eval_return_mean": 10.0,
+            "final_eval_episodes": 30,
+            "plain_loop": play,
+        }
+
+    machine = {"cpu": "test CPU", "cores": 2}
+    record = {
+        "date": "2026-11-29",
+        "commit": "a" * 40,
+        "machine": machine,
+        "command": "c",
+        "runs": [run(1, 12.0, 10.0), run(2, 9.0, 10.0), run(3, 15.0, 11.5)],
+    }
+    path = tmp_path / "atari_loop_seeds.json"
+    path.write_text(json.dumps(record))
+    monkeypatch.setattr(docs, "ATARI_LOOP_SEEDS", path)
+    rows = [line for line in docs.atari_loop_seeds().splitlines() if line.startswith("| ")]
+    # run's seed, own evaluation, first 30, the 70, first minus the 70, own minus the 70
+    assert rows[2:] == [
+        "| 1 | 10.0 | 12.0 | 10.0 | +2.0 | +0.0 |",
+        "| 2 | 10.0 | 9.0 | 10.0 | -1.0 | +0.0 |",
+        "| 3 | 10.0 | 15.0 | 11.5 | +3.5 | -1.5 |",
+    ]
+    assert "for 2 of the 3 policies (by +2.0 points, the median)" in docs.atari_loop_seeds()
