@@ -26,6 +26,8 @@ wrote, never from a hand copy:
 - ``atari-runs``, ``readme-atari`` (docs/atari.md, README.md): Breakout seed by seed, a table
   per form of the recipe, from ``docs/results/atari_breakout*.json`` (``python -m benchmarks
   atari --checkpoint RUN_DIR ... --record``);
+- ``atari-loop-gap`` (docs/atari.md): the kept policies in Gymnasium's loop against their runs'
+  own final evaluations, over the tables of ``atari-runs``;
 - ``atari-loop-seeds``, ``atari-100k``, ``atari-torchrl-settings`` (docs/atari.md): kept
   policies over 100 games of Gymnasium's loop, the Atari-100k runs beside published means, and
   TorchRL's example's settings, from ``docs/results/atari_loop_seeds.json``,
@@ -486,6 +488,31 @@ def atari_loop_seeds() -> str:
     return _results_block(record, rows, summary)
 
 
+def atari_loop_gap() -> str:
+    """docs/atari.md's sentence on the recipe's tables (:data:`ATARI_RECORDS`): on how many
+    seeds the kept policy scores higher in Gymnasium's loop than in the run's own final
+    evaluation, by how much (the median and range), and the seeds that score lower."""
+    runs = [
+        run
+        for path, _, _ in ATARI_RECORDS
+        if path.is_file()
+        for run in json.loads(path.read_text())["runs"]
+    ]
+    gaps = {run["seed"]: run["plain_loop"]["mean"] - run["final_eval_return_mean"] for run in runs}
+    higher = sorted(gap for gap in gaps.values() if gap > 0)
+    lower = [f"{seed} by {abs(gap):.1f}" for seed, gap in gaps.items() if gap <= 0]
+    largest = max(runs, key=lambda run: gaps[run["seed"]])
+    span = f"by {higher[0]:.1f} to {higher[-1]:.1f} points, " if higher else ""
+    return (
+        "Exported into Gymnasium's own loop, the kept policies score higher than in the run's "
+        f"own final evaluation on {len(higher)} of the {len(runs)} seeds of these tables "
+        f"({span}a median of {statistics.median(gaps.values()):+.1f} over all of them; "
+        f"{'lower or level: seed ' + ', '.join(lower) if lower else 'none lower'}; the largest "
+        f"seed {largest['seed']}'s, {largest['plain_loop']['mean']:.1f} against "
+        f"{largest['final_eval_return_mean']:.1f})."
+    )
+
+
 def _loop_first_games_gaps(record: dict) -> list[float]:
     """Each policy's mean over Gymnasium's loop's first :data:`ATARI_LOOP_FIRST_GAMES` games
     minus its mean over the games after them."""
@@ -714,6 +741,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "lunarlander-in-budget": ("docs/performance.md", lunarlander_in_budget),
     "atari-runs": ("docs/atari.md", atari_runs),
     "atari-100k": ("docs/atari.md", atari_100k),
+    "atari-loop-gap": ("docs/atari.md", atari_loop_gap),
     "atari-loop-seeds": ("docs/atari.md", atari_loop_seeds),
     "atari-torchrl-settings": ("docs/atari.md", atari_torchrl_settings),
     "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),
