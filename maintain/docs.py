@@ -101,6 +101,14 @@ ATARI_RECORDS = (
         "110 and 111 side by side at `b68e802`, each on one core, beside the project's own "
         "tests, a CI run or benchmarks at times",
     ),
+    (
+        ROOT / "docs" / "results" / "atari_breakout_taper.json",
+        "the fifth form's seeds",
+        "The fifth form of the recipe (the fourth with its learning rate tapered from 1e-4 to "
+        "1e-5 over 135 000 steps, `optim.lr_end=1e-5 optim.lr_decay_frames=135000`); seeds 112, "
+        "113 and 114 named for it before any ran; 112 and 113 side by side at commit `03c8b46`, "
+        "each on one core, with little else beside them",
+    ),
 )
 # Atari-100k (100 000 agent steps, no sticky actions): this project's runs beside the published
 # means, DrQ(epsilon) (Agarwal et al. 2021, Dopamine's DrQ_eps) and DER (van Hasselt et al. 2019)
