@@ -554,14 +554,17 @@ def readme_atari() -> str:
         for run in runs
     )
     met = sum(_meets_atari_target(run) for run in runs)
-    kinder = _loop_first_games_gaps(json.loads(ATARI_LOOP_SEEDS.read_text()))
+    loop_seeds = json.loads(ATARI_LOOP_SEEDS.read_text())
+    kinder = _loop_first_games_gaps(loop_seeds)
+    measured = [run["seed"] for run in loop_seeds["runs"]]
     return (
         f"Breakout, {whose} named before they ran: {scores or 'none run yet'}. "
         f"{met} of the {ATARI_TARGET['seeds']} seeds the target needs reach the Practical RL "
         f"DQN assignment's {ATARI_TARGET['score']:g} within its time and memory"
         f"{' so far' if len(runs) < ATARI_TARGET['seeds'] else ''}. Gymnasium's loop plays the "
-        f"same {ATARI_LOOP_FIRST_GAMES} games for every seed, and they score about "
-        f"{statistics.median(kinder):.1f} points above other games for these policies."
+        f"same {ATARI_LOOP_FIRST_GAMES} games for every seed; for the kept policies of seeds "
+        f"{min(measured)} to {max(measured)} they score about {statistics.median(kinder):.1f} "
+        "points above other games."
         f"{_readme_atari_100k()}"
     )
 
