@@ -506,15 +506,19 @@ def atari_loop_gap() -> str:
         if path.is_file()
         for run in json.loads(path.read_text())["runs"]
     ]
-    gaps = {run["seed"]: run["plain_loop"]["mean"] - run["final_eval_return_mean"] for run in runs}
-    higher = sorted(gap for gap in gaps.values() if gap > 0)
-    lower = [f"{seed} by {abs(gap):.1f}" for seed, gap in gaps.items() if gap <= 0]
-    largest = max(runs, key=lambda run: gaps[run["seed"]])
+    gaps = [run["plain_loop"]["mean"] - run["final_eval_return_mean"] for run in runs]
+    higher = sorted(gap for gap in gaps if gap > 0)
+    lower = [
+        f"{run['seed']} by {-gap:.1f}" if gap < 0 else f"{run['seed']} level"
+        for run, gap in zip(runs, gaps, strict=True)
+        if gap <= 0
+    ]
+    largest = runs[gaps.index(max(gaps))]
     span = f"by {higher[0]:.1f} to {higher[-1]:.1f} points, " if higher else ""
     return (
         "Exported into Gymnasium's own loop, the kept policies score higher than in the run's "
         f"own final evaluation on {len(higher)} of the {len(runs)} seeds of these tables "
-        f"({span}a median of {statistics.median(gaps.values()):+.1f} over all of them; "
+        f"({span}a median of {statistics.median(gaps):+.1f} over all of them; "
         f"{'lower or level: seed ' + ', '.join(lower) if lower else 'none lower'}; the largest "
         f"seed {largest['seed']}'s, {largest['plain_loop']['mean']:.1f} against "
         f"{largest['final_eval_return_mean']:.1f})."
