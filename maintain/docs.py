@@ -402,12 +402,21 @@ def atari_runs() -> str:
     """docs/atari.md's tables of Breakout runs, one per form of the recipe
     (:data:`ATARI_RECORDS`, written by ``python -m benchmarks atari --checkpoint RUN_DIR ...
     --record``), each with the Practical RL DQN assignment's target's verdict."""
-    blocks = []
-    for path, _, title in ATARI_RECORDS:
-        if path.is_file():
-            record = json.loads(path.read_text())
-            blocks.append(f"**{title}.**\n\n{_results_block(record, *_atari_table(record))}")
+    blocks = [
+        f"**{title}.**\n\n{_results_block(record, *_atari_table(record))}"
+        for _, title, record in _recorded_atari_forms()
+    ]
     return "\n\n".join(blocks)
+
+
+def _recorded_atari_forms() -> list[tuple[str, str, dict]]:
+    """Each form of :data:`ATARI_RECORDS` whose results file exists, in order: the name of its
+    seeds, its title and its record."""
+    return [
+        (seeds, title, json.loads(path.read_text()))
+        for path, seeds, title in ATARI_RECORDS
+        if path.is_file()
+    ]
 
 
 def atari_100k() -> str:
@@ -500,12 +509,7 @@ def atari_loop_gap() -> str:
     """docs/atari.md's sentence on the recipe's tables (:data:`ATARI_RECORDS`): on how many
     seeds the kept policy scores higher in Gymnasium's loop than in the run's own final
     evaluation, by how much (the median and range), and the seeds that score lower."""
-    runs = [
-        run
-        for path, _, _ in ATARI_RECORDS
-        if path.is_file()
-        for run in json.loads(path.read_text())["runs"]
-    ]
+    runs = [run for _, _, record in _recorded_atari_forms() for run in record["runs"]]
     gaps = [run["plain_loop"]["mean"] - run["final_eval_return_mean"] for run in runs]
     higher = sorted(gap for gap in gaps if gap > 0)
     lower = [
@@ -549,9 +553,10 @@ def readme_atari() -> str:
     """The README's Breakout sentence: each seed of the newest form of the recipe with results
     (the last of :data:`ATARI_RECORDS` whose file exists), its kept policy's 30 games and the
     same policy in Gymnasium's loop."""
-    recorded = [(path, seeds) for path, seeds, _ in ATARI_RECORDS if path.is_file()]
-    path, whose = recorded[-1] if recorded else (None, "the preset's seeds")
-    runs = json.loads(path.read_text())["runs"] if path is not None else []
+    recorded = _recorded_atari_forms()
+    whose, runs = (
+        (recorded[-1][0], recorded[-1][2]["runs"]) if recorded else ("the preset's seeds", [])
+    )
     scores = "; ".join(
         f"seed {run['seed']} keeps a policy that scores {run['final_eval_return_mean']:.1f} over "
         f"30 whole games ({run['plain_loop']['mean']:.1f} exported, in Gymnasium's own loop)"
