@@ -26,6 +26,9 @@ wrote, never from a hand copy:
 - ``atari-runs``, ``readme-atari`` (docs/atari.md, README.md): Breakout seed by seed, a table
   per form of the recipe, from ``docs/results/atari_breakout*.json`` (``python -m benchmarks
   atari --checkpoint RUN_DIR ... --record``);
+- ``atari-taper-ablation`` (docs/atari.md): the fourth form trained on the fifth form's seeds for
+  as many steps, from ``docs/results/atari_breakout_no_taper.json`` (the same command), each
+  seed beside its tapered run;
 - ``atari-loop-gap`` (docs/atari.md): the kept policies in Gymnasium's loop against their runs'
   own final evaluations, over the tables of ``atari-runs``;
 - ``atari-loop-seeds``, ``atari-100k``, ``atari-torchrl-settings`` (docs/atari.md): kept
@@ -110,6 +113,10 @@ ATARI_RECORDS = (
         "each on one core, with little else beside them",
     ),
 )
+# The taper's ablation: the fourth form (no taper) on the fifth form's seeds, trained to the same
+# 200 000 steps, and the fifth form's file it is read against
+ATARI_NO_TAPER = ROOT / "docs" / "results" / "atari_breakout_no_taper.json"
+ATARI_TAPERED = ROOT / "docs" / "results" / "atari_breakout_taper.json"
 # Atari-100k (100 000 agent steps, no sticky actions): this project's runs beside the published
 # means, DrQ(epsilon) (Agarwal et al. 2021, Dopamine's DrQ_eps) and DER (van Hasselt et al. 2019)
 ATARI_100K = ROOT / "docs" / "results" / "atari_100k.json"
@@ -417,6 +424,31 @@ def _recorded_atari_forms() -> list[tuple[str, str, dict]]:
         for path, seeds, title in ATARI_RECORDS
         if path.is_file()
     ]
+
+
+def atari_taper_ablation() -> str:
+    """docs/atari.md's table of the fourth form (no taper) trained on the fifth form's seeds
+    (:data:`ATARI_NO_TAPER`), and a sentence setting each seed's kept policy beside its
+    tapered run's (:data:`ATARI_TAPERED`): the same seed, the same steps, the taper alone."""
+    if not ATARI_NO_TAPER.is_file():
+        return "Not measured yet."
+    record = json.loads(ATARI_NO_TAPER.read_text())
+    tapered = {run["seed"]: run for run in json.loads(ATARI_TAPERED.read_text())["runs"]}
+    rows, _ = _atari_table(record)
+    pairs = []
+    for run in record["runs"]:
+        if run["seed"] not in tapered:
+            continue
+        with_taper = tapered[run["seed"]]
+        pairs.append(
+            f"seed {run['seed']}, {run['final_eval_return_mean']:.1f} without the taper after "
+            f"{_spaced(run['updates'])} updates and {with_taper['final_eval_return_mean']:.1f} "
+            f"with it after {_spaced(with_taper['updates'])}"
+        )
+    comparison = f"The kept policies over 30 whole games: {'; '.join(pairs)}." if pairs else ""
+    return "\n".join(
+        [_fenced(record["command"], "bash"), provenance_line(record), "", *rows, "", comparison]
+    )
 
 
 def atari_100k() -> str:
@@ -762,6 +794,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "atari-runs": ("docs/atari.md", atari_runs),
     "atari-100k": ("docs/atari.md", atari_100k),
     "atari-loop-gap": ("docs/atari.md", atari_loop_gap),
+    "atari-taper-ablation": ("docs/atari.md", atari_taper_ablation),
     "atari-loop-seeds": ("docs/atari.md", atari_loop_seeds),
     "atari-torchrl-settings": ("docs/atari.md", atari_torchrl_settings),
     "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),

@@ -160,3 +160,45 @@ def test_the_loop_gap_sentence_counts_every_form_of_the_recipe(tmp_path, monkeyp
         "median of +1.3 over all of them; lower or level: seed 2 by 1.0, 3 level; the largest "
         "seed 4's, 13.0 against 9.0)."
     )
+
+
+def test_the_taper_ablation_sets_each_seed_beside_its_tapered_run(tmp_path, monkeypatch):
+    """docs/atari.md's ablation pairs each untapered seed with the same seed's tapered run (a
+    seed without one is left out), and says "Not measured yet." before the file exists."""
+    monkeypatch.setattr(docs, "ATARI_NO_TAPER", tmp_path / "no_taper.json")
+    assert docs.atari_taper_ablation() == "Not measured yet."
+
+    def run(seed: int, score: float, updates: int) -> dict:
+        return {
+            "seed": seed,
+            "frames": updates + 1_608,
+            "updates": updates,
+            "train_seconds": 6_000.0,
+            "eval_curve": {"returns": [1.0, score]},
+            "kept_policy_frames": 10_000,
+            "final_eval_return_mean": score,
+            "final_eval_return_std": 1.0,
+            "final_eval_returns": [score - 1.0, score + 1.0],
+            "plain_loop": {"mean": score, "std": 1.0},
+            "collect_frames_per_second": 200,
+            "updates_per_second": 30.0,
+            "peak_rss_mb": 1_500,
+        }
+
+    head = {
+        "date": "2026-11-29",
+        "commit": "0123456789abcdef",
+        "machine": {"cpu": "CPU", "cores": 2},
+        "command": "python -m benchmarks atari --checkpoint RUN_DIR --games 30",
+    }
+    (tmp_path / "no_taper.json").write_text(
+        json.dumps({**head, "runs": [run(7, 12.34, 198_392), run(8, 9.0, 1_000)]})
+    )
+    (tmp_path / "taper.json").write_text(json.dumps({**head, "runs": [run(7, 18.0, 198_392)]}))
+    monkeypatch.setattr(docs, "ATARI_TAPERED", tmp_path / "taper.json")
+    generated = docs.atari_taper_ablation()
+    assert "| 8 | 2 608 | 1 000 |" in generated  # every untapered seed has its row
+    assert generated.endswith(
+        "The kept policies over 30 whole games: seed 7, 12.3 without the taper after 198 392 "
+        "updates and 18.0 with it after 198 392."
+    )
