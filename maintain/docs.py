@@ -109,8 +109,9 @@ ATARI_RECORDS = (
         "the fifth form's seeds",
         "The fifth form of the recipe (the fourth with its learning rate tapered from 1e-4 to "
         "1e-5 over 135 000 steps, `optim.lr_end=1e-5 optim.lr_decay_frames=135000`); seeds 112, "
-        "113 and 114 named for it before any ran; 112 and 113 side by side at commit `03c8b46`, "
-        "each on one core, with little else beside them",
+        "113 and 114 named for it before any ran, each on one core at commit `03c8b46`; 112 and "
+        "113 side by side with little else beside them, 114 beside the fourth form's run of seed "
+        "112 (below), stopped by Ctrl-C at 78 228 steps and resumed 55 minutes later",
     ),
 )
 # The taper's ablation: the fourth form (no taper) on the fifth form's seeds, trained to the same
