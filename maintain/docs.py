@@ -746,14 +746,22 @@ def update_cost() -> str:
 
 def _against_float32(run: dict, runs: list[dict]) -> str:
     """For a run with ``optim.autocast=bfloat16``: its updates over the same run's in float32
-    (the measurement with the same overrides less that one), where both were recorded."""
+    (the measurement with the same overrides less that one, or with ``optim.autocast=none`` in
+    its place for a preset that sets bfloat16), where both were recorded."""
     from benchmarks.update_cost import COMPILED
 
-    autocast = "optim.autocast=bfloat16"
+    autocast, none = "optim.autocast=bfloat16", "optim.autocast=none"
     if autocast not in run["overrides"]:
         return ""
     plain = [override for override in run["overrides"] if override != autocast]
-    float32 = next((other for other in runs if other["overrides"] == plain), None)
+    float32 = next(
+        (
+            other
+            for other in runs
+            if [override for override in other["overrides"] if override != none] == plain
+        ),
+        None,
+    )
     if float32 is None:
         return ""
     eager = {r["name"]: r["total_ms"] for r in float32["rows"]}["dqn"]
