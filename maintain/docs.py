@@ -68,6 +68,8 @@ LUNARLANDER_IN_BUDGET = ROOT / "docs" / "results" / "lunarlander_300s.json"
 # The loop reads its time limit after each batch, so a run ends up to one batch past it (a few
 # milliseconds for LunarLander's 16 frames and 4 updates): 1 s of slack.
 LUNARLANDER_TIME_SLACK_SECONDS = 1.0
+# the fifth form's results file (its learning rate tapered): the taper's ablation is read against it
+ATARI_TAPERED = ROOT / "docs" / "results" / "atari_breakout_taper.json"
 # Breakout's results files, each a form of the recipe, with the words that name its seeds in the
 # README and the line that names it in docs/atari.md
 ATARI_RECORDS = (
@@ -105,7 +107,7 @@ ATARI_RECORDS = (
         "tests, a CI run or benchmarks at times",
     ),
     (
-        ROOT / "docs" / "results" / "atari_breakout_taper.json",
+        ATARI_TAPERED,
         "the fifth form's seeds",
         "The fifth form of the recipe (the fourth with its learning rate tapered from 1e-4 to "
         "1e-5 over 135 000 steps, `optim.lr_end=1e-5 optim.lr_decay_frames=135000`); seeds 112, "
@@ -115,9 +117,8 @@ ATARI_RECORDS = (
     ),
 )
 # The taper's ablation: the fourth form (no taper) on the fifth form's seeds, trained to the same
-# 200 000 steps, and the fifth form's file it is read against
+# 200 000 steps
 ATARI_NO_TAPER = ROOT / "docs" / "results" / "atari_breakout_no_taper.json"
-ATARI_TAPERED = ROOT / "docs" / "results" / "atari_breakout_taper.json"
 # Atari-100k (100 000 agent steps, no sticky actions): this project's runs beside the published
 # means, DrQ(epsilon) (Agarwal et al. 2021, Dopamine's DrQ_eps) and DER (van Hasselt et al. 2019)
 ATARI_100K = ROOT / "docs" / "results" / "atari_100k.json"
@@ -447,9 +448,7 @@ def atari_taper_ablation() -> str:
             f"with it after {_spaced(with_taper['updates'])}"
         )
     comparison = f"The kept policies over 30 whole games: {'; '.join(pairs)}." if pairs else ""
-    return "\n".join(
-        [_fenced(record["command"], "bash"), provenance_line(record), "", *rows, "", comparison]
-    )
+    return _results_block(record, rows, comparison)
 
 
 def atari_100k() -> str:
