@@ -162,6 +162,35 @@ def test_the_loop_gap_sentence_counts_every_form_of_the_recipe(tmp_path, monkeyp
     )
 
 
+def test_the_readme_reports_the_preset_form_not_the_newest(tmp_path, monkeypatch):
+    """The README's Breakout sentence reports the seeds of the form the preset sets
+    (:data:`ATARI_PRESET_FORM`), not those of a newer form still training its seeds."""
+
+    def run(seed: int, score: float) -> dict:
+        return {
+            "seed": seed,
+            "final_eval_return_mean": score,
+            "plain_loop": {"mean": score + 1.0},
+            "train_seconds": 7_000.0,
+            "peak_rss_mb": 1_500,
+        }
+
+    preset, newer = tmp_path / "preset.json", tmp_path / "newer.json"
+    preset.write_text(json.dumps({"runs": [run(1, 16.0), run(2, 14.0), run(3, 15.0)]}))
+    newer.write_text(json.dumps({"runs": [run(4, 30.0)]}))
+    records = [(preset, "the preset form's seeds", ""), (newer, "the newer form's seeds", "")]
+    monkeypatch.setattr(docs, "ATARI_RECORDS", tuple(records))
+    monkeypatch.setattr(docs, "ATARI_PRESET_FORM", preset)
+    sentence = docs.readme_atari()
+    assert sentence.startswith(
+        "Breakout, the preset form's seeds named before they ran: seed 1 keeps a policy that "
+        "scores 16.0 over 30 whole games (17.0 exported, in Gymnasium's own loop); seed 2"
+    )
+    assert "seed 4" not in sentence
+    # 16.0 and 15.0 reach 15; 14.0 does not
+    assert "2 of the 3 seeds the target needs reach" in sentence
+
+
 def test_the_taper_ablation_sets_each_seed_beside_its_tapered_run(tmp_path, monkeypatch):
     """docs/atari.md's ablation pairs each untapered seed with the same seed's tapered run (a
     seed without one is left out), and says "Not measured yet." before the file exists."""
