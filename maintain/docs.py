@@ -68,10 +68,12 @@ LUNARLANDER_IN_BUDGET = ROOT / "docs" / "results" / "lunarlander_300s.json"
 # The loop reads its time limit after each batch, so a run ends up to one batch past it (a few
 # milliseconds for LunarLander's 16 frames and 4 updates): 1 s of slack.
 LUNARLANDER_TIME_SLACK_SECONDS = 1.0
-# the fifth form's results file (its learning rate tapered): the taper's ablation is read against
-# it, and as the form configs/env/breakout.yaml sets, the README reports its seeds
+# the fifth form's results file (its learning rate tapered): the taper's ablation is read against it
 ATARI_TAPERED = ROOT / "docs" / "results" / "atari_breakout_taper.json"
-ATARI_PRESET_FORM = ATARI_TAPERED
+# the sixth form's (the fifth trained on for its whole 2 hours): the form configs/env/breakout.yaml
+# sets, whose seeds the README reports
+ATARI_WHOLE_2H = ROOT / "docs" / "results" / "atari_breakout_whole_2h.json"
+ATARI_PRESET_FORM = ATARI_WHOLE_2H
 # Breakout's results files, each a form of the recipe, with the words that name its seeds in the
 # README and the line that names it in docs/atari.md
 ATARI_RECORDS = (
@@ -118,11 +120,12 @@ ATARI_RECORDS = (
         "112 (below), stopped by Ctrl-C at 78 228 steps and resumed 55 minutes later",
     ),
     (
-        ROOT / "docs" / "results" / "atari_breakout_whole_2h.json",
+        ATARI_WHOLE_2H,
         "the sixth form's seeds",
         "The sixth form of the recipe (the fifth trained on for its whole 2 hours, "
-        "`collector.total_frames=300000`); seeds 115, 116 and 117 named for it before any ran; "
-        "115 and 116 side by side at commit `b6a96a5`, each on one core",
+        "`collector.total_frames=300000`, the preset); seeds 115, 116 and 117 named for it "
+        "before any ran, each on one core; 115 and 116 side by side at commit `b6a96a5`, 117 at "
+        "`1d46af7` (the same code) beside the taper's ablation run of seed 113 (below)",
     ),
 )
 # The taper's ablation: the fourth form (no taper) on the fifth form's seeds, trained to the same
