@@ -42,7 +42,6 @@ from torchrl.envs.utils import step_mdp
 from trl_cartpole.config.compose import compose_config
 from trl_cartpole.env_ids import register_atari_games
 from trl_cartpole.parts.atari import ATARI_DEFAULTS
-from trl_cartpole.parts.earlier_forms import upgrade_stored_config
 
 SEEDS = [0]
 OUT = "runs/bench/atari"
@@ -172,8 +171,7 @@ def _same_run(old: dict, new: dict) -> bool:
 def _run_config(run_dir: Path) -> dict:
     from omegaconf import OmegaConf
 
-    stored = OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml"), resolve=False)
-    return upgrade_stored_config(stored)  # a run's own FIRE steps, saved before they were set
+    return OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml"), resolve=False)
 
 
 def _steps_per_second(step, steps: int, batch: int) -> float:

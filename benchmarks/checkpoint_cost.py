@@ -2,7 +2,7 @@
 
     python -m benchmarks checkpoint-cost [--filled 100000] [--added 10000] [env=cartpole_pixels]
 
-Fills a buffer of the preset's ``buffer.size`` in memory with ``--filled`` transitions shaped
+Fills a buffer of the preset's ``buffer.max_size`` in memory with ``--filled`` transitions shaped
 like the env's (random values) and checkpoints it as a run does (TorchRL's ``Checkpoint``,
 then the integrity record), then adds ``--added`` more and checkpoints again: the storage a
 run uses (:class:`~trl_cartpole.parts.chunked_storage.TrackedTensorStorage`, files linked
@@ -127,7 +127,7 @@ def main(args: argparse.Namespace) -> None:
     step = env.rand_step(env.reset())
     template = step[0] if step.batch_dims else step  # one transition
     env.close()
-    size = cfg.buffer.size
+    size = cfg.buffer.max_size
     added = [args.added] if args.added <= size else []
     batches = [_transitions(template, args.filled), *(_transitions(template, n) for n in added)]
     print(

@@ -15,7 +15,7 @@ With ``dqn`` among the presets three more rows come from the same batches, inter
 the ``dqn`` updates batch by batch so that the machine's drift slows all alike:
 
 - ``dqn, compile=true``: the same preset with its update compiled whole
-  (:mod:`trl_cartpole.parts.lean_update`), its compilation timed apart;
+  (:mod:`trl_cartpole.fast.compiled_update`), its compilation timed apart;
 - raw PyTorch (``raw_update``: the same MLP, batch, n-step TD target, Huber loss,
   gradient-norm clipping, fused AdamW and hard target copy, on plain tensors sampled with one
   ``randint``), eager;
@@ -68,7 +68,7 @@ def raw_update(cfg, obs_dim: int, num_actions: int, size: int = RANDOM_FRAMES):
     """
     if cfg.network.head != "plain" or cfg.network.noisy or cfg.network.distributional:
         raise ValueError("raw_update times plain DQN only")
-    widths = [obs_dim, *cfg.network.hidden_sizes]
+    widths = [obs_dim, *cfg.network.num_cells]
     layers: list[torch.nn.Module] = []
     for width_in, width_out in pairwise(widths):
         layers += [torch.nn.Linear(width_in, width_out), torch.nn.ReLU()]
@@ -107,7 +107,7 @@ def raw_update(cfg, obs_dim: int, num_actions: int, size: int = RANDOM_FRAMES):
         torch.nn.utils.clip_grad_norm_(params, cfg.optim.max_grad, foreach=True)
         optimizer.step()
         counter[0] += 1
-        if counter[0] % cfg.loss.hard_update_interval == 0:
+        if counter[0] % cfg.target_updater.value_network_update_interval == 0:
             torch._foreach_copy_(list(target.parameters()), params)
         return sampled - start, time.perf_counter() - sampled
 
@@ -124,7 +124,7 @@ def update_flops(cfg, obs_dim: int, num_actions: int) -> float:
     The elementwise work (activations, loss, AdamW: about ten operations a parameter) is left
     out: a floor, not an estimate.
     """
-    widths = [obs_dim, *cfg.network.hidden_sizes, num_actions]
+    widths = [obs_dim, *cfg.network.num_cells, num_actions]
     batch = cfg.buffer.batch_size
     one_pass = 2 * batch * sum(a * b for a, b in pairwise(widths))
     return (4 + int(cfg.loss.double_dqn)) * one_pass - 2 * batch * widths[0] * widths[1]

@@ -45,10 +45,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     torch.manual_seed(args.seed)
 
     env = make_env("CartPole-v1", seed=args.seed, num_envs=16)  # a batch is [16, 2]
-    # tuned=True: this project's CartPole values for every argument left out (without it,
-    # each factory takes the defaults of the TorchRL class it builds)
-    actor = make_q_actor(env.observation_spec, env.action_spec, tuned=True)  # MLP 128-128, ReLU
-    exploration = make_exploration(env.action_spec, tuned=True)  # 1.0 -> 0.05 over 3 000 frames
+    # the default run's CartPole values (its config's sections, given by name; left out, each
+    # factory takes the defaults of the TorchRL class it builds)
+    actor = make_q_actor(
+        env.observation_spec, env.action_spec, num_cells=[128, 128], activation_class="relu"
+    )
+    exploration = make_exploration(env.action_spec, 1.0, 0.05, 3_000)  # EGreedyModule's order
     collector = make_collector(
         env,
         TensorDictSequential(actor, exploration),
@@ -56,7 +58,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         total_frames=args.frames,
         init_random_frames=1_000,
     )
-    loss = make_dqn_loss(actor, tuned=True)  # gamma 0.995, Huber
+    loss = make_dqn_loss(actor, gamma=0.995, loss_function="smooth_l1")  # Huber
     with warnings.catch_warnings():  # DQNTrainer says it is a prototype, its hooks will move
         warnings.simplefilter("ignore", UserWarning)
         warnings.simplefilter("ignore", FutureWarning)
@@ -66,10 +68,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             frame_skip=1,
             optim_steps_per_batch=6,
             loss_module=loss,
-            optimizer=make_optimizer(actor.parameters(), tuned=True),  # AdamW, lr 4e-3, AMSGrad
+            optimizer=make_optimizer(actor.parameters(), 4e-3, amsgrad=True, weight_decay=0.0),
             # one-step, 50 000 transitions, batches of 512
-            replay_buffer=make_replay_buffer(tuned=True),
-            target_net_updater=make_target_updater(loss, tuned=True),  # HardUpdate, every 50
+            replay_buffer=make_replay_buffer(max_size=50_000, batch_size=512),
+            # HardUpdate: a copy every 50 updates (TorchRL counts interval + 1)
+            target_net_updater=make_target_updater(loss, value_network_update_interval=49),
             greedy_module=exploration,
             clip_norm=10.0,
             progress_bar=False,

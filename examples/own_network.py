@@ -71,15 +71,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     actor = make_q_actor(
         env.observation_spec, env.action_spec, torso=torso, num_cells=[], head="dueling"
     )
-    # tuned=True: this project's values for what a call leaves out (eps_end 0.05, Huber loss,
-    # AMSGrad without weight decay); without it, TorchRL's and AdamW's defaults
+    # the default run's values where they differ from TorchRL's and AdamW's (eps_end 0.05,
+    # Huber loss, AMSGrad without weight decay)
     exploration = make_exploration(
-        env.action_spec, annealing_num_steps=args.frames // 3, tuned=True
+        env.action_spec, eps_end=0.05, annealing_num_steps=args.frames // 3
     )
     buffer = make_replay_buffer(max_size=50_000, batch_size=128, n_steps=3, gamma=0.99)
-    loss = make_dqn_loss(actor, double_dqn=True, replay_buffer=buffer, tuned=True)  # its gamma
+    loss = make_dqn_loss(  # the buffer's gamma
+        actor, loss_function="smooth_l1", double_dqn=True, replay_buffer=buffer
+    )
     target = make_target_updater(loss, tau=0.02)  # SoftUpdate
-    update = make_update(loss, make_optimizer(actor.parameters(), lr=1e-3, tuned=True))
+    optimizer = make_optimizer(actor.parameters(), lr=1e-3, amsgrad=True, weight_decay=0.0)
+    update = make_update(loss, optimizer)
     collector = make_collector(
         env,
         TensorDictSequential(actor, exploration),

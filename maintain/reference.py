@@ -80,7 +80,7 @@ def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
             ["gamma", "loss_function", "delay_value", "double_dqn"],
         ),
         "make_target_updater": (
-            "TorchRL's `HardUpdate`, or `FusedSoftUpdate`, this project's `SoftUpdate` subclass",
+            "TorchRL's `HardUpdate` or `SoftUpdate`",
             [SoftUpdate, HardUpdate],
             ["eps", "tau", "value_network_update_interval"],
         ),
@@ -102,60 +102,43 @@ def _builds() -> dict[str, tuple[str, list[Any], list[str]]]:
     }
 
 
-def _resolved() -> dict[tuple[str, str], tuple[Any, Any]]:
-    """(left out, with ``tuned=True``) where the value depends on other arguments; the rest
-    is read off :data:`~trl_cartpole.parts.tuned.TORCHRL` and ``TUNED``."""
-    from trl_cartpole.parts.tuned import TORCHRL, TUNED
-
-    buffer, tuned_buffer = TORCHRL["make_replay_buffer"], TUNED["make_replay_buffer"]
-    loss, tuned_loss = TORCHRL["make_dqn_loss"], TUNED["make_dqn_loss"]
-    interval = TUNED["make_target_updater"]["value_network_update_interval"]
+def _left_out() -> dict[tuple[str, str], str]:
+    """What an argument left out becomes, where the signature's default does not say it."""
     return {
-        ("make_dqn_loss", "gamma"): (
-            f"the buffer's with `replay_buffer`, else {loss['gamma']} (TorchRL's estimator)",
-            f"the buffer's with `replay_buffer`, else {tuned_loss['gamma']}",
-        ),
-        ("make_target_updater", "value_network_update_interval"): (
-            f"`{TORCHRL['make_target_updater']['value_network_update_interval']}` when neither "
-            "eps nor tau is given",
-            f"{interval} (a copy every {interval + 1} updates) when neither eps nor tau is given",
-        ),
-        ("make_target_updater", "tau"): (
-            "required with `kind='soft'`",
-            f"{TUNED['make_target_updater']['tau']} with `kind='soft'`",
-        ),
-        ("make_replay_buffer", "storage"): ("`LazyTensorStorage(max_size)`",) * 2,
-        ("make_replay_buffer", "sampler"): ("`RandomSampler()`",) * 2,
-        ("make_replay_buffer", "transform"): (
-            "none (yours, after `NStepTransform` with `n_steps > 1`)",
-        )
-        * 2,
-        ("make_replay_buffer", "alpha"): (
-            "required with `prioritized` (refused without)",
-            f"{tuned_buffer['alpha']} with `prioritized`",
-        ),
-        ("make_replay_buffer", "beta"): (
-            "required with `prioritized` (refused without)",
-            f"{tuned_buffer['beta']} with `prioritized`",
-        ),
-        ("make_replay_buffer", "eps"): (
-            f"{buffer['eps']} with `prioritized` (refused without)",
-            f"{tuned_buffer['eps']} with `prioritized`",
-        ),
-        ("make_replay_buffer", "gamma"): (
-            f"{buffer['gamma']} with `n_steps > 1` (refused without)",
-            f"{tuned_buffer['gamma']} with `n_steps > 1`",
-        ),
-        ("make_dqn_loss", "double_dqn"): (False, None),
-        ("make_q_actor", "module"): ("None: built from `observation_spec`",) * 2,
-        ("make_q_actor", "num_cells"): ("None (`MLP`'s: no hidden layer)", None),
-        ("make_q_actor", "device"): ("the spec's",) * 2,
-        ("make_exploration", "device"): ("the spec's",) * 2,
-        ("make_collector", "frames_per_batch"): (
-            "required (as TorchRL)",
-            TUNED["make_collector"]["frames_per_batch"],
-        ),
+        ("make_dqn_loss", "gamma"): "the buffer's with `replay_buffer`, else 0.99 (TorchRL's)",
+        ("make_dqn_loss", "loss_function"): "`'l2'` (`DQNLoss`'s)",
+        ("make_dqn_loss", "double_dqn"): "`False`",
+        ("make_target_updater", "value_network_update_interval"): "`1000` (`HardUpdate`'s)",
+        ("make_target_updater", "tau"): "required with `kind='soft'`",
+        ("make_replay_buffer", "max_size"): "`1000` (TorchRL's default storage's)",
+        ("make_replay_buffer", "storage"): "`LazyTensorStorage(max_size)`",
+        ("make_replay_buffer", "sampler"): "`RandomSampler()`",
+        (
+            "make_replay_buffer",
+            "transform",
+        ): "none (yours, after `NStepTransform` with `n_steps > 1`)",
+        ("make_replay_buffer", "alpha"): "required with `prioritized` (refused without)",
+        ("make_replay_buffer", "beta"): "required with `prioritized` (refused without)",
+        ("make_replay_buffer", "eps"): "1e-08 with `prioritized` (refused without)",
+        ("make_replay_buffer", "gamma"): "0.99 with `n_steps > 1` (refused without)",
+        ("make_q_actor", "module"): "None: built from `observation_spec`",
+        ("make_q_actor", "num_cells"): "None (`MLP`'s: no hidden layer)",
+        ("make_q_actor", "device"): "the spec's",
+        ("make_exploration", "device"): "the spec's",
+        ("make_collector", "frames_per_batch"): "required (as TorchRL)",
     }
+
+
+# the config section each factory's keywords come from (``make_x(**cfg.section)``)
+_SECTIONS = {
+    "make_q_actor": "network",
+    "make_exploration": "exploration",
+    "make_replay_buffer": "buffer",
+    "make_dqn_loss": "loss",
+    "make_target_updater": "target_updater",
+    "make_optimizer": "optim",
+    "make_collector": "collector",
+}
 
 
 # What a TorchRL signature does not say by itself.
@@ -199,31 +182,32 @@ def _torchrl_default(classes: list[Any], argument: str) -> str:
 
 def defaults_table() -> str:
     """Markdown: per factory, what it returns, then a table of each argument's default: left
-    out, TorchRL's (read off the TorchRL class), and with ``tuned=True``."""
-    import trl_cartpole
-    from trl_cartpole.parts.tuned import TORCHRL, TUNED
+    out, TorchRL's (read off the TorchRL class), and the default run's (its config key)."""
+    from dataclasses import asdict
 
-    resolved = _resolved()
+    import trl_cartpole
+    from trl_cartpole.config.schema import Config
+
+    left_out_of, run = _left_out(), asdict(Config())
     sections = []
     for factory, (returns, classes, arguments) in _builds().items():
         parameters = inspect.signature(getattr(trl_cartpole, factory)).parameters
+        section = run.get(_SECTIONS.get(factory, ""), {})
         lines = [f"**`{factory}`** returns {returns}."]
         if arguments:
             lines += [
                 "",
-                "| argument | left out | TorchRL's | with `tuned=True` |",
+                "| argument | left out | TorchRL's | the default run's |",
                 "| --- | --- | --- | --- |",
             ]
         for argument in arguments:
-            left_out, tuned = resolved.get((factory, argument), (None, None))
-            if left_out is None:
-                table = TORCHRL.get(factory, {})
-                left_out = table[argument] if argument in table else parameters[argument].default
-            if tuned is None:
-                table = TUNED.get(factory, {})
-                tuned = table.get(argument, "the same")
+            left_out = left_out_of.get((factory, argument), parameters[argument].default)
             theirs = _torchrl_default(classes, argument)
-            shown = [_shown(value) for value in (left_out, tuned)]
-            lines.append(f"| `{argument}` | {shown[0]} | {theirs} | {shown[1]} |")
+            ours = (
+                f"{_shown(section[argument])} (`{_SECTIONS[factory]}.{argument}`)"
+                if argument in section
+                else "the same"
+            )
+            lines.append(f"| `{argument}` | {_shown(left_out)} | {theirs} | {ours} |")
         sections.append("\n".join(lines))
     return "\n\n".join(sections)

@@ -17,12 +17,12 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs.utils import step_mdp
 
 from tests.conftest import run_script_in_process
+from trl_cartpole.compat import gym_env
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.env_ids import register_atari_games
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.atari import EOL_KEY, LearnerView, make_atari_env
-from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.frame_storage import FrameStackStorage
 from trl_cartpole.parts.replay import make_replay_buffer
 
@@ -312,7 +312,7 @@ TINY_BREAKOUT = [
     "eval.episodes=1",
     "eval.final_episodes=1",
     "eval.candidates=1",
-    "buffer.size=1000",
+    "buffer.max_size=1000",
     "logger.plots=false",
     "logger.progress_bar=false",
 ]
@@ -442,16 +442,6 @@ def test_frames_stored_once_take_single_adds_refuse_rows_written_twice_and_empty
         buffer.storage.set(torch.tensor([0, 0]), buffer.storage.get(torch.tensor([1, 2])))
     buffer.empty()
     assert len(buffer) == 0 and buffer.storage.pool is None
-
-
-def test_a_run_saved_before_fire_steps_keeps_its_one_fire_step():
-    from trl_cartpole.parts.earlier_forms import upgrade_stored_config
-
-    saved = {"env": {"id": BREAKOUT, "atari": {"noop_max": 30, "fire_on_reset": True}}}
-    assert upgrade_stored_config(saved)["env"]["atari"]["fire_steps"] == 1
-    assert "fire_steps" not in saved["env"]["atari"]  # the caller's dict is left as it was
-    today = {"env": {"id": BREAKOUT, "atari": {"fire_on_reset": True, "fire_steps": 2}}}
-    assert upgrade_stored_config(today) == today
 
 
 def test_a_restored_game_repeats_the_saved_games_last_action_on_a_sticky_frame():

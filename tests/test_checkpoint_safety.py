@@ -20,7 +20,7 @@ import pytest
 import torch
 from torchrl.checkpoint import Checkpoint
 
-from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.compat import gym_env
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.policy.load import evaluate_checkpoint
 from trl_cartpole.store.env_state import env_snapshot, restore_env_snapshot

@@ -58,7 +58,7 @@ def test_train_help_lists_presets_and_every_field_with_a_meaning():
         assert meaning, f"{key} has no comment in trl_cartpole/config/schema.py"
         assert f"  {key}={default} " in proc.stdout
     assert "  loss.gamma=0.995 (float)" in proc.stdout
-    assert "  network.hidden_sizes=[128,128] (list[int])" in proc.stdout
+    assert "  network.num_cells=[128,128] (list[int])" in proc.stdout
 
 
 @pytest.mark.slow  # a run in a fresh interpreter
@@ -180,7 +180,7 @@ def test_the_bar_shows_eval_and_best_in_80_columns():
         ([], "runs/CartPole-v1-dqn-seed0-"),
         (["loss.double_dqn=true"], "runs/CartPole-v1-dqn-double_dqn=true-seed0-"),
         (["algo=double", "seed=2"], "runs/CartPole-v1-double-seed2-"),  # a preset names itself
-        (["env=acrobot", "network.hidden_sizes=[64,64]"], "-dqn-hidden_sizes=64x64-seed0-"),
+        (["env=acrobot", "network.num_cells=[64,64]"], "-dqn-num_cells=64x64-seed0-"),
         (["seed=3", "buffer.batch_size=64", "optim.lr=5e-4"], "-batch_size=64,lr=0.0005-seed3-"),
         (["logger.backend=none", "checkpoint.keep_last=5"], "runs/CartPole-v1-dqn-seed0-"),
     ],

@@ -1,4 +1,4 @@
-"""Every private TorchRL name ``trl_cartpole.parts.compat`` reads: each test fails where it moved.
+"""Every private TorchRL name ``trl_cartpole.compat`` reads: each test fails where it moved.
 
 These tests build the real TorchRL objects and check that the private attribute is where the
 compatibility module reads it, and that reading and writing it does what the callers rely on.
@@ -15,7 +15,7 @@ from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.modules import DistributionalQValueActor
 
-from trl_cartpole.parts import compat
+from trl_cartpole import compat
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.models import make_q_actor
@@ -156,7 +156,7 @@ def test_a_prioritized_buffer_keeps_cpu_trees_where_torchrl_has_no_cuda_ones(mon
 
     def sampler_device(**kwargs):
         return make_replay_buffer(
-            prioritized=True, max_size=8, tuned=True, **kwargs
+            prioritized=True, max_size=8, alpha=0.3, beta=0.4, **kwargs
         )._sampler._device
 
     monkeypatch.setattr(prioritized, "CudaSumSegmentTreeFp32", None)

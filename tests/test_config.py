@@ -37,15 +37,15 @@ def test_schema_defaults_are_the_default_preset(compose):
 def test_tutorial_preset_is_the_pytorch_tutorial(compose):
     cfg = validate(to_config(compose("algo=tutorial")))
     assert cfg.algo.name == "tutorial"
-    assert cfg.buffer.batch_size == 128 and cfg.buffer.size == 10_000
+    assert cfg.buffer.batch_size == 128 and cfg.buffer.max_size == 10_000
     assert cfg.loss.gamma == 0.99 and cfg.loss.loss_function == "smooth_l1"
-    assert cfg.loss.target_update == "soft" and cfg.loss.tau == 0.005
+    assert cfg.target_updater.kind == "soft" and cfg.target_updater.tau == 0.005
     assert cfg.exploration.schedule == "exponential"
-    assert (cfg.exploration.eps_start, cfg.exploration.eps_end) == (0.9, 0.05)
-    assert cfg.exploration.decay_frames == 1000
+    assert (cfg.exploration.eps_init, cfg.exploration.eps_end) == (0.9, 0.05)
+    assert cfg.exploration.annealing_num_steps == 1000
     assert cfg.optim.lr == 1e-4 and cfg.optim.amsgrad and cfg.optim.weight_decay == 0.01
     assert cfg.optim.grad_clip == "value" and cfg.optim.max_grad == 100.0
-    assert list(cfg.network.hidden_sizes) == [128, 128]
+    assert list(cfg.network.num_cells) == [128, 128]
     assert cfg.collector.frames_per_batch == 1 and cfg.collector.updates_per_batch == 1
     assert cfg.env.num_envs == 1 and cfg.buffer.n_steps == 1  # the tutorial's single-env loop
 
@@ -76,9 +76,9 @@ def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
     [
         (["loss.gamma=1.5"], r"loss.gamma=1.5 must lie in \(0, 1\]"),
         (["loss.gamma=0"], r"loss.gamma=0.0 must lie in \(0, 1\]"),
-        (["buffer.size=100", "buffer.batch_size=128"], "larger than buffer.size=100"),
+        (["buffer.max_size=100", "buffer.batch_size=128"], "larger than buffer.max_size=100"),
         (["env.id=CartPoles-v1"], "is not a registered Gymnasium env"),
-        (["exploration.eps_start=0.01"], "eps_end <= eps_start"),
+        (["exploration.eps_init=0.01"], "eps_end <= eps_init"),
         (["loss.loss_function=l3"], "choose one of"),
         (["network.head=fancy"], "is not a known head"),
         (["collector.total_frames=0"], "must be >= collector.frames_per_batch"),

@@ -1,19 +1,18 @@
-"""Two sets of defaults: TorchRL's for a call made of TorchRL's arguments, this project's tuned
-ones with ``tuned=True``.
+"""One home for each default: a factory's are the TorchRL class's, the default run's are the
+schema's, and a config section's keys are its factory's keywords.
 
-A factory called with TorchRL's arguments alone behaves as the TorchRL class it builds
-(checked here against that class, called the same way); ``tuned=True`` builds what the default
-config builds (checked against ``trl_cartpole.run.build``), and the tuned values are the
-schema's, one source for both.
+A factory called with TorchRL's arguments alone behaves as the TorchRL class it builds (checked
+here against that class, called the same way); called with its config section
+(``make_x(**cfg.x)``), it builds what the pipeline builds.
 """
 
 from __future__ import annotations
 
 import inspect
+from dataclasses import asdict
 
 import pytest
 import torch
-from tensordict.nn import TensorDictSequential
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
@@ -25,16 +24,14 @@ from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
-from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
+from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.parts.optim import make_optimizer
 from trl_cartpole.parts.replay import make_replay_buffer
-from trl_cartpole.parts.tuned import TORCHRL, TUNED
 from trl_cartpole.run.from_config import (
     build_actor,
-    build_env,
     build_exploration,
+    build_learner,
     build_replay_buffer,
-    torchrl_priority_exponent,
 )
 
 
@@ -45,34 +42,22 @@ def env():
     env.close()
 
 
-def _default(cls, argument):
-    return inspect.signature(cls).parameters[argument].default
+def _default(function, argument):
+    return inspect.signature(function).parameters[argument].default
 
 
-# --- the TorchRL set is TorchRL's -----------------------------------------------------------
+# --- a factory's defaults are the TorchRL class's ----------------------------------------------
 
 
-def test_the_torchrl_defaults_are_read_off_the_torchrl_classes(env):
-    egreedy = TORCHRL["make_exploration"]
-    for ours, theirs in (
-        ("eps_init", "eps_init"),
-        ("eps_end", "eps_end"),
-        ("annealing_num_steps", "annealing_num_steps"),
-    ):
-        assert egreedy[ours] == _default(EGreedyModule, theirs)
+def test_the_factories_defaults_are_read_off_the_torchrl_classes():
+    for argument in ("eps_init", "eps_end", "annealing_num_steps"):
+        assert _default(make_exploration, argument) == _default(EGreedyModule, argument)
     for argument in ("lr", "amsgrad", "weight_decay", "eps"):
-        assert TORCHRL["make_optimizer"][argument] == _default(torch.optim.AdamW, argument)
-    assert TORCHRL["make_target_updater"]["value_network_update_interval"] == _default(
-        HardUpdate, "value_network_update_interval"
-    )
+        assert _default(make_optimizer, argument) == _default(torch.optim.AdamW, argument)
     for argument in ("total_frames", "init_random_frames", "device"):
-        assert TORCHRL["make_collector"][argument] == _default(Collector, argument)
-    assert TORCHRL["make_dqn_loss"]["loss_function"] == _default(DQNLoss, "loss_function")
-    stock = DQNLoss(QValueActor(MLP(in_features=4, out_features=2), spec=env.action_spec))
-    td0_gamma = pytest.approx(stock.value_estimator.gamma.item())  # made on first use
-    assert TORCHRL["make_dqn_loss"]["gamma"] == TORCHRL["make_replay_buffer"]["gamma"] == td0_gamma
-    assert TORCHRL["make_q_actor"]["activation_class"] is _default(MLP, "activation_class")
-    assert TORCHRL["make_q_actor"]["num_cells"] is _default(MLP, "num_cells")
+        assert _default(make_collector, argument) == _default(Collector, argument)
+    assert _default(make_q_actor, "activation_class") is _default(MLP, "activation_class")
+    assert _default(make_q_actor, "num_cells") is _default(MLP, "num_cells")
 
 
 def test_a_collector_from_torchrls_arguments_runs_as_torchrls_collector(env):
@@ -85,14 +70,8 @@ def test_a_collector_from_torchrls_arguments_runs_as_torchrls_collector(env):
     finally:
         ours.shutdown()
         theirs.shutdown()
-    with pytest.raises(TypeError, match=r"needs frames_per_batch= .* or tuned=True"):
+    with pytest.raises(TypeError, match="frames_per_batch"):
         make_collector(env, actor)
-    tuned = make_collector(env, actor, tuned=True)
-    try:
-        assert (tuned.frames_per_batch, tuned.total_frames) == (32, 50_016)  # whole batches
-        assert tuned.init_random_frames == 1_024
-    finally:
-        tuned.shutdown()
 
 
 def test_a_buffer_from_torchrls_arguments_samples_as_torchrls(env):
@@ -107,7 +86,7 @@ def test_a_buffer_from_torchrls_arguments_samples_as_torchrls(env):
             buffer.sample()
     assert ours.sample(8).shape == (8,)
     assert make_replay_buffer()._storage.max_size == 1_000  # TorchRL's default capacity
-    with pytest.raises(TypeError, match=r"needs alpha= and beta= .* or tuned=True"):
+    with pytest.raises(TypeError, match=r"needs alpha= and beta="):
         make_replay_buffer(prioritized=True)
 
 
@@ -116,9 +95,6 @@ def test_exploration_from_torchrls_arguments_anneals_as_egreedy_module(env):
     ours.step(1000)
     theirs.step(1000)
     assert ours.eps.item() == theirs.eps.item() == pytest.approx(0.1, rel=1e-3)
-    tuned = make_exploration(env.action_spec, tuned=True)
-    tuned.step(1000)
-    assert tuned.eps.item() == pytest.approx(1.0 - 0.95 / 3, rel=1e-4)  # 1.0 -> 0.05 over 3 000
 
 
 def test_a_loss_from_torchrls_arguments_is_dqnloss_with_its_defaults(env):
@@ -132,9 +108,6 @@ def test_a_loss_from_torchrls_arguments_is_dqnloss_with_its_defaults(env):
     # left to TorchRL's discount, the state loads strictly into a stock DQNLoss made the same way
     fresh_ours, fresh_theirs = make_dqn_loss(actor), DQNLoss(actor)
     fresh_theirs.load_state_dict(fresh_ours.state_dict())
-    tuned = make_dqn_loss(actor, tuned=True)
-    assert tuned.loss_function == "smooth_l1"
-    assert tuned.value_estimator.gamma.item() == pytest.approx(0.995)
 
 
 def test_target_updater_and_optimizer_from_torchrls_arguments(env):
@@ -142,9 +115,8 @@ def test_target_updater_and_optimizer_from_torchrls_arguments(env):
     assert make_target_updater(loss).value_network_update_interval == (
         HardUpdate(loss).value_network_update_interval
     )
-    with pytest.raises(TypeError, match=r"needs tau= or eps= .* or tuned=True"):
+    with pytest.raises(TypeError, match=r"needs tau= or eps="):
         make_target_updater(loss, kind="soft")
-    assert make_target_updater(loss, kind="soft", tuned=True).eps == pytest.approx(0.98)
     params = list(nn.Linear(2, 2).parameters())
     ours, theirs = make_optimizer(params).defaults, torch.optim.AdamW(params).defaults
     for argument in ("lr", "betas", "eps", "weight_decay", "amsgrad"):
@@ -161,87 +133,87 @@ def test_an_actor_from_mlps_arguments_is_mlps(env):
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
 
-# --- the tuned set is the default config's ----------------------------------------------------
+# --- a config section is its factory's keywords -------------------------------------------------
+
+# the keys of each section that are the run's, not its factory's (the schema marks them)
+RUN_KEYS = {
+    "network": {"distributional", "atoms", "v_min", "v_max"},  # make_q_actor's support=
+    "exploration": set(),
+    "buffer": {"storage", "beta_anneal_frames", "pixels_shift"},
+    "loss": set(),
+    "target_updater": set(),
+    "optim": {"grad_clip", "max_grad", "lr_end", "lr_decay_frames", "autocast"},
+    "collector": {
+        "max_train_seconds",
+        "updates_per_batch",
+        "learning_starts",
+        "workers",
+        "ray_resources",
+        "ray_runtime_env",
+    },
+}
+FACTORIES = {
+    "network": make_q_actor,
+    "exploration": make_exploration,
+    "buffer": make_replay_buffer,
+    "loss": make_dqn_loss,
+    "target_updater": make_target_updater,
+    "optim": make_optimizer,
+    "collector": make_collector,
+}
 
 
-def test_the_tuned_values_are_the_default_configs():
+@pytest.mark.parametrize("section", sorted(FACTORIES))
+def test_every_key_of_a_section_is_a_keyword_of_its_factory(section):
+    keys = set(asdict(getattr(Config(), section))) - RUN_KEYS[section]
+    parameters = set(inspect.signature(FACTORIES[section]).parameters)
+    assert keys <= parameters, sorted(keys - parameters)
+
+
+def test_a_factory_given_its_section_builds_what_the_pipeline_builds(env):
     cfg = Config()
-    expected = {
-        "make_q_actor": {
-            "num_cells": list(cfg.network.hidden_sizes),
-            "activation_class": ACTIVATIONS[cfg.network.activation],
-        },
-        "make_exploration": {
-            "eps_init": cfg.exploration.eps_start,
-            "eps_end": cfg.exploration.eps_end,
-            "annealing_num_steps": cfg.exploration.decay_frames,
-        },
-        "make_replay_buffer": {
-            "max_size": cfg.buffer.size,
-            "batch_size": cfg.buffer.batch_size,
-            "alpha": torchrl_priority_exponent(cfg.buffer.alpha, False),
-            "beta": cfg.buffer.beta,
-            "eps": cfg.buffer.priority_eps,
-            "gamma": cfg.loss.gamma,
-        },
-        "make_dqn_loss": {"gamma": cfg.loss.gamma, "loss_function": cfg.loss.loss_function},
-        "make_target_updater": {
-            "value_network_update_interval": cfg.loss.hard_update_interval - 1,
-            "tau": cfg.loss.tau,
-        },
-        "make_optimizer": {
-            "lr": cfg.optim.lr,
-            "amsgrad": cfg.optim.amsgrad,
-            "weight_decay": cfg.optim.weight_decay,
-            "eps": cfg.optim.eps,
-        },
-        "make_collector": {
-            "frames_per_batch": cfg.collector.frames_per_batch,
-            "total_frames": cfg.collector.total_frames,
-            "init_random_frames": cfg.collector.init_random_frames,
-            "device": cfg.device,
-        },
-    }
-    assert expected == TUNED
-    assert cfg.loss.target_update == "hard" and not cfg.loss.double_dqn
-
-
-def test_tuned_factories_build_the_default_configs_actor_exploration_and_buffer():
-    cfg = Config()
-    env = build_env(cfg, seed=0, num_envs=1)
+    network = {k: v for k, v in asdict(cfg.network).items() if k not in RUN_KEYS["network"]}
+    network.pop("cnn_kwargs")  # the MLP torso's run passes none
     torch.manual_seed(0)
-    from_config = build_actor(cfg, env)
+    built = build_actor(cfg, env)
     torch.manual_seed(0)
-    tuned = make_q_actor(env.observation_spec, env.action_spec, tuned=True)
-    a, b = from_config.state_dict(), tuned.state_dict()
+    made = make_q_actor(env.observation_spec, env.action_spec, **network)
+    a, b = built.state_dict(), made.state_dict()
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
-    configured, default = build_exploration(cfg, env), make_exploration(env.action_spec, tuned=True)
-    assert type(configured) is type(default)
-    assert (configured.eps_init, configured.eps_end, configured.annealing_num_steps) == (
-        default.eps_init,
-        default.eps_end,
-        default.annealing_num_steps,
+    built, made = (
+        build_exploration(cfg, env),
+        make_exploration(env.action_spec, **asdict(cfg.exploration)),
     )
-    configured = build_replay_buffer(cfg)
-    tuned = make_replay_buffer(n_steps=cfg.buffer.n_steps, tuned=True)  # n_steps: 1 unless asked
-    assert type(configured) is type(tuned)
-    assert configured._storage.max_size == tuned._storage.max_size == cfg.buffer.size
-    assert configured.batch_size == tuned.batch_size == cfg.buffer.batch_size
-    assert configured._transform[0].gamma == tuned._transform[0].gamma == cfg.loss.gamma
-    prioritized = make_replay_buffer(prioritized=True, tuned=True)
-    assert prioritized.sampler.alpha == pytest.approx(
-        build_replay_buffer(Config(buffer=type(cfg.buffer)(prioritized=True))).sampler.alpha
-    )
+    assert type(built) is type(made)
+    for name in ("eps_init", "eps_end"):
+        assert getattr(built, name).item() == getattr(made, name).item()
+    assert built.annealing_num_steps == made.annealing_num_steps == 3000
+
+    buffer = {k: v for k, v in asdict(cfg.buffer).items() if k not in RUN_KEYS["buffer"]}
+    buffer.update(prioritized=False, alpha=None, beta=None, eps=None)
+    built, made = build_replay_buffer(cfg), make_replay_buffer(**buffer, gamma=cfg.loss.gamma)
+    assert built.batch_size == made.batch_size == 512
+    assert built._storage.max_size == made._storage.max_size == 50_000
+    assert built._transform[0].gamma == made._transform[0].gamma == pytest.approx(0.995)
+
+    learner = build_learner(cfg, built_actor := build_actor(cfg, env), build_replay_buffer(cfg))
+    loss = make_dqn_loss(built_actor, **asdict(cfg.loss))
+    assert (loss.loss_function, loss.double_dqn) == (learner.loss.loss_function, False)
+    updater = make_target_updater(loss, **asdict(cfg.target_updater))
+    assert type(updater) is type(learner.target_updater) is HardUpdate
+    assert updater.value_network_update_interval == 49  # a copy every 50 updates
+    optim = {k: v for k, v in asdict(cfg.optim).items() if k not in RUN_KEYS["optim"]}
+    made = make_optimizer(built_actor.parameters(), **optim).defaults
+    for name in ("lr", "amsgrad", "weight_decay", "eps"):
+        assert made[name] == learner.optimizer.defaults[name], name
 
 
-def test_an_argument_given_wins_over_tuned(env):
-    explore = make_exploration(env.action_spec, eps_end=0.2, tuned=True)
-    assert explore.eps_end.item() == pytest.approx(0.2)
-    assert explore.annealing_num_steps == 3000
-    policy = TensorDictSequential(make_q_actor(env.observation_spec, env.action_spec))
-    collector = make_collector(env, policy, frames_per_batch=8, total_frames=16, tuned=True)
-    try:
-        assert collector.total_frames == 16 and collector.init_random_frames == 1_000 // 8 * 8
-    finally:
-        collector.shutdown()
+def test_an_old_keyword_gets_pythons_own_type_error(env):
+    loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
+    with pytest.raises(TypeError, match="unexpected keyword argument 'hard_update_interval'"):
+        make_target_updater(loss, hard_update_interval=50)
+    with pytest.raises(TypeError, match="positional argument"):
+        make_optimizer(nn.Linear(2, 2).parameters(), 1e-3, True)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'tuned'"):
+        make_replay_buffer(tuned=True)

@@ -76,12 +76,12 @@ def test_env_preset_wins_over_the_algo_defaults_it_sets(compose):
     cfg = to_config(compose("env=lunarlander"))
     # the default (algo=dqn) has batch 512, lr 4e-3 and 128-128
     assert cfg.buffer.batch_size == 64 and cfg.optim.lr == 6.2e-4
-    assert cfg.network.hidden_sizes == [256, 256]
+    assert cfg.network.num_cells == [256, 256]
     cfg = to_config(compose("env=lunarlander", "algo=dueling"))  # a variant switch combines
     assert cfg.network.head == "dueling" and cfg.buffer.batch_size == 64
     cfg = to_config(compose("env=acrobot", "algo=noisy"))
     assert cfg.exploration.schedule == "none" and cfg.buffer.batch_size == 128
-    assert cfg.optim.lr == 2.75e-3 and cfg.loss.hard_update_interval == 82
+    assert cfg.optim.lr == 2.75e-3 and cfg.target_updater.value_network_update_interval == 81
     # a preset leaves the variant switches it does not tune to the algo preset
     assert to_config(compose("env=acrobot", "algo=double")).loss.double_dqn
 
@@ -302,7 +302,7 @@ class _IntegerVectorEnv(gym.Env):
 
 def test_an_integer_vector_observation_reaches_the_network_as_float32(fresh_registry):
     env = make_env("tests.test_environments:_IntegerVectorEnv", num_envs=2, seed=0)
-    actor = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
+    actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[8])
     rollout = env.rollout(5, actor)
     assert rollout["observation"].dtype == torch.float32
     assert rollout["next", "observation"][0, -1].tolist() == [5.0, 5.0, 5.0]

@@ -11,7 +11,7 @@ from tensordict import TensorDict
 from torchrl.data import OneHot
 from torchrl.envs import Transform
 
-from trl_cartpole.parts.compat import gym_env
+from trl_cartpole.compat import gym_env
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.run.evaluation import (

@@ -150,7 +150,7 @@ def test_noisy_distributional_network_exports_its_mean_expected_values(tmp_path)
     norm = {"loc": [0.1, -0.2, 0.0, 0.3], "scale": [2.0, 1.5, 0.2, 1.0]}
     env = make_env("CartPole-v1", observation_norm=norm)
     network = NetworkConfig(
-        head="dueling", hidden_sizes=[16, 16], noisy=True, distributional=True, atoms=11
+        head="dueling", num_cells=[16, 16], noisy=True, distributional=True, atoms=11
     )
     torch.manual_seed(0)
     actor = build_actor(Config(network=network), env)

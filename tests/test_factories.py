@@ -15,10 +15,11 @@ from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
 from trl_cartpole.env_ids import solve_threshold
+from trl_cartpole.fast.soft_update import FusedSoftUpdate, fuse_soft_update
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import ExponentialEGreedyModule, make_exploration
-from trl_cartpole.parts.losses import FusedSoftUpdate, make_dqn_loss, make_target_updater
+from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.parts.replay import make_replay_buffer, sample_minibatches
 
@@ -61,7 +62,7 @@ def test_solve_threshold_comes_from_gymnasium_unless_overridden():
 
 
 def test_q_actor_shapes_and_hidden_sizes(env):
-    actor = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[32, 16])
+    actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[32, 16])
     assert isinstance(actor, QValueActor)
     linears = [m for m in actor.modules() if isinstance(m, nn.Linear)]
     assert [(m.in_features, m.out_features) for m in linears] == [(4, 32), (32, 16), (16, 2)]
@@ -131,13 +132,13 @@ def test_loss_and_target_updaters(env):
     actor = make_q_actor(env.observation_spec, env.action_spec)
     loss = make_dqn_loss(actor, gamma=0.9)
     assert isinstance(loss, DQNLoss)
-    assert isinstance(make_target_updater(loss, tau=0.1), SoftUpdate)
-    assert isinstance(make_target_updater(loss, hard_update_interval=3), HardUpdate)
+    assert type(make_target_updater(loss, tau=0.1)) is SoftUpdate  # the stock one
+    assert isinstance(make_target_updater(loss, value_network_update_interval=2), HardUpdate)
 
 
 def test_soft_update_moves_target_by_tau(env):
     """theta' <- tau * theta + (1 - tau) * theta'."""
-    actor = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
+    actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[8])
     loss = make_dqn_loss(actor)
     updater = make_target_updater(loss, tau=0.25)
     target = loss.target_value_network_params
@@ -159,7 +160,9 @@ def test_fused_soft_update_moves_the_target_exactly_as_torchrl_soft_update(env):
         loss.target_value_network_params.apply(lambda t: t.data.normal_())
         return loss, updater
 
-    fused_loss, fused = loss_and_updater(lambda loss: make_target_updater(loss, tau=0.05))
+    fused_loss, fused = loss_and_updater(
+        lambda loss: fuse_soft_update(make_target_updater(loss, tau=0.05))
+    )
     torchrl_loss, reference = loss_and_updater(lambda loss: SoftUpdate(loss, tau=0.05))
     assert isinstance(fused, FusedSoftUpdate)
     before = [t.clone() for t in fused_loss.target_value_network_params.values(True, True)]
@@ -182,9 +185,9 @@ def test_fused_soft_update_moves_the_target_exactly_as_torchrl_soft_update(env):
 
 
 def test_hard_update_copies_every_interval(env):
-    actor = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
+    actor = make_q_actor(env.observation_spec, env.action_spec, num_cells=[8])
     loss = make_dqn_loss(actor)
-    updater = make_target_updater(loss, hard_update_interval=3)
+    updater = make_target_updater(loss, value_network_update_interval=2)
     target = loss.target_value_network_params
     loss.value_network_params.apply(lambda t: t.data.fill_(1.0))
     target.apply(lambda t: t.data.fill_(0.0))

@@ -41,7 +41,7 @@ RESUMABLE = [
 # Breakout's short resumable run, and the marks of a slow test that needs the atari extra
 BREAKOUT_RESUMED = [
     "env=breakout",
-    "buffer.size=1000",
+    "buffer.max_size=1000",
     "eval.max_steps=300",  # an untrained policy's game can last its 27 000 steps
     "eval.candidates=1",
     "logger.plots=false",
@@ -111,7 +111,7 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
                 "env=cartpole_pixels",
                 "env.num_envs=2",
                 "env.pixels_rendered_share=0.5",
-                "buffer.size=500",
+                "buffer.max_size=500",
                 "buffer.batch_size=16",
                 "eval.max_steps=50",
             ],
@@ -124,7 +124,7 @@ def _periodic_at(run_dir: Path, frames: int) -> Path:
                 "env.num_envs=2",
                 "collector.workers=2",
                 "env.pixels_rendered_share=0.5",
-                "buffer.size=500",
+                "buffer.max_size=500",
                 "buffer.batch_size=16",
                 "eval.max_steps=50",
             ],
@@ -606,11 +606,11 @@ BAD_INPUTS = [
         marks=pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA"),
     ),
     ("unwritable run dir", ["run_dir=/proc/trl_cartpole"], "is not writable"),
-    ("a buffer beyond memory", ["buffer.size=1000000000000"], "lower buffer.size"),
+    ("a buffer beyond memory", ["buffer.max_size=1000000000000"], "lower buffer.max_size"),
     # 4 x 2**20 + 2**20, 2**40 + 2**20, 2 x 2**20 + 2 weights and biases
     (
         "networks beyond memory",
-        ["network.hidden_sizes=[1048576,1048576]"],
+        ["network.num_cells=[1048576,1048576]"],
         "(1099520016386 parameters",
     ),
     ("a negative eval seed", ["eval.seed_offset=-1000001"], "eval.seed_offset=-1000001 must be"),
@@ -628,7 +628,7 @@ BAD_INPUTS = [
     (
         "a taper a compiled update cannot follow",
         ["optim.lr_end=0.0001", "compile=true", "network.noisy=true"],
-        "C51 and loss.fused=false holds fixed: pass compile=false, or optim.lr_end=null",
+        "pass fast=true, compile=false, or optim.lr_end=null",
     ),
     ("a seed beyond 64 bits", ["seed=1180591620717411303424"], "integer settings stop at 2**62"),
     ("envs by the billion", ["eval.final_episodes=1000000000"], "at most 4096"),
@@ -664,7 +664,7 @@ def test_damaged_checkpoint_is_refused_in_one_line(tmp_path, finished_run, how, 
     assert sorted(p.relative_to(damaged) for p in damaged.rglob("*")) == before  # untouched
 
 
-@pytest.mark.parametrize("found", [3, 6])  # an earlier version's state, a later one's
+@pytest.mark.parametrize("found", [5, 7])  # an earlier version's state, a later one's
 def test_a_training_state_of_another_format_is_refused_naming_both(tmp_path, finished_run, found):
     from .test_checkpoint_safety import _rewrite_integrity
 
@@ -678,7 +678,7 @@ def test_a_training_state_of_another_format_is_refused_naming_both(tmp_path, fin
             _rewrite_integrity(checkpoint.parent)
     proc = run_script_in_process("train.py", f"resume={other}", "collector.total_frames=900")
     lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
-    expected = f"is a training state of format {found}, and this version reads formats 4 and 5"
+    expected = f"is a training state of format {found}, and this version reads formats 6"
     assert proc.returncode == 2 and len(lines) == 1 and expected in lines[0], proc.stderr
 
 
@@ -686,7 +686,7 @@ def test_a_training_state_of_another_format_is_refused_naming_both(tmp_path, fin
     ("args", "message"),
     [
         (["env.id=Acrobot-v1"], "env.id cannot change"),
-        (["network.hidden_sizes=[64]"], "network.hidden_sizes cannot change"),
+        (["network.num_cells=[64]"], "network.num_cells cannot change"),
         (["loss.gama=1"], "Key 'gama' not in"),
         (["logger.plots=512"], "logger.plots=512 is not a switch value"),
         ([], "is a finished run"),  # its summary.json is written
@@ -742,7 +742,7 @@ def test_a_policy_checkpoint_loaded_into_another_network_shape_is_refused(finish
     from trl_cartpole.store.checkpoint import load_policy
 
     env = make_env("CartPole-v1")
-    other = make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[64])
+    other = make_q_actor(env.observation_spec, env.action_spec, num_cells=[64])
     with pytest.raises(ConfigError, match="does not fit this policy"):
         load_policy(finished_run / "checkpoints" / "best", other)
 
@@ -915,7 +915,7 @@ def test_a_run_on_a_real_small_filesystem_stops_in_one_line(python, tmp_path, me
         # moments (the replay buffer's checkpoint holds only its 1 000-3 000 transitions)
         megabytes,
         '"$2" "$3" run_dir="$1/run" collector.total_frames=3000 checkpoint.interval_frames=1000 '
-        "network.hidden_sizes=[512,512] "
+        "network.num_cells=[512,512] "
         "eval.interval_frames=1000 eval.episodes=3 eval.final_episodes=4 "
         'logger.progress_bar=false; status=$?; cp -a "$1/run" "$4"; exit $status',
         python,

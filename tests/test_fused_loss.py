@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from trl_cartpole import make_dqn_loss, make_env, make_q_actor, make_replay_buffer
-from trl_cartpole.parts.fused_loss import FusedDQNLoss, fuse_dqn_loss
+from trl_cartpole.fast.loss import FusedDQNLoss, fuse_dqn_loss
 from trl_cartpole.parts.replay import extend_with_batch
 
 

@@ -43,11 +43,3 @@ class ListsHistory(History):
 
     def state_dict(self):
         return {name: list(values) for name, values in vars(self).items()}
-
-
-def test_a_training_state_saved_with_lists_still_loads(tmp_path):
-    history = _history()
-    saved = Checkpoint(history=ListsHistory(**vars(history))).save(tmp_path / "format4")
-    restored = History()
-    Checkpoint(history=restored).load(saved)
-    assert restored == history

@@ -13,8 +13,8 @@ from trl_cartpole import (
     make_replay_buffer,
     make_update,
 )
-from trl_cartpole.parts.fused_loss import fuse_dqn_loss
-from trl_cartpole.parts.lean_update import make_lean_update
+from trl_cartpole.fast.compiled_update import make_lean_update
+from trl_cartpole.fast.loss import fuse_dqn_loss
 from trl_cartpole.parts.replay import extend_with_batch
 
 from .conftest import SMOKE_OVERRIDES
@@ -230,7 +230,13 @@ def test_a_run_with_compile_true_trains_with_the_compiled_update_and_follows_a_t
         seen["optimizer"] = components.learner.optimizer
         return components
 
-    overrides = [*SMOKE_OVERRIDES, "compile=true", "optim.lr_end=0.0001", "logger.plots=false"]
+    overrides = [
+        *SMOKE_OVERRIDES,
+        "fast=true",
+        "compile=true",
+        "optim.lr_end=0.0001",
+        "logger.plots=false",
+    ]
     summary = train(compose(*overrides, f"run_dir={tmp_path / 'run'}"), build=build_and_watch)
     assert summary["updates"] > 0
     assert seen["update"].__qualname__ == "make_lean_update.<locals>.update"
@@ -268,8 +274,11 @@ def test_autocast_is_refused_where_the_fused_loss_is_not_used(compose):
     from trl_cartpole import ConfigError, validate
     from trl_cartpole.config.schema import to_config
 
-    assert validate(to_config(compose("optim.autocast=bfloat16"))).optim.autocast == "bfloat16"
-    with pytest.raises(ConfigError, match=r"pass optim\.autocast=none"):
-        validate(to_config(compose("optim.autocast=bfloat16", "network.noisy=true")))
+    assert (
+        validate(to_config(compose("fast=true", "optim.autocast=bfloat16"))).optim.autocast
+        == "bfloat16"
+    )
+    with pytest.raises(ConfigError, match=r"or optim\.autocast=none"):
+        validate(to_config(compose("fast=true", "optim.autocast=bfloat16", "network.noisy=true")))
     with pytest.raises(ConfigError, match="choose one of"):
         validate(to_config(compose("optim.autocast=float16")))

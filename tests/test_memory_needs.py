@@ -38,7 +38,7 @@ def test_counting_allocates_nothing_and_draws_no_random_number():
     cfg = Config()
     cfg.network.noisy, cfg.network.distributional = True, True  # noise drawn at construction
     env = build_env(cfg, seed=0, num_envs=1)
-    cfg.network.hidden_sizes = [1 << 20, 1 << 20]  # 4 TiB of float32 weights if allocated
+    cfg.network.num_cells = [1 << 20, 1 << 20]  # 4 TiB of float32 weights if allocated
     before = torch.random.get_rng_state()
     need = run_memory_need(cfg, env)
     assert torch.equal(torch.random.get_rng_state(), before)  # the run's first draws unchanged
@@ -55,7 +55,7 @@ def test_a_need_beyond_what_is_available_is_one_line_naming_both_and_the_fix():
     with pytest.raises(ConfigError) as refused:
         check_fits_in_memory(need, available=need.total_bytes - 1)
     message = str(refused.value)
-    assert "\n" not in message and "93.1 GiB" in message and "lower buffer.size" in message
+    assert "\n" not in message and "93.1 GiB" in message and "lower buffer.max_size" in message
 
 
 def test_available_memory_is_read_from_meminfo(tmp_path):

@@ -16,7 +16,7 @@ from trl_cartpole.parts.optim import make_optimizer, make_update
 
 def _noisy_actor(env):
     torch.manual_seed(0)
-    return make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[32, 32], noisy=True)
+    return make_q_actor(env.observation_spec, env.action_spec, num_cells=[32, 32], noisy=True)
 
 
 def _q(actor, obs: torch.Tensor, kind: ExplorationType) -> torch.Tensor:

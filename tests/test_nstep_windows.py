@@ -15,15 +15,20 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.trainers.algorithms import DQNTrainer
 
+from trl_cartpole.compat import n_step_transform, n_step_window
+from trl_cartpole.fast.n_step import WindowedNStepTransform, use_windowed_n_steps
 from trl_cartpole.parts.collectors import make_collector
-from trl_cartpole.parts.compat import n_step_window
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import make_q_actor
-from trl_cartpole.parts.n_step_windows import leaves_of
 from trl_cartpole.parts.optim import make_optimizer
-from trl_cartpole.parts.replay import NStepTransform, make_replay_buffer, trajectory_ends
+from trl_cartpole.parts.replay import (
+    NStepTransform,
+    leaves_of,
+    make_replay_buffer,
+    trajectory_ends,
+)
 
 N_STEPS, GAMMA = 3, 0.99
 
@@ -202,11 +207,11 @@ def test_data_that_cannot_tell_trajectories_apart_is_refused_in_one_line():
     assert len(buffer) == 0
 
 
-class StockNStepTransform(NStepTransform):
-    """The windows by TorchRL's own ``MultiStepTransform._inv_call`` only (the reference)."""
-
-    def _windows_apply(self, new, held) -> bool:
-        return False
+def windowed(buffer):
+    """``buffer`` with its n-step windows built on tensors (``fast=true``'s)."""
+    use_windowed_n_steps(buffer)
+    assert type(n_step_transform(buffer)) is WindowedNStepTransform
+    return buffer
 
 
 def _steps(envs: int, length: int, generator: torch.Generator, extra: bool) -> TensorDict:
@@ -254,8 +259,8 @@ def test_the_windows_built_on_tensors_store_bitwise_what_torchrls_transform_stor
     batches, n_steps, extra, layout
 ):
     generator = torch.Generator().manual_seed(n_steps + len(batches))
-    ours = make_replay_buffer(max_size=1_000, n_steps=n_steps, gamma=GAMMA)
-    stock = make_replay_buffer(max_size=1_000, transform=StockNStepTransform(n_steps, GAMMA))
+    ours = windowed(make_replay_buffer(max_size=1_000, n_steps=n_steps, gamma=GAMMA))
+    stock = make_replay_buffer(max_size=1_000, n_steps=n_steps, gamma=GAMMA)
     for envs, length in batches:
         steps = _steps(envs, length, generator, extra)
         if layout == "flattened":  # as TorchRL's trainers extend: every step marked truncated
@@ -282,10 +287,8 @@ def test_the_windows_built_on_tensors_store_bitwise_what_torchrls_transform_stor
 def test_the_windows_built_on_tensors_match_torchrls_on_a_gpu():
     generator = torch.Generator().manual_seed(1)
     device = torch.device("cuda")
-    ours = make_replay_buffer(max_size=100, n_steps=N_STEPS, gamma=GAMMA, device=device)
-    stock = make_replay_buffer(
-        max_size=100, transform=StockNStepTransform(N_STEPS, GAMMA), device=device
-    )
+    ours = windowed(make_replay_buffer(max_size=100, n_steps=N_STEPS, gamma=GAMMA, device=device))
+    stock = make_replay_buffer(max_size=100, n_steps=N_STEPS, gamma=GAMMA, device=device)
     for _ in range(3):
         steps = _steps(2, 4, generator, extra=True).to(device)
         ours.extend(steps.clone())
@@ -300,10 +303,10 @@ def test_a_batch_the_tensor_windows_do_not_cover_is_stored_by_torchrls_transform
     generator = torch.Generator().manual_seed(0)
     steps = _steps(2, 6, generator, extra=False)
     steps["mask"] = torch.ones(2, 6, dtype=torch.bool)  # MultiStepTransform's own mask entry
-    transform = NStepTransform(N_STEPS, GAMMA)
+    transform = WindowedNStepTransform(N_STEPS, GAMMA)
     assert not transform._windows_apply(leaves_of(steps), None)
     buffer = make_replay_buffer(max_size=100, transform=transform)
-    stock = make_replay_buffer(max_size=100, transform=StockNStepTransform(N_STEPS, GAMMA))
+    stock = make_replay_buffer(max_size=100, transform=NStepTransform(N_STEPS, GAMMA))
     buffer.extend(steps.clone())
     stock.extend(steps.clone())
     assert torch.equal(buffer.storage[:6]["next", "reward"], stock.storage[:6]["next", "reward"])

@@ -33,7 +33,7 @@ TINY_PIXEL_RUN = [
     "collector.total_frames=200",
     "collector.init_random_frames=64",
     "collector.frames_per_batch=8",
-    "buffer.size=500",
+    "buffer.max_size=500",
     "buffer.batch_size=16",
     "eval.interval_frames=100",
     "eval.episodes=2",
@@ -97,7 +97,7 @@ def test_the_cnn_torso_composes_with_every_head_and_variant(compose, algo):
     [
         (["env.from_pixels=true"], "pixels need the cnn torso"),
         (["network.torso=cnn"], "the cnn torso needs pixels"),
-        (["env=cartpole_pixels", "network.cnn_kernels=[5,5]"], "one entry per layer"),
+        (["env=cartpole_pixels", "network.cnn_kwargs.kernel_sizes=[5,5]"], "one entry per layer"),
         (["env=cartpole_pixels", "env.normalize_observations=true"], "pixels have none"),
     ],
 )

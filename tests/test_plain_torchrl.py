@@ -1,12 +1,11 @@
 """The factories as an experienced TorchRL user calls them: TorchRL's call forms, TorchRL's
-behaviour for TorchRL's arguments, earlier call forms named, trained policies in plain TorchRL."""
+behaviour for TorchRL's arguments, trained policies in plain TorchRL."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 import textwrap
-import warnings
 
 import pytest
 import torch
@@ -26,7 +25,7 @@ from torchrl.envs import Transform
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import SoftUpdate
 
-from trl_cartpole import defaults
+from trl_cartpole import choices
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import make_exploration
@@ -43,30 +42,6 @@ def env():
     env = make_env("CartPole-v1", seed=0)
     yield env
     env.close()
-
-
-# --- calls written for the earlier signatures --------------------------------------------------
-
-
-def test_the_earlier_positional_kind_of_make_target_updater_still_works(env):
-    loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
-    updater = make_target_updater(loss, "soft", tau=0.01)
-    assert isinstance(updater, SoftUpdate) and updater.eps == pytest.approx(0.99)
-    with pytest.raises(TypeError, match="tau= or eps="):
-        make_target_updater(loss, 0.01)
-
-
-def test_a_schedule_name_in_eps_inits_place_names_the_keyword(env):
-    with pytest.raises(TypeError, match=r"eps_init='exponential' .* write schedule='exponential'"):
-        make_exploration(env.action_spec, "exponential")
-
-
-def test_positional_buffer_and_loss_arguments_name_the_keyword_to_use(env):
-    with pytest.raises(TypeError, match=r"make_replay_buffer\(max_size=10000, batch_size=64\)"):
-        make_replay_buffer(10_000, 64)
-    actor = make_q_actor(env.observation_spec, env.action_spec)
-    with pytest.raises(TypeError, match=r"make_dqn_loss\(value_network, gamma=0\.99\)"):
-        make_dqn_loss(actor, 0.99)
 
 
 # --- TorchRL's own call forms --------------------------------------------------------------------
@@ -92,7 +67,7 @@ def test_module_is_the_whole_q_network_as_qvalueactor_takes_it(env):
         assert isinstance(actor, QValueActor)
         td = actor(env.reset())
         assert torch.equal(td["action_value"], net(td["observation"]))
-    with pytest.raises(TypeError, match=r"module= is your whole Q-network, so head .* torso="):
+    with pytest.raises(TypeError, match=r"module= is your whole Q-network, so the arguments"):
         make_q_actor(spec=env.action_spec, module=net, head="dueling")
 
 
@@ -131,7 +106,7 @@ def test_each_head_and_activation_the_config_accepts_builds_its_torch_module():
     env = make_env("CartPole-v1")
     built = {
         head: make_q_actor(env.observation_spec, env.action_spec, num_cells=[8], head=head)
-        for head in defaults.HEADS
+        for head in choices.HEADS
     }
     assert set(built) == set(HEADS) == {"plain", "dueling"}
     assert any(isinstance(m, DuelingHead) for m in built["dueling"].modules())
@@ -242,10 +217,13 @@ def test_the_pipelines_learner_writes_the_priorities_torchrls_way():
     optimizer = torch.optim.SGD(net.parameters(), lr=0.0)
     update = make_update(loss, optimizer, grad_clip="none")
     learner = Learner(buffer, loss, make_target_updater(loss, tau=0.5), optimizer, update)
-    torch.manual_seed(0)  # the prioritized draw: 4 of 4 with replacement
-    learner.step(1, Progress())
+    for seed in range(10):  # the prioritized draw: 4 of 4 with replacement; lr 0: same deltas
+        torch.manual_seed(seed)
+        learner.step(1, Progress())
+        sampled = learner.last_report.last_sample["index"].unique()  # only these were written
+        if len(sampled) >= 2:
+            break
     stored = torch.as_tensor(buffer.sampler._sum_tree[torch.arange(4)], dtype=torch.float32)
-    sampled = learner.last_report.last_sample["index"].unique()  # only these were written
     assert len(sampled) >= 2
     assert torch.allclose(stored[sampled], ((delta**2 + eps) ** alpha)[sampled], rtol=1e-5)
 
@@ -261,7 +239,7 @@ def test_a_trained_policy_loads_into_an_actor_built_with_torchrl_alone(smoke_che
         MLP(
             in_features=4,
             out_features=2,
-            num_cells=list(cfg.network.hidden_sizes),
+            num_cells=list(cfg.network.num_cells),
             activation_class=nn.ReLU,  # MLP's default is Tanh
         ),
         in_keys=["observation"],
@@ -277,30 +255,6 @@ def test_a_trained_policy_loads_into_an_actor_built_with_torchrl_alone(smoke_che
     trained.env.close()
     assert torch.equal(
         plain(observation.clone())["action_value"], trained.actor(observation)["action_value"]
-    )
-
-
-def test_a_policy_saved_in_the_earlier_layout_still_loads(env):
-    """Before TorchRL's layout the plain network was Sequential(torso MLP, head Linear)."""
-    torch.manual_seed(0)
-    earlier = nn.Sequential(
-        MLP(
-            in_features=4,
-            out_features=16,
-            num_cells=[16],
-            activate_last_layer=True,
-            activation_class=nn.ReLU,
-        ),
-        nn.Linear(16, 2),
-    )
-    earlier_actor = QValueActor(earlier, in_keys=["observation"], spec=env.action_spec)
-    actor = make_q_actor(
-        env.observation_spec, env.action_spec, num_cells=[16, 16], activation_class=nn.ReLU
-    )
-    actor.load_state_dict(earlier_actor.state_dict())
-    observation = env.reset()
-    assert torch.equal(
-        actor(observation.clone())["action_value"], earlier_actor(observation)["action_value"]
     )
 
 
@@ -336,70 +290,12 @@ def test_a_factory_called_from_python_answers_in_its_arguments_names():
 
 def test_module_refuses_the_arguments_that_would_build_a_network(env):
     net = nn.Linear(4, 2)
-    for given in ({"num_cells": [64]}, {"activation_class": nn.Tanh}, {"noisy_std": 0.1}):
-        with pytest.raises(
-            TypeError, match=rf"module= is your whole Q-network, so {next(iter(given))}"
-        ):
+    for given in ({"num_cells": [64]}, {"head": "dueling"}, {"noisy": True}, {"depth": 2}):
+        with pytest.raises(TypeError, match=r"module= is your whole Q-network, so the arguments"):
             make_q_actor(spec=env.action_spec, module=net, **given)
 
 
-def test_an_earlier_layout_with_norm_layers_loads_without_keys_colliding(env):
-    """With norm_class the earlier torso key 0.1.weight becomes 1.weight, the earlier head's
-    own name: the renaming is done all at once."""
-    torch.manual_seed(0)
-    earlier = nn.Sequential(
-        MLP(
-            in_features=4,
-            out_features=16,
-            num_cells=[16],
-            activate_last_layer=True,
-            activation_class=nn.ReLU,
-            norm_class=nn.LayerNorm,
-            norm_kwargs={"normalized_shape": 16},
-        ),
-        nn.Linear(16, 2),
-    )
-    earlier_actor = QValueActor(earlier, in_keys=["observation"], spec=env.action_spec)
-    actor = make_q_actor(
-        env.observation_spec,
-        env.action_spec,
-        num_cells=[16, 16],
-        activation_class=nn.ReLU,
-        norm_class=nn.LayerNorm,
-        norm_kwargs={"normalized_shape": 16},
-    )
-    actor.load_state_dict(earlier_actor.state_dict())
-    observation = env.reset()
-    assert torch.equal(
-        actor(observation.clone())["action_value"], earlier_actor(observation)["action_value"]
-    )
-
-
 # --- every earlier positional form names the keywords --------------------------------------------
-
-
-def test_every_earlier_positional_form_answers_with_the_keywords_to_use(env):
-    with pytest.raises(
-        TypeError,
-        match=r"write make_exploration\(spec, schedule='linear', eps_init=1\.0, eps_end=0\.05, "
-        r"annealing_num_steps=3000\)",
-    ):
-        make_exploration(env.action_spec, "linear", 1.0, 0.05, 3000)
-    with pytest.raises(
-        TypeError,
-        match=r"write make_q_actor\(observation_spec, spec, num_cells=\[64, 64\], "
-        r"activation='tanh'\)",
-    ):
-        make_q_actor(env.observation_spec, env.action_spec, [64, 64], "tanh")
-    actor = make_q_actor(env.observation_spec, env.action_spec)
-    with pytest.raises(
-        TypeError,
-        match=r"make_collector\(env, policy, frames_per_batch=32, total_frames=1000, "
-        r"init_random_frames=0\)",
-    ):
-        make_collector(env, actor, 32, 1000, 0)
-    with pytest.raises(TypeError, match=r"write make_optimizer\(params, lr, amsgrad=True\)"):
-        make_optimizer(actor.parameters(), 1e-3, True)
 
 
 def test_a_cnn_torso_names_the_smallest_image_it_takes():
@@ -411,7 +307,7 @@ def test_a_cnn_torso_names_the_smallest_image_it_takes():
         OneHot(2),
         in_keys=["pixels"],
         torso="cnn",
-        cnn_kwargs={"channels": [8], "kernel_sizes": [5], "strides": [2]},
+        cnn_kwargs={"num_cells": [8], "kernel_sizes": [5], "strides": [2]},
     )
     assert actor(TensorDict(pixels=torch.zeros(2, 20, 60, dtype=torch.uint8)))["action"].shape == (
         2,
@@ -425,24 +321,3 @@ def test_factory_states_load_into_the_stock_classes_or_differ_as_the_reference_s
     exponential = make_exploration(env.action_spec, schedule="exponential").state_dict()
     missing, unexpected = stock.load_state_dict(exponential, strict=False)
     assert (missing, unexpected) == ([], ["frames"])
-
-
-def test_every_earlier_form_warns_with_the_version_it_goes_away_in(env):
-    from trl_cartpole.parts.earlier_forms import REMOVED_IN
-
-    version = rf"until trl_cartpole {REMOVED_IN.replace('.', chr(92) + '.')}"
-    with pytest.warns(FutureWarning, match=rf"action_spec= .* {version}; write spec="):
-        make_exploration(action_spec=env.action_spec)
-    with pytest.warns(FutureWarning, match=rf"hidden_sizes= .* {version}; write num_cells="):
-        make_q_actor(env.observation_spec, env.action_spec, hidden_sizes=[8])
-    with pytest.warns(FutureWarning, match=rf"activation= .* {version}; write activation_class="):
-        make_q_actor(env.observation_spec, env.action_spec, activation="relu")
-    loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
-    with pytest.warns(FutureWarning, match=rf"{version}; write value_network_update_interval=2"):
-        assert make_target_updater(loss, hard_update_interval=3).value_network_update_interval == 2
-    with pytest.warns(FutureWarning, match=rf"make_target_updater\(loss, 'soft'\) .* {version}"):
-        make_target_updater(loss, "soft", tau=0.1)
-    with warnings.catch_warnings():  # TorchRL's own forms: no warning
-        warnings.simplefilter("error", FutureWarning)
-        make_q_actor(spec=env.action_spec, module=nn.Linear(4, 2))
-        make_exploration(env.action_spec)

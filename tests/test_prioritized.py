@@ -123,13 +123,18 @@ def test_beta_is_annealed_linearly_to_one(frames, expected):
     assert annealed_beta(0.4, frames, anneal_frames=1000) == pytest.approx(expected)
 
 
-def test_the_configs_alpha_is_schauls_exponent_on_the_absolute_td_error():
-    """buffer.alpha=0.6 (Schaul et al.'s, on |delta|) builds TorchRL's alpha=0.3 on delta ** 2
-    for DQNLoss; C51's cross-entropy priority keeps it."""
+def test_the_configs_alpha_is_torchrls_and_the_presets_are_schauls_exponent():
+    """buffer.alpha is TorchRL's, on DQNLoss's delta ** 2: the prioritized preset's 0.3 is
+    Schaul et al.'s 0.6 on |delta|; Rainbow's C51 priority (a cross-entropy) takes 0.6 as is."""
+    from trl_cartpole.config.compose import compose_run_config
     from trl_cartpole.config.schema import to_config
     from trl_cartpole.run.from_config import build_replay_buffer
 
-    cfg = to_config({"buffer": {"prioritized": True, "alpha": 0.6}})
-    assert build_replay_buffer(cfg).sampler.alpha == pytest.approx(0.3)
-    cfg.network.distributional = True
-    assert build_replay_buffer(cfg).sampler.alpha == pytest.approx(0.6)
+    cfg = to_config({"buffer": {"prioritized": True, "alpha": 0.45}})
+    assert build_replay_buffer(cfg).sampler.alpha == pytest.approx(0.45)  # as given
+    assert to_config(
+        compose_run_config(overrides=["algo=prioritized"])
+    ).buffer.alpha == pytest.approx(0.3)
+    assert to_config(compose_run_config(overrides=["algo=rainbow"])).buffer.alpha == pytest.approx(
+        0.6
+    )

@@ -46,7 +46,7 @@ RUN = [
 ]
 # an Atari preset's short budget
 ATARI_RUN = [
-    "buffer.size=2000",
+    "buffer.max_size=2000",
     "collector.total_frames=1500",
     "collector.init_random_frames=64",
     "eval.interval_frames=500",
@@ -80,7 +80,7 @@ VARIANTS = {
         "env=cartpole_pixels",
         "env.num_envs=2",
         "env.pixels_rendered_share=0.5",
-        "buffer.size=5000",
+        "buffer.max_size=5000",
         "collector.total_frames=3000",
         "collector.init_random_frames=64",
         "eval.max_steps=100",

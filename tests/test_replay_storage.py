@@ -47,7 +47,7 @@ def test_the_buffer_in_files_learns_what_the_buffer_in_memory_learns(tmp_path):
 
 def test_build_replay_buffer_keeps_memmap_files_in_the_run_directory(tmp_path):
     cfg = Config()
-    cfg.buffer.storage, cfg.buffer.size, cfg.buffer.n_steps = "memmap", 100, 1
+    cfg.buffer.storage, cfg.buffer.max_size, cfg.buffer.n_steps = "memmap", 100, 1
     buffer = build_replay_buffer(cfg, tmp_path)
     assert isinstance(buffer.storage, LazyMemmapStorage)
     buffer.extend(TensorDict({"pixels": torch.ones(10, 2, 3, dtype=torch.uint8)}, [10]))
@@ -87,7 +87,7 @@ def test_a_memmap_buffer_larger_than_the_disk_is_refused_before_the_run(tmp_path
         *RUN,
         f"run_dir={run_dir}",
         "buffer.storage=memmap",
-        "buffer.size=1000000000000000",
+        "buffer.max_size=1000000000000000",
     )
     assert proc.returncode == 2
     line = proc.stderr.strip()
@@ -118,7 +118,7 @@ def _bytes_under(path: Path) -> int:
 def test_a_buffers_checkpoint_holds_its_transitions_not_its_capacity(
     compose, tmp_path, loaded_into
 ):
-    cfg = validate(to_config(compose("buffer.size=20000", "buffer.n_steps=1")))
+    cfg = validate(to_config(compose("buffer.max_size=20000", "buffer.n_steps=1")))
     buffer = build_replay_buffer(cfg)
     buffer.extend(_transitions(100))
     buffer.dumps(tmp_path / "saved")

@@ -73,8 +73,7 @@ def test_dqn_loss_takes_value_network_and_every_dqnloss_keyword(env):
     assert isinstance(loss, DQNLoss)
     assert loss.delay_value is False and loss.reduction == "sum"
     assert loss.loss_function == "l2"  # DQNLoss's own
-    assert make_dqn_loss(actor, tuned=True).loss_function == "smooth_l1"  # this project's
-    assert make_dqn_loss(actor, loss_function="l1", tuned=True).loss_function == "l1"
+    assert make_dqn_loss(actor, loss_function="smooth_l1").loss_function == "smooth_l1"
 
 
 def test_exploration_takes_egreedy_modules_names_in_its_order(env):
@@ -83,10 +82,7 @@ def test_exploration_takes_egreedy_modules_names_in_its_order(env):
     positional = make_exploration(env.action_spec, 0.8, 0.2, 10)
     assert (positional.eps_init.item(), positional.eps_end.item()) == pytest.approx((0.8, 0.2))
     assert positional.annealing_num_steps == 10
-    alias = make_exploration(action_spec=env.action_spec)  # the earlier name still works
-    assert alias.annealing_num_steps == 1000  # EGreedyModule's
-    with pytest.raises(TypeError, match="alias"):
-        make_exploration(env.action_spec, action_spec=env.action_spec)
+    assert make_exploration(env.action_spec).annealing_num_steps == 1000  # EGreedyModule's
 
 
 def test_target_updaters_take_torchrls_names_and_count_as_torchrl(env):
@@ -99,9 +95,9 @@ def test_target_updaters_take_torchrls_names_and_count_as_torchrl(env):
     assert isinstance(ours, HardUpdate)
     theirs = HardUpdate(loss, value_network_update_interval=3)
     assert _copied_at(ours, loss, 9) == _copied_at(theirs, loss, 9) == [4, 8]
-    # ... the project's alias hard_update_interval=3 copies at every third.
-    alias = make_target_updater(loss, hard_update_interval=3)
-    assert _copied_at(alias, loss, 9) == [3, 6, 9]
+    # ... and a config's kind reads only its own updater's keys
+    hard = make_target_updater(loss, kind="hard", value_network_update_interval=2, tau=0.5)
+    assert _copied_at(hard, loss, 9) == [3, 6, 9]
     with pytest.raises(ValueError, match="not both"):
         make_target_updater(loss, tau=0.1, value_network_update_interval=3)
 

@@ -113,13 +113,13 @@ def test_a_search_space_is_checked_and_lists_pass_as_written(tmp_path):
     bad.write_text("optim.lr: {low: 0.1}\n")
     with pytest.raises(ConfigError, match=r"optim\.lr: .* is neither"):
         load_search_space(bad)
-    overrides = objective_overrides({"network.hidden_sizes": "[64, 64]", "loss.double_dqn": True})
-    assert overrides == ["network.hidden_sizes=[64, 64]", "loss.double_dqn=true"]
+    overrides = objective_overrides({"network.num_cells": "[64, 64]", "loss.double_dqn": True})
+    assert overrides == ["network.num_cells=[64, 64]", "loss.double_dqn=true"]
     space = load_search_space(CONFIG_DIR / "tune" / "cartpole.yaml")
     cfg = compose_config(
         CONFIG_DIR, [f"{k}={v['choices'][0]}" for k, v in space.items() if "choices" in v]
     )  # every choice is a valid override
-    assert cfg.network.hidden_sizes == [64, 64]
+    assert cfg.network.num_cells == [64, 64]
 
 
 @pytest.mark.slow  # an Optuna study of training runs

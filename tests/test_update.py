@@ -63,9 +63,9 @@ def test_norm_clipping_bounds_the_gradient_norm():
 
 def test_adamw_updates_lower_the_loss_on_a_fixed_batch():
     actor, loss, batch = _setup(scale=1.0)
-    optimizer = make_optimizer(actor.parameters(), lr=1e-2, tuned=True)
+    optimizer = make_optimizer(actor.parameters(), lr=1e-2, amsgrad=True, weight_decay=0.0)
     assert isinstance(optimizer, torch.optim.AdamW)
-    assert optimizer.defaults["amsgrad"] is True  # tuned: AMSGrad, no weight decay
+    assert optimizer.defaults["amsgrad"] is True
     update = make_update(loss, optimizer, grad_clip="value", max_grad=100.0)
     first = update(batch.clone())["loss"].item()
     for _ in range(50):

@@ -65,7 +65,7 @@ def test_double_dqn_target_uses_online_argmax_and_target_value():
 
 def test_dueling_head_is_value_plus_centred_advantage():
     torch.manual_seed(0)
-    net = make_q_network(obs_dim=4, num_actions=3, hidden_sizes=[16, 8], head="dueling")
+    net = make_q_network(obs_dim=4, num_actions=3, num_cells=[16, 8], head="dueling")
     torso, head = net
     obs = torch.randn(6, 4)
     q = net(obs)  # [6, 3]
@@ -83,7 +83,7 @@ def test_dueling_head_is_value_plus_centred_advantage():
 
 def test_distributional_dueling_head_centres_the_advantage_per_atom():
     torch.manual_seed(0)
-    net = make_q_network(4, num_actions=3, hidden_sizes=[16], head="dueling", atoms=5)
+    net = make_q_network(4, num_actions=3, num_cells=[16], head="dueling", atoms=5)
     torso, head = net
     obs = torch.randn(6, 4)
     logits = net(obs)  # [6, 5, 3]

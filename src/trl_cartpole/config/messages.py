@@ -25,8 +25,8 @@ SYNONYMS = {
     "learning_rate": "lr",
     "discount": "gamma",
     "epsilon": "eps",
-    "buffer_size": "size",
-    "replay_size": "size",
+    "buffer_size": "max_size",
+    "replay_size": "max_size",
     "frames": "total_frames",
     "steps": "total_frames",
 }

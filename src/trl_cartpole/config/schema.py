@@ -1,14 +1,18 @@
 """Typed configuration schema and the rules between its fields.
 
-The schema's defaults are the tuned default preset (``configs/algo/dqn.yaml`` restates them), so
-``train({...})`` without Hydra trains what ``python scripts/train.py`` trains.
+The schema's defaults are the default run (DQN on CartPole-v1, tuned for a CPU; the presets in
+``configs/`` change some of them), so ``train({...})`` without Hydra trains what
+``python scripts/train.py`` trains. A section's keys are the keyword arguments of the factory it
+feeds, in TorchRL's names (``network`` -> ``make_q_actor``, ``exploration`` ->
+``make_exploration``, ``buffer`` -> ``make_replay_buffer``, ``loss`` -> ``make_dqn_loss``,
+``target_updater`` -> ``make_target_updater``, ``optim`` -> ``make_optimizer``, ``collector``
+-> ``make_collector``); the few keys a factory does not take are marked "(the run's)".
 
 The dataclasses below are the schema Hydra composes ``configs/`` onto (registered in
 Hydra's ConfigStore as ``base_config``): a misspelt key or a wrong type fails at
 composition time. ``trl_cartpole.config.validation.validate`` then checks what a type cannot
 express (ranges and rules between fields) and raises ``ConfigError`` with one line naming the
-field and how to fix it. Of the package it imports only ``trl_cartpole.defaults``, where the
-defaults it shares with the factories are stated.
+field and how to fix it. It imports nothing of the package.
 """
 
 from __future__ import annotations
@@ -18,8 +22,6 @@ from datetime import datetime
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
-
-from trl_cartpole import defaults
 
 __all__ = [
     "AlgoConfig",
@@ -35,6 +37,7 @@ __all__ = [
     "LossConfig",
     "NetworkConfig",
     "OptimConfig",
+    "TargetUpdaterConfig",
     "flat_fields",
     "register_configs",
     "to_config",
@@ -62,7 +65,7 @@ class AtariConfig:
 class EnvConfig:
     # Any Gymnasium id with a vector observation and discrete actions: a registered id, or
     # module:Id / module:EnvClass (imported, and registered if a class), see trl_cartpole.parts.env.
-    id: str = defaults.ENV_ID  # a Gymnasium id (vector observation, discrete actions), or module:Id
+    id: str = "CartPole-v1"  # a Gymnasium id (vector observation, discrete actions), or module:Id
     imports: list[str] = field(default_factory=list)  # modules whose import registers env ids
     # null: Gymnasium's registered TimeLimit (an Atari game: agent steps, ALE's cap of 108 000
     # frames otherwise)
@@ -100,87 +103,105 @@ class AlgoConfig:
 
 
 @dataclass
+class CnnKwargs:
+    """TorchRL ``ConvNet``'s arguments (``make_cnn_features``): the PyTorch DQN tutorial's
+    first, pixel version by default (three 5x5, stride-2 convolutions)."""
+
+    num_cells: list[int] = field(default_factory=lambda: [16, 32, 32])  # each layer's channels
+    kernel_sizes: list[int] = field(default_factory=lambda: [5, 5, 5])  # each layer's kernel
+    strides: list[int] = field(default_factory=lambda: [2, 2, 2])  # each layer's stride
+
+
+@dataclass
 class NetworkConfig:
-    head: str = "plain"  # plain | dueling (Wang et al. 2016), see trl_cartpole.defaults.HEADS
+    """``make_q_actor(observation_spec, action_spec, **network)``."""
+
+    num_cells: list[int] = field(default_factory=lambda: [128, 128])  # the MLP's hidden widths
+    activation_class: str = "relu"  # relu | tanh | elu | gelu
+    head: str = "plain"  # plain | dueling (Wang et al. 2016)
     torso: str = "mlp"  # mlp (TorchRL MLP) | cnn (TorchRL ConvNet, then the MLP; for pixels)
-    cnn_channels: list[int] = field(
-        default_factory=lambda: list(defaults.CNN_CHANNELS)
-    )  # cnn: channels
-    cnn_kernels: list[int] = field(
-        default_factory=lambda: list(defaults.CNN_KERNELS)
-    )  # cnn: kernel sizes
-    cnn_strides: list[int] = field(
-        default_factory=lambda: list(defaults.CNN_STRIDES)
-    )  # cnn: strides
-    hidden_sizes: list[int] = field(
-        default_factory=lambda: list(defaults.HIDDEN_SIZES)
-    )  # MLP torso widths
-    activation: str = defaults.ACTIVATION  # relu | tanh | elu | gelu
+    cnn_kwargs: CnnKwargs = field(default_factory=CnnKwargs)  # torso=cnn only
     noisy: bool = False  # NoisyLinear layers (Fortunato et al. 2018); needs exploration=none
-    noisy_std: float = defaults.NOISY_STD  # sigma_0 of the factorised noise (the paper's 0.5)
-    distributional: bool = False  # C51 (Bellemare et al. 2017): a return distribution per action
+    noisy_std: float = 0.5  # sigma_0 of the factorised noise (the paper's 0.5)
+    # (the run's) C51 (Bellemare et al. 2017): a return distribution per action, over a
+    # support of `atoms` points in [v_min, v_max] (make_q_actor's `support`)
+    distributional: bool = False
     atoms: int = 51  # support points of the distribution
-    v_min: float = 0.0  # support [v_min, v_max]; CartPole's returns lie in [0, 1 / (1 - gamma)]
+    v_min: float = 0.0  # CartPole's returns lie in [0, 1 / (1 - gamma)]
     v_max: float = 200.0  # 1 / (1 - 0.995), the default gamma
 
 
 @dataclass
 class ExplorationConfig:
+    """``make_exploration(action_spec, **exploration)`` (TorchRL's ``EGreedyModule``)."""
+
+    eps_init: float = 1.0  # probability of a random action at the start
+    eps_end: float = 0.05  # ... after annealing_num_steps (linear); the floor (exponential)
+    # linear: frames to reach eps_end; exponential: the time constant
+    annealing_num_steps: int = 3000
     schedule: str = "linear"  # linear (TorchRL) | exponential (PyTorch tutorial) | none (noisy)
-    eps_start: float = defaults.EPS_START  # probability of a random action at the start
-    eps_end: float = defaults.EPS_END  # ... after decay_frames (linear) and the floor (exponential)
-    # linear: frames to reach eps_end; exponential: time constant
-    decay_frames: int = defaults.DECAY_FRAMES
 
 
 @dataclass
 class BufferConfig:
-    size: int = defaults.BUFFER_SIZE  # transitions kept (the oldest are overwritten)
-    # memory: TorchRL's LazyTensorStorage, in RAM | memmap: its LazyMemmapStorage, files in
-    # RUN_DIR/replay_buffer (removed at the end), for a buffer larger than the RAM to spare |
-    # frames: in RAM, each distinct frame of the pixel stacks once (parts/frame_storage.py)
+    """``make_replay_buffer(**buffer)``; n-step returns discounted by ``loss.gamma``."""
+
+    max_size: int = 50_000  # transitions kept (the oldest are overwritten)
+    # (the run's) memory: TorchRL's LazyTensorStorage, in RAM | memmap: its LazyMemmapStorage,
+    # files in RUN_DIR/replay_buffer (removed at the end), for a buffer larger than the RAM to
+    # spare | frames: in RAM, each distinct frame of the pixel stacks once (storage/frames.py)
     storage: str = "memory"
-    batch_size: int = defaults.BATCH_SIZE  # transitions per gradient step
+    batch_size: int = 512  # transitions per gradient step
     prioritized: bool = False  # proportional prioritized replay (Schaul et al. 2016)
-    # P(i) ~ |delta_i| ** alpha (Schaul et al.); stored TorchRL's way as
-    # (delta_i ** 2 + priority_eps) ** (alpha / 2)
-    alpha: float = defaults.ALPHA
-    beta: float = defaults.BETA  # importance-sampling exponent at the start, annealed linearly to 1
-    beta_anneal_frames: int | None = None  # frames to reach beta = 1; null: collector.total_frames
-    # added to delta ** 2 (TorchRL's td_error) so that no transition has priority 0
-    priority_eps: float = defaults.PRIORITY_EPS
+    # TorchRL's PrioritizedSampler: P(i) ~ (td_error_i + eps) ** alpha, where DQNLoss's
+    # td_error is delta ** 2 (so Schaul et al.'s 0.6 on |delta| is 0.3) and C51's the
+    # cross-entropy (algo=rainbow: 0.6)
+    alpha: float = 0.3
+    beta: float = 0.4  # importance-sampling exponent at the start, annealed linearly to 1
+    eps: float = 1e-6  # added to td_error so that no transition has priority 0
     # n-step returns (Sutton 1988) through MultiStepTransform when > 1
-    n_steps: int = defaults.N_STEPS
-    # pixels only: DrQ's random shift of each sampled frame by up to this many pixels (0: none)
+    n_steps: int = 3
+    # (the run's) frames to reach beta = 1; null: collector.total_frames
+    beta_anneal_frames: int | None = None
+    # (the run's) pixels only: DrQ's random shift of each sampled frame by up to this many
+    # pixels (0: none)
     pixels_shift: int = 0
 
 
 @dataclass
 class LossConfig:
-    gamma: float = defaults.GAMMA  # discount factor
-    loss_function: str = defaults.LOSS_FUNCTION  # smooth_l1 (Huber, as the tutorial) | l2
+    """``make_dqn_loss(actor, **loss)`` (TorchRL's ``DQNLoss``)."""
+
+    gamma: float = 0.995  # discount factor
+    loss_function: str = "smooth_l1"  # smooth_l1 (Huber, as the tutorial) | l2
     double_dqn: bool = False  # double DQN target (van Hasselt et al. 2016)
-    target_update: str = "hard"  # hard (copy every N updates) | soft (Polyak, tau)
-    tau: float = defaults.TAU  # soft: target <- (1 - tau) target + tau online, after each update
-    # gradient updates between hard copies
-    hard_update_interval: int = defaults.HARD_UPDATE_INTERVAL
-    # DQNLoss's arithmetic on plain tensors (trl_cartpole.parts.fused_loss): bitwise the same
-    # loss, about a fifth less time per update; false calls DQNLoss itself. C51 and noisy
-    # layers always call the loss module
-    fused: bool = True
+
+
+@dataclass
+class TargetUpdaterConfig:
+    """``make_target_updater(loss, **target_updater)``: TorchRL's ``HardUpdate`` or
+    ``SoftUpdate``, after each gradient update; ``kind`` reads only its own updater's keys."""
+
+    kind: str = "hard"  # hard (a copy) | soft (Polyak averaging, tau)
+    # hard: a copy on every (value_network_update_interval + 1)-th update (TorchRL's count)
+    value_network_update_interval: int = 49
+    tau: float = 0.02  # soft: target <- (1 - tau) target + tau online
 
 
 @dataclass
 class OptimConfig:
-    lr: float = defaults.LR  # AdamW learning rate
-    amsgrad: bool = defaults.AMSGRAD  # AdamW's AMSGrad variant, as the tutorial
-    weight_decay: float = defaults.WEIGHT_DECAY  # the tutorial keeps AdamW's default 0.01
+    """``make_optimizer(params, lr, amsgrad=, weight_decay=, eps=)`` (PyTorch's AdamW); the
+    other keys are the run's gradient step's."""
+
+    lr: float = 4e-3  # AdamW learning rate
+    amsgrad: bool = True  # AdamW's AMSGrad variant, as the tutorial
+    weight_decay: float = 0.0  # the tutorial keeps AdamW's default 0.01
     # the floor under AdamW's denominator (its own default; data-efficient Rainbow: 1.5e-4)
-    eps: float = defaults.ADAM_EPS
-    grad_clip: str = defaults.GRAD_CLIP  # norm | value | none
-    max_grad: float = defaults.MAX_GRAD  # the max norm, or the clip value per element
-    # the learning rate tapered linearly from lr to this, set from the frames after each batch
-    # (null: lr the whole run)
+    eps: float = 1e-8
+    grad_clip: str = "norm"  # (the run's) norm | value | none
+    max_grad: float = 10.0  # (the run's) the max norm, or the clip value per element
+    # (the run's) the learning rate tapered linearly from lr to this, set from the frames after
+    # each batch (null: lr the whole run)
     lr_end: float | None = None
     lr_decay_frames: int | None = None  # frames to reach lr_end; null: collector.total_frames
     # none | bfloat16: the update's network passes under torch.autocast in that type (Breakout's
@@ -190,13 +211,15 @@ class OptimConfig:
 
 @dataclass
 class CollectorConfig:
-    total_frames: int = defaults.TOTAL_FRAMES  # env steps at most (rounded up to whole batches)
+    """``make_collector(env, policy, **collector)`` (TorchRL's ``Collector``)."""
+
+    total_frames: int = 50_000  # env steps at most (rounded up to whole batches)
     # seconds of training at most (evaluations not counted), then the run ends as at its last
     # frame; the frames it reaches follow the machine's speed (null: no limit)
     max_train_seconds: float | None = None
-    frames_per_batch: int = defaults.FRAMES_PER_BATCH  # frames per collected batch, over all envs
+    frames_per_batch: int = 32  # frames per collected batch, over all envs
     # frames with a uniform random policy first (whole batches)
-    init_random_frames: int = defaults.INIT_RANDOM_FRAMES
+    init_random_frames: int = 1000
     updates_per_batch: int = 6  # gradient steps after each collected batch
     learning_starts: int = 0  # no update before the buffer holds max(this, batch_size)
     # Scaling out (docs/scaling.md): collection in worker processes or Ray actors, each with
@@ -261,6 +284,9 @@ class Config:
     run_dir: str = "runs/${run_env:}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
     device: str = "cpu"  # cpu | cuda | cuda:N (networks, losses and the replay buffer)
     num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
+    # TorchRL's DQNLoss, SoftUpdate and MultiStepTransform rewritten on plain tensors, the same
+    # arithmetic in less time (trl_cartpole.fast; docs/performance.md); false: TorchRL's own
+    fast: bool = False
     compile: bool = False  # the whole gradient step compiled (3-25 s once; docs/performance.md)
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
@@ -268,6 +294,7 @@ class Config:
     exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
     buffer: BufferConfig = field(default_factory=BufferConfig)
     loss: LossConfig = field(default_factory=LossConfig)
+    target_updater: TargetUpdaterConfig = field(default_factory=TargetUpdaterConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)

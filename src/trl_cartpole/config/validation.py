@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from trl_cartpole import defaults
+from trl_cartpole import choices
 from trl_cartpole.config.schema import Config, flat_fields
 from trl_cartpole.env_ids import (
     CARTPOLE_FRAME,
@@ -40,13 +40,13 @@ __all__ = [
 
 
 _CHOICES = {
-    "exploration.schedule": defaults.SCHEDULES,
+    "exploration.schedule": choices.SCHEDULES,
     "loss.loss_function": ("smooth_l1", "l2"),
-    "loss.target_update": ("soft", "hard"),
-    "optim.grad_clip": defaults.GRAD_CLIPS,
+    "target_updater.kind": choices.TARGET_UPDATERS,
+    "optim.grad_clip": choices.GRAD_CLIPS,
     "optim.autocast": ("none", "bfloat16"),
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
-    "collector.backend": defaults.COLLECTOR_BACKENDS,
+    "collector.backend": choices.COLLECTOR_BACKENDS,
     "buffer.storage": ("memory", "memmap", "frames"),
     "network.torso": ("mlp", "cnn"),
     "env.pixels_renderer": ("gymnasium", "drawn"),
@@ -121,7 +121,7 @@ def validate(cfg: Config) -> Config:
         check_compiler(cfg.device)
     _check_combination(cfg)
     check_logger_installed(cfg.logger.backend)
-    check_network_choices(cfg.network.head, cfg.network.activation)
+    check_network_choices(cfg.network.head, cfg.network.activation_class)
     check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
     return cfg
 
@@ -130,14 +130,23 @@ def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
     """(holds, the message when it does not) for the loss, the optimizer and exploration."""
     return [
         (0.0 < cfg.loss.gamma <= 1.0, f"loss.gamma={cfg.loss.gamma} must lie in (0, 1]"),
-        (0.0 < cfg.loss.tau <= 1.0, f"loss.tau={cfg.loss.tau} must lie in (0, 1]"),
-        (cfg.loss.hard_update_interval >= 1, "loss.hard_update_interval must be >= 1"),
         (
-            0.0 <= cfg.exploration.eps_end <= cfg.exploration.eps_start <= 1.0,
-            f"exploration needs 0 <= eps_end <= eps_start <= 1, got eps_start="
-            f"{cfg.exploration.eps_start}, eps_end={cfg.exploration.eps_end}",
+            0.0 < cfg.target_updater.tau <= 1.0,
+            f"target_updater.tau={cfg.target_updater.tau} must lie in (0, 1]",
         ),
-        (cfg.exploration.decay_frames >= 1, "exploration.decay_frames must be >= 1"),
+        (
+            cfg.target_updater.value_network_update_interval >= 0,
+            "target_updater.value_network_update_interval must be >= 0 (0: a copy every update)",
+        ),
+        (
+            0.0 <= cfg.exploration.eps_end <= cfg.exploration.eps_init <= 1.0,
+            f"exploration needs 0 <= eps_end <= eps_init <= 1, got eps_init="
+            f"{cfg.exploration.eps_init}, eps_end={cfg.exploration.eps_end}",
+        ),
+        (
+            cfg.exploration.annealing_num_steps >= 1,
+            "exploration.annealing_num_steps must be >= 1",
+        ),
         (cfg.optim.lr > 0, f"optim.lr={cfg.optim.lr} must be > 0"),
         (cfg.optim.weight_decay >= 0, "optim.weight_decay must be >= 0"),
         (cfg.optim.eps > 0, f"optim.eps={cfg.optim.eps} must be > 0 (AdamW's: 1e-08)"),
@@ -148,8 +157,8 @@ def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
         ),
         (
             cfg.optim.autocast == "none" or uses_fused_loss(cfg),
-            f"optim.autocast={cfg.optim.autocast} runs the fused DQN loss under torch.autocast, "
-            "and noisy networks, C51 and loss.fused=false do not use it: pass "
+            f"optim.autocast={cfg.optim.autocast} runs the fast path's DQN loss under "
+            "torch.autocast (noisy networks and C51 do not use it): pass fast=true, or "
             "optim.autocast=none",
         ),
         (
@@ -159,9 +168,9 @@ def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
         ),
         (
             cfg.optim.lr_end is None or not cfg.compile or uses_fused_loss(cfg),
-            "optim.lr_end tapers the learning rate, which the compiled update of noisy "
-            "networks, C51 and loss.fused=false holds fixed: pass compile=false, or "
-            "optim.lr_end=null",
+            "optim.lr_end tapers the learning rate, which the compiled update holds fixed "
+            "unless fast=true (not with noisy networks or C51): pass fast=true, compile=false, "
+            "or optim.lr_end=null",
         ),
     ]
 
@@ -169,16 +178,16 @@ def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
 def _buffer_rules(cfg: Config) -> list[tuple[bool, str]]:
     """(holds, the message when it does not) for the replay buffer."""
     return [
-        (cfg.buffer.size >= 1, f"buffer.size={cfg.buffer.size} must be >= 1"),
+        (cfg.buffer.max_size >= 1, f"buffer.max_size={cfg.buffer.max_size} must be >= 1"),
         (cfg.buffer.batch_size >= 1, f"buffer.batch_size={cfg.buffer.batch_size} must be >= 1"),
         (
-            cfg.buffer.batch_size <= cfg.buffer.size,
-            f"buffer.batch_size={cfg.buffer.batch_size} is larger than buffer.size="
-            f"{cfg.buffer.size}; lower the batch size or grow the buffer",
+            cfg.buffer.batch_size <= cfg.buffer.max_size,
+            f"buffer.batch_size={cfg.buffer.batch_size} is larger than buffer.max_size="
+            f"{cfg.buffer.max_size}; lower the batch size or grow the buffer",
         ),
         (cfg.buffer.alpha >= 0, f"buffer.alpha={cfg.buffer.alpha} must be >= 0"),
         (0 <= cfg.buffer.beta <= 1, f"buffer.beta={cfg.buffer.beta} must lie in [0, 1]"),
-        (cfg.buffer.priority_eps > 0, "buffer.priority_eps must be > 0"),
+        (cfg.buffer.eps > 0, "buffer.eps must be > 0"),
         (
             cfg.buffer.beta_anneal_frames is None or cfg.buffer.beta_anneal_frames >= 1,
             "buffer.beta_anneal_frames must be >= 1 (or null for collector.total_frames)",
@@ -291,6 +300,7 @@ def _atari_rules(cfg: Config) -> list[tuple[bool, str]]:
 
 def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
     """(holds, the message when it does not) for learning from pixels: frames, CNN, renderer."""
+    cnn = cfg.network.cnn_kwargs
     return [
         (cfg.env.pixels_pool >= 1, f"env.pixels_pool={cfg.env.pixels_pool} must be >= 1"),
         (cfg.env.pixels_frames >= 1, f"env.pixels_frames={cfg.env.pixels_frames} must be >= 1"),
@@ -299,16 +309,12 @@ def _pixels_rules(cfg: Config) -> list[tuple[bool, str]]:
             f"env.pixels_crop={list(cfg.env.pixels_crop)} must be [top, bottom, left, right]",
         ),
         (
-            len(cfg.network.cnn_channels)
-            == len(cfg.network.cnn_kernels)
-            == len(cfg.network.cnn_strides)
-            >= 1,
-            "network.cnn_channels, cnn_kernels and cnn_strides need one entry per layer each",
+            len(cnn.num_cells) == len(cnn.kernel_sizes) == len(cnn.strides) >= 1,
+            "network.cnn_kwargs: num_cells, kernel_sizes and strides need one entry per layer",
         ),
         (
-            min([*cfg.network.cnn_channels, *cfg.network.cnn_kernels, *cfg.network.cnn_strides])
-            >= 1,
-            "network.cnn_channels, cnn_kernels and cnn_strides must all be >= 1",
+            min([*cnn.num_cells, *cnn.kernel_sizes, *cnn.strides]) >= 1,
+            "network.cnn_kwargs: num_cells, kernel_sizes and strides must all be >= 1",
         ),
         (
             is_atari_id(cfg.env.id) or cfg.env.from_pixels == (cfg.network.torso == "cnn"),
@@ -392,8 +398,8 @@ def _network_rules(cfg: Config) -> list[tuple[bool, str]]:
     """(holds, the message when it does not) for the network."""
     return [
         (
-            all(size >= 1 for size in cfg.network.hidden_sizes),
-            f"network.hidden_sizes={list(cfg.network.hidden_sizes)} must all be >= 1",
+            all(size >= 1 for size in cfg.network.num_cells),
+            f"network.num_cells={list(cfg.network.num_cells)} must all be >= 1",
         ),
         (cfg.network.noisy_std > 0, f"network.noisy_std={cfg.network.noisy_std} must be > 0"),
         (cfg.network.atoms >= 2, f"network.atoms={cfg.network.atoms} must be >= 2"),
@@ -472,14 +478,14 @@ def check_envs_at_once(key: str, value: int) -> None:
 
 def check_network_choices(head: str, activation: str | None) -> None:
     """Raise :class:`ConfigError` unless ``head`` and ``activation`` (if given) are known names."""
-    if head not in defaults.HEADS:
+    if head not in choices.HEADS:
         raise ConfigError(
-            f"network.head={head!r} is not a known head; choose one of {sorted(defaults.HEADS)}"
+            f"network.head={head!r} is not a known head; choose one of {sorted(choices.HEADS)}"
         )
-    if activation is not None and activation not in defaults.ACTIVATIONS:
+    if activation is not None and activation not in choices.ACTIVATIONS:
         raise ConfigError(
-            f"network.activation={activation!r} is unknown; choose one of "
-            f"{sorted(defaults.ACTIVATIONS)}"
+            f"network.activation_class={activation!r} is unknown; choose one of "
+            f"{sorted(choices.ACTIVATIONS)}"
         )
 
 
@@ -516,10 +522,10 @@ def check_device(device: str) -> None:
 
 def uses_fused_loss(cfg: Config) -> bool:
     """Whether the update computes TorchRL's DQN loss on plain tensors
-    (:mod:`trl_cartpole.parts.fused_loss`): what ``compile=true`` compiles whole
-    (:mod:`trl_cartpole.parts.lean_update`, the learning rate an input) and what
+    (``fast=true``, :mod:`trl_cartpole.fast.loss`): what ``compile=true`` compiles whole
+    (:mod:`trl_cartpole.fast.compiled_update`, the learning rate an input) and what
     ``optim.autocast`` runs under ``torch.autocast``."""
-    return cfg.loss.fused and not cfg.network.noisy and not cfg.network.distributional
+    return cfg.fast and not cfg.network.noisy and not cfg.network.distributional
 
 
 def check_compiler(device: str) -> None:

@@ -12,10 +12,10 @@ contract in ``pyproject.toml`` holds it, and ``trl_cartpole.run.from_config`` jo
 One thing happens on import, here and nowhere else: where the torchrl wheel's C++ extension
 does not load against the installed torch (torchrl 0.14.1 beside torch 2.13.0's CPU build),
 TorchRL's prioritized sampler has no segment trees, and
-:func:`~trl_cartpole.parts.compat.install_segment_trees_if_missing` gives it pure-torch ones.
+:func:`~trl_cartpole.compat.install_segment_trees_if_missing` gives it pure-torch ones.
 Where the extension loads, nothing of TorchRL is changed.
 """
 
-from trl_cartpole.parts.compat import install_segment_trees_if_missing
+from trl_cartpole.compat import install_segment_trees_if_missing
 
 install_segment_trees_if_missing()

@@ -55,8 +55,8 @@ from torchrl.envs import (
 from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.utils import _set_missing_tolerance
 
+from trl_cartpole.compat import gym_env
 from trl_cartpole.env_ids import register_atari_games
-from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.pixels import PIXELS_KEY
 
 __all__ = [

@@ -30,10 +30,9 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
 
-from trl_cartpole import defaults
+from trl_cartpole import choices
+from trl_cartpole.compat import close_weight_sync_schemes
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.compat import close_weight_sync_schemes
-from trl_cartpole.parts.tuned import resolve
 
 __all__ = [
     "BACKENDS",
@@ -50,7 +49,7 @@ __all__ = [
     "whole_batches",
 ]
 
-BACKENDS = defaults.COLLECTOR_BACKENDS
+BACKENDS = choices.COLLECTOR_BACKENDS
 # Each Ray collector actor reserves this much of a node (TorchRL's default reserves 2 GiB).
 RAY_ACTOR_OPTIONS = {"num_cpus": 1, "memory": 512 * 1024**2}
 
@@ -110,9 +109,9 @@ def whole_batches(frames: int, frames_per_batch: int) -> int:
 def make_collector(
     create_env_fn: EnvBase | Callable[[], EnvBase] | Sequence[Callable[[], EnvBase]],
     policy: TensorDictModuleBase,
-    *args: Any,
-    frames_per_batch: int | None = None,
-    total_frames: int | None = None,
+    *,
+    frames_per_batch: int,
+    total_frames: int = -1,
     init_random_frames: int | None = None,
     device: str | torch.device | None = None,
     sync: bool = True,
@@ -120,7 +119,6 @@ def make_collector(
     ray_address: str | None = None,
     remote_configs: dict[str, Any] | None = None,
     ray_init_config: dict[str, Any] | None = None,
-    tuned: bool = False,
     **collector_kwargs: Any,
 ) -> BaseCollector:
     """Return a collector yielding batches of ``frames_per_batch`` transitions.
@@ -128,8 +126,7 @@ def make_collector(
     The policy runs under ``ExplorationType.RANDOM``, so epsilon-greedy is active. A batch is
     ``[T]`` or ``[envs, T]`` for one worker; ``[workers, envs, T]`` (``envs`` absent for single
     envs) for a synchronous multi-worker batch. The arguments after ``policy`` are keywords,
-    as ``Collector`` takes them, with ``Collector``'s defaults; ``tuned=True`` gives the ones
-    left out the default config's ``collector`` values (:mod:`trl_cartpole.parts.tuned`).
+    as ``Collector`` takes them, with ``Collector``'s defaults.
 
     Example::
 
@@ -145,18 +142,14 @@ def make_collector(
         that builds it (one local worker: collection in this process), or a list of env
         constructors, one per worker (picklable, each seeding its own envs).
     :param policy: the policy the collector steps (workers and Ray actors step copies of it).
-    :param args: refused: the arguments after ``policy`` are keywords, as ``Collector``'s (a
-        positional one raises ``TypeError`` naming the keywords).
-    :param frames_per_batch: the transitions in each batch. Required, as ``Collector``'s
-        (``tuned=True``: 32).
+    :param frames_per_batch: the transitions in each batch. Required, as ``Collector``'s.
     :param total_frames: the frames to collect, rounded up to whole batches
         (:func:`whole_batches`), as TorchRL would do with a warning. Default ``-1``, endless,
-        as ``Collector`` (``tuned=True``: 50 000).
+        as ``Collector``.
     :param init_random_frames: the first ``init_random_frames`` frames come from the env's
         uniform random policy; rounded up to whole batches. Default None: none, as
-        ``Collector`` (``tuned=True``: 1 000).
-    :param device: the collector's device. Default None: ``Collector``'s, the policy's
-        (``tuned=True``: ``"cpu"``).
+        ``Collector``.
+    :param device: the collector's device. Default None: ``Collector``'s, the policy's.
     :param sync: with several workers, ``True`` (default): every worker contributes
         ``frames_per_batch / workers`` frames to each batch (``MultiSyncCollector`` on the
         local backend); ``False``: each batch is one worker's ``frames_per_batch`` frames,
@@ -172,29 +165,18 @@ def make_collector(
     :param ray_init_config: ``RayCollector``'s too: adds to or replaces the ``ray.init``
         arguments of :func:`default_ray_init_config` (e.g.
         ``{"runtime_env": {"py_modules": [...]}}``).
-    :param tuned: fill the arguments left out with this project's tuned values (above).
     :param collector_kwargs: go to TorchRL's ``Collector`` (``storing_device``,
         ``compile_policy``, ``split_trajs``, ...).
     :returns: TorchRL's ``Collector`` (with ``backend="process"`` or ``"ray"`` for several
         workers or Ray actors).
     """
-    if args:
-        _refuse_positional(args)
     if backend not in BACKENDS:
         raise ConfigError(f"backend={backend!r}: choose one of {list(BACKENDS)}")
-    frames_per_batch = resolve("make_collector", "frames_per_batch", frames_per_batch, tuned)
-    if frames_per_batch is None:
-        raise TypeError(
-            "make_collector() needs frames_per_batch= (TorchRL's Collector requires it), or "
-            "tuned=True for this project's 32"
-        )
-    total_frames = resolve("make_collector", "total_frames", total_frames, tuned)
-    init_random_frames = resolve("make_collector", "init_random_frames", init_random_frames, tuned)
     common = {
         "frames_per_batch": frames_per_batch,
         "total_frames": whole_batches(total_frames, frames_per_batch),
         "init_random_frames": whole_batches(init_random_frames or 0, frames_per_batch) or None,
-        "device": resolve("make_collector", "device", device, tuned),
+        "device": device,
         # the Q-policy needs no env transform registered
         "auto_register_policy_transforms": False,
         **collector_kwargs,
@@ -218,16 +200,6 @@ def make_collector(
         )
     return _ray_collector(
         create_env_fn, policy, sync, ray_address, remote_configs, ray_init_config, common
-    )
-
-
-def _refuse_positional(args: tuple[Any, ...]) -> None:
-    """The arguments after ``policy`` are keywords: name them for the call as written."""
-    names = ("frames_per_batch", "total_frames", "init_random_frames", "device")
-    keywords = ", ".join(f"{name}={value!r}" for name, value in zip(names, args, strict=False))
-    raise TypeError(
-        "make_collector() takes create_env_fn and policy, then keywords (as Collector): "
-        f"make_collector(env, policy, {keywords})"
     )
 
 

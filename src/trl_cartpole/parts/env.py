@@ -22,7 +22,6 @@ from torchrl.envs import (
     TransformedEnv,
 )
 
-from trl_cartpole import defaults
 from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.episode_log import EpisodeLog, records_episodes
@@ -84,7 +83,7 @@ GYM_WRAPPER_KEYWORDS = frozenset(
 
 
 def make_env(
-    env_name: str = defaults.ENV_ID,
+    env_name: str = "CartPole-v1",
     device: str | torch.device = "cpu",
     *,
     seed: int | None = None,
@@ -108,7 +107,7 @@ def make_env(
     The returned env writes ``("next", "step_count")`` and ``("next", "episode_reward")`` so the
     training loop reads episode lengths and returns off the collected batch. Gymnasium's
     TimeLimit sets ``truncated`` (not ``terminated``) at the step limit, so the TD target keeps
-    bootstrapping there. The Gymnasium env is ``trl_cartpole.parts.compat.gym_env(env)``.
+    bootstrapping there. The Gymnasium env is ``trl_cartpole.compat.gym_env(env)``.
 
     Example::
 

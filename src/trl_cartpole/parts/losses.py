@@ -26,13 +26,9 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
-from trl_cartpole.parts.compat import soft_update_pairs
-from trl_cartpole.parts.earlier_forms import warn_earlier_form
 from trl_cartpole.parts.replay import N_STEP_GAMMA_KEY, n_step_gamma
-from trl_cartpole.parts.tuned import TUNED, resolve
 
 __all__ = [
-    "FusedSoftUpdate",
     "check_discounts",
     "make_dqn_loss",
     "make_target_updater",
@@ -41,20 +37,18 @@ __all__ = [
 
 def make_dqn_loss(
     value_network: QValueActor | DistributionalQValueActor,
-    *args: Any,
+    *,
     gamma: float | None = None,
     loss_function: str | None = None,
     delay_value: bool = True,
     double_dqn: bool | None = None,
     replay_buffer: ReplayBuffer | None = None,
-    tuned: bool = False,
     **loss_kwargs: Any,
 ) -> DQNLoss | DistributionalDQNLoss:
     """Return TorchRL's ``DQNLoss`` (or ``DistributionalDQNLoss``) for ``value_network``.
 
     The arguments are ``DQNLoss``'s, with its meanings and defaults, keywords after
-    ``value_network`` as in ``DQNLoss``; ``tuned=True`` gives the ones left out this
-    project's values (the default config's ``loss`` section, :mod:`trl_cartpole.parts.tuned`).
+    ``value_network`` as in ``DQNLoss``.
 
     One discount: an n-step buffer (:func:`~trl_cartpole.parts.replay.make_replay_buffer`) sums
     rewards with its own gamma, and the loss bootstraps with gamma ** k, so the two must agree.
@@ -69,7 +63,7 @@ def make_dqn_loss(
     layers it is set to ``RANDOM``, so the networks train through their noise (Fortunato et al.
     2018, algorithm 1).
 
-    State: a loss whose discount was set here (``gamma=``, ``replay_buffer=``, ``tuned=True``)
+    State: a loss whose discount was set here (``gamma=``, ``replay_buffer=``)
     has made its value estimator, so its ``state_dict`` holds ``_value_estimator.gamma``, as a
     stock ``DQNLoss`` after ``make_value_estimator(gamma=...)``; a fresh stock ``DQNLoss``
     makes its estimator on its first call, so call its ``make_value_estimator(gamma=...)``
@@ -83,26 +77,19 @@ def make_dqn_loss(
         >>> loss = make_dqn_loss(actor, double_dqn=True)
         >>> type(loss).__name__, loss.double_dqn, loss.loss_function
         ('DQNLoss', True, 'l2')
-        >>> make_dqn_loss(actor, tuned=True).loss_function  # this project's: Huber
-        'smooth_l1'
 
     :param value_network: the Q-value actor (:func:`~trl_cartpole.parts.models.make_q_actor`);
         a ``DistributionalQValueActor`` gets a ``DistributionalDQNLoss``.
-    :param args: refused: the arguments after ``value_network`` are keywords, as in
-        ``DQNLoss``; a positional one raises ``TypeError`` naming the keyword.
     :param gamma: the discount, set with ``loss.make_value_estimator(gamma=...)``, TorchRL's
         way (``DistributionalDQNLoss``: its ``gamma``). Default: the replay buffer's n-step
-        discount with ``replay_buffer``; else TorchRL's, 0.99, left to the loss
-        (``tuned=True``: 0.995).
-    :param loss_function: Default None: ``DQNLoss``'s, ``"l2"`` (``tuned=True``:
-        ``"smooth_l1"``, Huber, as the PyTorch DQN tutorial). A ``DistributionalDQNLoss`` has
-        none.
+        discount with ``replay_buffer``; else TorchRL's, 0.99, left to the loss.
+    :param loss_function: Default None: ``DQNLoss``'s, ``"l2"`` (``"smooth_l1"``: Huber, as
+        the PyTorch DQN tutorial). A ``DistributionalDQNLoss`` has none.
     :param delay_value: ``True`` (a target network), as TorchRL.
     :param double_dqn: ``False``, as TorchRL. A ``DistributionalDQNLoss`` has none (it is
         always double).
     :param replay_buffer: the n-step buffer the loss learns from: the loss takes the buffer's
         gamma (a different ``gamma`` raises ``ValueError`` naming both).
-    :param tuned: fill the arguments left out with this project's tuned values (above).
     :param loss_kwargs: go to the loss's constructor (``action_space``, ``reduction``, ...).
     :returns: TorchRL's ``DQNLoss``, or ``DistributionalDQNLoss`` for a
         ``DistributionalQValueActor``.
@@ -110,22 +97,11 @@ def make_dqn_loss(
         ``replay_buffer``, and at every call on an n-step batch of another discount), or when
         ``loss_function`` or ``double_dqn`` is passed for a ``DistributionalDQNLoss``.
     """
-    if args:
-        raise TypeError(
-            "make_dqn_loss() takes value_network, then keywords (as DQNLoss): "
-            f"make_dqn_loss(value_network, gamma={args[0]!r})"
-        )
     buffer_gamma = None if replay_buffer is None else n_step_gamma(replay_buffer)
     if gamma is not None and buffer_gamma is not None:
         check_discounts(gamma, buffer_gamma)
     if gamma is None:  # None left: TorchRL's, 0.99, left to the loss
-        gamma = (
-            buffer_gamma
-            if buffer_gamma is not None
-            else TUNED["make_dqn_loss"]["gamma"]
-            if tuned
-            else None
-        )
+        gamma = buffer_gamma
     if isinstance(value_network, DistributionalQValueActor):
         ignored = [
             name
@@ -139,14 +115,14 @@ def make_dqn_loss(
             )
         loss = DistributionalDQNLoss(
             value_network,
-            gamma=resolve("make_dqn_loss", "gamma", gamma, tuned),
+            gamma=0.99 if gamma is None else gamma,
             delay_value=delay_value,
             **loss_kwargs,
         )
     else:
         loss = DQNLoss(
             value_network,
-            loss_function=resolve("make_dqn_loss", "loss_function", loss_function, tuned),
+            loss_function="l2" if loss_function is None else loss_function,
             delay_value=delay_value,
             double_dqn=bool(double_dqn),
             **loss_kwargs,
@@ -201,41 +177,24 @@ def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
     check_discounts(loss_gamma, float(marked.reshape(-1)[0]))
 
 
-class FusedSoftUpdate(SoftUpdate):
-    """TorchRL's ``SoftUpdate``, theta' <- theta' + tau (theta - theta'), in one fused call.
-
-    ``SoftUpdate.step`` lerps the target parameters tensordict by tensordict, about 0.2-0.3 ms
-    per step for the default 128-128 network; one ``torch._foreach_lerp_`` over all of them
-    does the same arithmetic (``Tensor.lerp_`` per tensor) in about 0.06 ms
-    (docs/performance.md). The sources and targets are the ones ``SoftUpdate.init_`` selected,
-    in the same order.
-    """
-
-    def step(self) -> None:
-        if not self.initialized:
-            return super().step()  # raises: init_() first
-        sources, targets = soft_update_pairs(self)
-        torch._foreach_lerp_(targets, sources, 1 - self.eps)
-
-
 def make_target_updater(
     loss_module: DQNLoss | DistributionalDQNLoss,
-    *args: Any,
+    *,
+    kind: str | None = None,
     eps: float | None = None,
     tau: float | None = None,
-    value_network_update_interval: int | None = None,
-    hard_update_interval: int | None = None,
-    kind: str | None = None,
-    tuned: bool = False,
+    value_network_update_interval: float | None = None,
 ) -> TargetNetUpdater:
     """Return TorchRL's ``SoftUpdate`` or ``HardUpdate`` of ``loss_module``'s target network.
 
-    The arguments are TorchRL's, with its meanings and defaults; which updater is built
-    follows from them. With none of them: TorchRL's ``HardUpdate``, a copy every 1 001 updates
-    (``value_network_update_interval=1000``); with ``tuned=True``, the default config's: a copy
-    every 50 updates (``value_network_update_interval=49``), or ``tau=0.02`` with
-    ``kind="soft"``. TorchRL's ``SoftUpdate`` needs ``eps`` or ``tau``. Call ``.step()`` once
-    per gradient update.
+    The arguments are TorchRL's, with its meanings and defaults. ``kind`` picks the updater
+    (``"soft"``: Polyak averaging, Lillicrap et al. 2016; ``"hard"``: a periodic copy, Mnih et
+    al. 2015) and reads only that updater's arguments, so a config may hold both; without
+    ``kind``, ``eps`` or ``tau`` give a ``SoftUpdate`` and anything else a ``HardUpdate``.
+    ``HardUpdate`` copies on every ``(value_network_update_interval + 1)``-th ``.step()``
+    (TorchRL's count: 0 copies on every step); its default is 1000. ``SoftUpdate`` needs
+    ``eps`` or ``tau`` (theta' <- tau theta + (1 - tau) theta'). Call ``.step()`` once per
+    gradient update.
 
     Example::
 
@@ -246,72 +205,31 @@ def make_target_updater(
         0.99
         >>> make_target_updater(loss).value_network_update_interval  # HardUpdate's
         1000
-        >>> make_target_updater(loss, tuned=True).value_network_update_interval
-        49
 
     :param loss_module: the loss (:func:`make_dqn_loss`) whose target network is updated.
-    :param args: ``kind``, taken as the second positional argument too: its earlier form
-        ``make_target_updater(loss, "soft", tau=0.01)``.
-    :param eps: ``SoftUpdate``'s: ``eps = 1 - tau``. With ``eps`` or ``tau``, a soft update
-        (Lillicrap et al. 2016), built as :class:`FusedSoftUpdate`, a ``SoftUpdate`` doing the
-        same arithmetic in one fused call.
+    :param kind: ``"hard"`` or ``"soft"``; None: soft with ``eps`` or ``tau``, else hard.
+    :param eps: ``SoftUpdate``'s: ``eps = 1 - tau``.
     :param tau: ``SoftUpdate``'s: theta' <- tau theta + (1 - tau) theta' at each ``.step()``.
-        With ``kind="soft"``, required as ``SoftUpdate`` requires eps or tau (``tuned=True``:
-        0.02).
-    :param value_network_update_interval: ``HardUpdate``'s, counted as TorchRL counts, so the
-        copy happens on every ``(value_network_update_interval + 1)``-th ``.step()``
-        (``value_network_update_interval=3`` copies at steps 4, 8, 12). Default 1000, as
-        ``HardUpdate`` (``tuned=True``: 49).
-    :param hard_update_interval: this project's alias (the config's
-        ``loss.hard_update_interval``) for a copy on every ``hard_update_interval``-th step
-        (3: steps 3, 6, 9), i.e. ``value_network_update_interval = hard_update_interval - 1``.
-    :param kind: ``"soft"`` or ``"hard"`` (this project's): pick the updater when no other
-        argument does.
-    :param tuned: fill the arguments left out with this project's tuned values (above).
-    :returns: TorchRL's ``HardUpdate``, or :class:`FusedSoftUpdate` (a ``SoftUpdate``).
+    :param value_network_update_interval: ``HardUpdate``'s, counted as TorchRL counts: a copy
+        on every ``(value_network_update_interval + 1)``-th ``.step()``. Default 1000.
+    :returns: TorchRL's ``HardUpdate`` or ``SoftUpdate``.
     """
-    if args:
-        if len(args) > 1 or args[0] not in ("soft", "hard") or kind is not None:
-            raise TypeError(
-                "make_target_updater() takes loss_module, then keywords (as SoftUpdate and "
-                "HardUpdate): tau= or eps= (soft), value_network_update_interval= (hard), or "
-                "kind='soft' / 'hard'"
+    if kind is None:
+        soft = eps is not None or tau is not None
+        if soft and value_network_update_interval is not None:
+            raise ValueError(
+                "a target updater is either soft (eps or tau: SoftUpdate) or hard "
+                "(value_network_update_interval: HardUpdate), not both; or name it with kind="
             )
-        kind = args[0]
-        warn_earlier_form(f"make_target_updater(loss, {kind!r})", f"kind={kind!r}")
-    soft = eps is not None or tau is not None
-    hard = value_network_update_interval is not None or hard_update_interval is not None
-    if kind not in (None, "soft", "hard"):
-        raise ValueError(f"kind={kind!r}; choose 'soft' or 'hard'")
-    if (soft and hard) or (kind == "soft" and hard) or (kind == "hard" and soft):
-        raise ValueError(
-            "a target updater is either soft (eps or tau: SoftUpdate) or hard "
-            "(value_network_update_interval or hard_update_interval: HardUpdate), not both"
-        )
-    if value_network_update_interval is not None and hard_update_interval is not None:
-        raise ValueError(
-            "value_network_update_interval and hard_update_interval name the same setting "
-            "(hard_update_interval = value_network_update_interval + 1); pass one"
-        )
-    if soft or kind == "soft":
+        kind = "soft" if soft else "hard"
+    if kind == "soft":
         if eps is None and tau is None:
-            if not tuned:
-                raise TypeError(
-                    "make_target_updater(kind='soft') needs tau= or eps= (TorchRL's SoftUpdate "
-                    "requires one), or tuned=True for this project's tau=0.02"
-                )
-            tau = TUNED["make_target_updater"]["tau"]
-        return FusedSoftUpdate(loss_module, eps=eps, tau=tau)
-    if hard_update_interval is not None:
-        warn_earlier_form(
-            "hard_update_interval=N",
-            f"value_network_update_interval={hard_update_interval - 1} (TorchRL's count: a copy "
-            "on every (interval + 1)-th step)",
-        )
-        if hard_update_interval < 1:
-            raise ValueError(f"hard_update_interval={hard_update_interval} must be >= 1")
-        value_network_update_interval = hard_update_interval - 1
-    interval = resolve(
-        "make_target_updater", "value_network_update_interval", value_network_update_interval, tuned
-    )
-    return HardUpdate(loss_module, value_network_update_interval=interval)
+            raise TypeError("a soft target update needs tau= or eps= (as TorchRL's SoftUpdate)")
+        return SoftUpdate(loss_module, eps=eps, tau=tau)
+    if kind != "hard":
+        raise ValueError(f"kind={kind!r}; choose 'soft' or 'hard'")
+    if value_network_update_interval is None:
+        return HardUpdate(loss_module)
+    if value_network_update_interval < 0:
+        raise ValueError(f"value_network_update_interval={value_network_update_interval} < 0")
+    return HardUpdate(loss_module, value_network_update_interval=value_network_update_interval)

@@ -31,12 +31,10 @@ from torchrl.modules import (
     reset_noise,
 )
 
-from trl_cartpole import defaults
+from trl_cartpole import choices
+from trl_cartpole.compat import use_first_greedy_action
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.compat import use_first_greedy_action
-from trl_cartpole.parts.earlier_forms import EarlierLayoutKeys, resolve_alias
 from trl_cartpole.parts.pixels import ScaleImage
-from trl_cartpole.parts.tuned import resolve
 
 __all__ = [
     "ACTIVATIONS",
@@ -50,10 +48,10 @@ __all__ = [
     "reset_network_noise",
 ]
 
-# each of defaults.ACTIVATIONS: the torch.nn class of that name, case left aside (relu: ReLU)
+# each of choices.ACTIVATIONS: the torch.nn class of that name, case left aside (relu: ReLU)
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     name: next(cls for cls_name, cls in vars(nn).items() if cls_name.lower() == name)
-    for name in defaults.ACTIVATIONS
+    for name in choices.ACTIVATIONS
 }
 
 
@@ -105,9 +103,9 @@ def _dueling_head(
     )
 
 
-# each of defaults.HEADS: the function _<name>_head above
+# each of choices.HEADS: the function _<name>_head above
 HEADS: dict[str, Callable[..., nn.Module]] = {
-    name: globals()[f"_{name}_head"] for name in defaults.HEADS
+    name: globals()[f"_{name}_head"] for name in choices.HEADS
 }
 
 
@@ -120,14 +118,12 @@ def check_head(head: str) -> None:
 def make_q_network(
     obs_dim: int,
     num_actions: int,
-    num_cells: Sequence[int] | int | None = defaults.HIDDEN_SIZES,
-    activation_class: type[nn.Module] = nn.ReLU,
+    num_cells: Sequence[int] | int | None = None,
+    activation_class: type[nn.Module] = nn.Tanh,
     head: str = "plain",
     noisy: bool = False,
-    noisy_std: float = defaults.NOISY_STD,
+    noisy_std: float = 0.5,
     atoms: int | None = None,
-    *,
-    hidden_sizes: Sequence[int] | None = None,
     **mlp_kwargs: Any,
 ) -> nn.Module:
     """Return ``[*B, obs_dim] -> [*B, num_actions]`` (or ``[*B, atoms, num_actions]`` logits).
@@ -140,9 +136,10 @@ def make_q_network(
     :param num_actions: the number of discrete actions.
     :param num_cells: the hidden widths, read as ``MLP`` reads them: a list of widths
         (``[]``: no hidden layer, the head reads the input), an int with ``depth=`` in
-        ``mlp_kwargs`` (``depth`` layers of that width). Default (128, 128).
-    :param activation_class: the activation after every hidden layer, ``MLP``'s. Default
-        ``nn.ReLU``.
+        ``mlp_kwargs`` (``depth`` layers of that width). Default None, ``MLP``'s: no hidden
+        layer.
+    :param activation_class: the activation after every hidden layer. Default ``nn.Tanh``,
+        ``MLP``'s.
     :param head: a key of ``HEADS``: ``"plain"`` (default) or ``"dueling"``
         (:class:`DuelingHead`).
     :param noisy: every linear layer, the head's included, is TorchRL's ``NoisyLinear``
@@ -151,7 +148,6 @@ def make_q_network(
         noise. Default 0.5.
     :param atoms: with it, the output is logits ``[*B, atoms, num_actions]`` over a support of
         returns (C51); None: action values ``[*B, num_actions]``.
-    :param hidden_sizes: an alias of ``num_cells``.
     :param mlp_kwargs: go to ``MLP`` (``norm_class``, ``dropout``...).
     :returns: TorchRL's ``MLP`` for the plain head, else ``nn.Sequential(torso MLP, head)``.
     """
@@ -162,21 +158,19 @@ def make_q_network(
             f"{', '.join(fixed)}: set from the specs and the head here (layer_class by noisy=), "
             "not passed to MLP"
         )
-    widths = _widths(num_cells if hidden_sizes is None else hidden_sizes, mlp_kwargs)
+    widths = _widths(num_cells, mlp_kwargs)
     if noisy:  # every linear layer, the head's included
         layer_kwargs = {"std_init": noisy_std, **(mlp_kwargs.pop("layer_kwargs", None) or {})}
         mlp_kwargs["layer_kwargs"] = layer_kwargs
     layer_class = NoisyLinear if noisy else nn.Linear
     if head == "plain":  # TorchRL's own layout: one MLP, the head its last linear layer
-        return _with_earlier_layout_readable(
-            MLP(
-                in_features=obs_dim,
-                out_features=num_actions if atoms is None else (atoms, num_actions),
-                num_cells=widths,
-                activation_class=activation_class,
-                layer_class=layer_class,
-                **mlp_kwargs,
-            )
+        return MLP(
+            in_features=obs_dim,
+            out_features=num_actions if atoms is None else (atoms, num_actions),
+            num_cells=widths,
+            activation_class=activation_class,
+            layer_class=layer_class,
+            **mlp_kwargs,
         )
     if widths:
         torso = MLP(
@@ -195,39 +189,24 @@ def make_q_network(
     return nn.Sequential(torso, HEADS[head](width, num_actions, atoms or 1, linear))
 
 
-def _with_earlier_layout_readable(mlp: MLP) -> MLP:
-    """Let ``mlp`` load a plain network saved in this project's earlier layout.
-
-    Policies saved before the plain network became one ``MLP`` (TorchRL's layout, keys
-    ``0.weight``, ``2.weight``...) hold ``Sequential(torso MLP, head)``: keys ``0.{j}.*`` for
-    the torso's layer ``j`` and ``1.*`` (``1.0.*`` for C51) for the head. A load-time hook
-    (:class:`~trl_cartpole.parts.earlier_forms.EarlierLayoutKeys`) renames them, so a policy
-    trained earlier still evaluates.
-    """
-    last_linear = max(
-        i for i, layer in enumerate(mlp) if isinstance(layer, (nn.Linear, NoisyLinear))
-    )
-    mlp._register_load_state_dict_pre_hook(EarlierLayoutKeys(last_linear))
-    return mlp
-
-
 def make_cnn_features(
     image_shape: Sequence[int],
-    channels: Sequence[int] = defaults.CNN_CHANNELS,
-    kernel_sizes: Sequence[int] = defaults.CNN_KERNELS,
-    strides: Sequence[int] = defaults.CNN_STRIDES,
+    num_cells: Sequence[int] = (16, 32, 32),
+    kernel_sizes: Sequence[int] = (5, 5, 5),
+    strides: Sequence[int] = (2, 2, 2),
     activation_class: type[nn.Module] = nn.ReLU,
 ) -> tuple[nn.Module, int]:
     """``[*B, C, H, W]`` uint8 pixels -> ``[*B, F]`` features, and ``F``.
 
     The pixels are scaled to [0, 1] (:class:`~trl_cartpole.parts.pixels.ScaleImage`), then go
     through TorchRL's ``ConvNet`` (a convolution and ``activation_class`` per entry of
-    ``channels``, flattened at the end). The defaults are the three 5x5, stride-2 convolutions
+    ``num_cells``, flattened at the end). The defaults are the three 5x5, stride-2 convolutions
     of 16, 32 and 32 channels of the PyTorch DQN tutorial's first, pixel version (without its
     batch norm).
 
     :param image_shape: the image's ``[C, H, W]``; ``C`` is the first convolution's input.
-    :param channels: the output channels of each convolution. Default (16, 32, 32).
+    :param num_cells: ``ConvNet``'s: the output channels of each convolution. Default
+        (16, 32, 32).
     :param kernel_sizes: each convolution's kernel size. Default (5, 5, 5).
     :param strides: each convolution's stride. Default (2, 2, 2).
     :param activation_class: the activation after each convolution. Default ``nn.ReLU``.
@@ -246,7 +225,7 @@ def make_cnn_features(
         )
     conv = ConvNet(
         in_features=image_shape[0],
-        num_cells=list(channels),
+        num_cells=list(num_cells),
         kernel_sizes=list(kernel_sizes),
         strides=list(strides),
         activation_class=activation_class,
@@ -305,31 +284,26 @@ _MLP_SET_HERE = frozenset({"in_features", "out_features", "layer_class", "activa
 def make_q_actor(
     observation_spec: TensorSpec | nn.Module | None = None,
     spec: TensorSpec | None = None,
-    *args: Any,
+    *,
     module: nn.Module | None = None,
     num_cells: Sequence[int] | int | None = None,
-    activation_class: type[nn.Module] | None = None,
+    activation_class: type[nn.Module] | str = nn.Tanh,
     head: str = "plain",
     device: str | torch.device | None = None,
     noisy: bool = False,
-    noisy_std: float = defaults.NOISY_STD,
+    noisy_std: float = 0.5,
     support: torch.Tensor | None = None,
-    in_keys: Sequence[str] = ("observation",),
+    in_keys: Sequence[str] | None = None,
     torso: str | nn.Module = "mlp",
     cnn_kwargs: dict[str, Any] | None = None,
-    action_spec: TensorSpec | None = None,
-    hidden_sizes: Sequence[int] | None = None,
-    activation: str | None = None,
-    tuned: bool = False,
     **kwargs: Any,
 ) -> QValueActor | DistributionalQValueActor:
     """Return TorchRL's ``QValueActor`` reading ``in_keys`` and writing the greedy ``"action"``.
 
     The Q-network is built from ``observation_spec`` unless ``module`` is given. The arguments
-    are TorchRL's where a TorchRL class has them, with its defaults; ``head``, ``noisy``,
-    ``noisy_std``, ``support``, ``torso`` and ``cnn_kwargs`` are this project's own switches.
-    ``tuned=True`` gives ``num_cells`` and ``activation_class``, when left out, the default
-    config's network (:mod:`trl_cartpole.parts.tuned`). The plain head gives TorchRL's layout
+    are TorchRL's where a TorchRL class has them, with its defaults (``MLP``'s: no hidden
+    layer, ``nn.Tanh``); ``head``, ``noisy``, ``noisy_std``, ``support``, ``torso`` and
+    ``cnn_kwargs`` are this project's own switches. The plain head gives TorchRL's layout
     exactly: ``QValueActor(MLP(in_features, num_actions, num_cells=num_cells,
     activation_class=...))``, so its ``state_dict`` loads into an actor built with TorchRL
     alone.
@@ -352,62 +326,49 @@ def make_q_actor(
         entry ``in_keys`` names), from which the Q-network is built. An ``nn.Module`` passed
         here is taken as ``module``, ``QValueActor``'s first argument.
     :param spec: the env's action spec, the actor's ``spec``: one discrete action
-        (``OneHot`` or ``Categorical``, or a ``Composite`` holding it under ``"action"``, as
-        ``QValueActor`` takes it).
+        (``OneHot`` or ``Categorical``, or a ``Composite`` holding it under ``"action"``).
     :param module: ``QValueActor``'s: your whole Q-network, ``[*B, obs] -> [*B, num_actions]``
-        (``[*B, atoms, num_actions]`` with ``support``); nothing is built, as
-        ``QValueActor(module, spec=...)``. Default None (TorchRL's ``QValueActor``: required).
-    :param args: refused: the arguments after ``spec`` are keywords; an earlier form gave the
-        hidden widths and the activation here, and raises ``TypeError`` naming the keywords.
-    :param num_cells: ``MLP``'s, read as ``MLP`` reads it: a list of hidden widths (``[]``: no
-        hidden layer), an int with ``depth=``. Default None, ``MLP``'s: no hidden layer
-        (``tuned=True``: ``[128, 128]``).
-    :param activation_class: ``MLP``'s. Default ``nn.Tanh``, ``MLP``'s (``tuned=True``:
-        ``nn.ReLU``).
-    :param head: ``"plain"`` (default) or ``"dueling"``: :class:`DuelingHead`, a module of this
-        project (TorchRL 0.14 has dueling networks only for images).
+        (``[*B, atoms, num_actions]`` with ``support``); nothing is built.
+    :param num_cells: ``MLP``'s: a list of hidden widths (``[]``: no hidden layer), or an int
+        with ``depth=``. Default None, ``MLP``'s: no hidden layer.
+    :param activation_class: ``MLP``'s, or its name (``"relu"``, ``"tanh"``, ``"elu"``,
+        ``"gelu"``, as a config gives it). Default ``nn.Tanh``, ``MLP``'s.
+    :param head: ``"plain"`` (default) or ``"dueling"``: :class:`DuelingHead` (Wang et al.
+        2016; TorchRL 0.14 has dueling networks only for images).
     :param device: the actor's device. Default: the spec's.
-    :param noisy: every linear layer is TorchRL's ``NoisyLinear``. Default False.
-    :param noisy_std: the ``NoisyLinear`` layers' ``std_init``, sigma_0 of their factorised
-        noise. Default 0.5.
+    :param noisy: every linear layer is TorchRL's ``NoisyLinear`` (Fortunato et al. 2018).
+    :param noisy_std: the ``NoisyLinear`` layers' ``std_init``. Default 0.5, the paper's.
     :param support: a ``DistributionalQValueActor`` over these atoms (C51): a tensor ``[atoms]``
         of returns. Default None: a ``QValueActor``.
-    :param in_keys: the observation entry the network reads. Default ``["observation"]`` (as
-        ``QValueActor``).
+    :param in_keys: the observation entry the network reads. Default: ``["observation"]`` (as
+        ``QValueActor``); with ``torso="cnn"``, the spec's one image entry (``"pixels"``).
     :param torso: ``"mlp"`` (default: the observation goes straight to the MLP), ``"cnn"`` (a
         ``[C, H, W]`` uint8 image through :func:`make_cnn_features`), or your own
-        ``nn.Module`` mapping the observation to features ``[*B, F]`` (``F`` is found by running
-        it once on the spec's zero), under the MLP and the head.
-    :param cnn_kwargs: with ``torso="cnn"``, :func:`make_cnn_features`'s ``channels``,
-        ``kernel_sizes``, ``strides``.
-    :param action_spec: this project's earlier name for ``spec``, kept as an alias.
-    :param hidden_sizes: this project's earlier name for ``num_cells``, kept as an alias.
-    :param activation: this project's earlier name, a name (relu, tanh, elu, gelu) for
-        ``activation_class``, kept as an alias.
-    :param tuned: fill ``num_cells`` and ``activation_class``, when left out, with this
-        project's tuned values (above).
-    :param kwargs: any other keyword of ``MLP`` (``depth``, ``norm_class``, ``dropout``,
-        ``activation_kwargs``...) goes to it, and any other keyword to the actor
-        (``action_space``, ``action_value_key``, ``safe``...).
-    :returns: TorchRL's ``QValueActor``, or its ``DistributionalQValueActor`` with ``support``.
+        ``nn.Module`` mapping the observation to features ``[*B, F]``, under the MLP and head.
+    :param cnn_kwargs: with ``torso="cnn"``, :func:`make_cnn_features`'s ``num_cells``,
+        ``kernel_sizes``, ``strides`` (``ConvNet``'s names).
+    :param kwargs: any other keyword of ``MLP`` (``depth``, ``norm_class``, ``dropout``...)
+        goes to it, and any other keyword to the actor (``action_space``, ``safe``...).
     """
-    if args:
-        _refuse_positional(args)
     if isinstance(observation_spec, nn.Module):  # QValueActor's first argument is the module
         if module is not None:
             raise TypeError("a module passed first is QValueActor's module=; pass one of them")
         module, observation_spec = observation_spec, None
-    spec = resolve_alias("spec", spec, "action_spec", action_spec)
     if spec is None:
         raise TypeError("make_q_actor() needs spec= (the env's action_spec)")
     check_head(head)
-    if activation is not None:
-        activation_class = _activation_class_named(activation, activation_class)
+    if isinstance(activation_class, str):
+        if activation_class not in ACTIVATIONS:
+            raise ValueError(
+                f"activation_class={activation_class!r}; choose one of {sorted(ACTIVATIONS)} "
+                "or pass a torch.nn class"
+            )
+        activation_class = ACTIVATIONS[activation_class]
+    if cnn_kwargs is not None and torso != "cnn":
+        raise TypeError(f"cnn_kwargs are the CNN torso's: pass torso='cnn' (torso={torso!r})")
+    if in_keys is None:
+        in_keys = _default_in_keys(observation_spec, torso)
     mlp_kwargs = {key: kwargs.pop(key) for key in list(kwargs) if key in _MLP_KEYWORDS}
-    num_cells = resolve_alias("num_cells", num_cells, "hidden_sizes", hidden_sizes)
-    given_cells, given_activation = num_cells, activation_class  # before defaults fill them
-    num_cells = resolve("make_q_actor", "num_cells", num_cells, tuned)
-    activation_class = resolve("make_q_actor", "activation_class", activation_class, tuned)
     if module is None:
         module = _build_q_network(
             observation_spec,
@@ -423,42 +384,25 @@ def make_q_actor(
             None if support is None else support.numel(),
             mlp_kwargs,
         )
-    else:
-        _refuse_network_arguments_with_module(
-            mlp_kwargs,
-            num_cells=(given_cells, None),
-            activation_class=(given_activation, None),
-            noisy_std=(noisy_std, defaults.NOISY_STD),
-            hidden_sizes=(hidden_sizes, None),
-            head=(head, "plain"),
-            noisy=(noisy, False),
-            torso=(torso, "mlp"),
-            cnn_kwargs=(cnn_kwargs, None),
-            activation=(activation, None),
+    elif mlp_kwargs or num_cells is not None or head != "plain" or noisy or torso != "mlp":
+        raise TypeError(
+            "module= is your whole Q-network, so the arguments that build one (num_cells, head, "
+            "noisy, torso, MLP keywords) would build nothing; pass your layers as torso= instead"
         )
     return _q_value_actor(module, spec, list(in_keys), support, device, kwargs)
 
 
-def _refuse_positional(args: tuple[Any, ...]) -> None:
-    """The arguments after ``spec`` are keywords: name them for the call as written."""
-    names = ("num_cells", "activation", "head")
-    earlier = ", ".join(f"{name}={value!r}" for name, value in zip(names, args, strict=False))
-    raise TypeError(
-        "make_q_actor() takes observation_spec and spec, then keywords: write "
-        f"make_q_actor(observation_spec, spec, {earlier})"
-    )
-
-
-def _activation_class_named(activation: str, activation_class: type[nn.Module] | None) -> type:
-    """The class of an activation given by its earlier name (``activation="relu"``)."""
-    if activation not in ACTIVATIONS:
-        raise ValueError(
-            f"activation={activation!r} is unknown; choose one of {sorted(ACTIVATIONS)} "
-            "or pass activation_class="
-        )
-    return resolve_alias(
-        "activation_class", activation_class, "activation", ACTIVATIONS[activation]
-    )
+def _default_in_keys(observation_spec: TensorSpec | None, torso: str | nn.Module) -> list[str]:
+    """``["observation"]``, or for a CNN torso the spec's one image entry (``[C, H, W]``)."""
+    if torso == "cnn" and isinstance(observation_spec, Composite):
+        images = [
+            key
+            for key in observation_spec.keys(True, True)
+            if len(observation_spec[key].shape) >= 3
+        ]
+        if len(images) == 1:
+            return [images[0]]
+    return ["observation"]
 
 
 def _q_value_actor(
@@ -526,23 +470,6 @@ def _build_q_network(
         **mlp_kwargs,
     )
     return network if features is None else nn.Sequential(features, network)
-
-
-def _refuse_network_arguments_with_module(
-    mlp_kwargs: dict[str, Any], **arguments: tuple[Any, Any]
-) -> None:
-    """``module=`` is the whole Q-network: arguments that would build one are refused.
-
-    ``arguments`` maps each network-building argument to ``(value, default)``; MLP keywords
-    are refused whenever given."""
-    given = sorted(mlp_kwargs) + [
-        name for name, (value, default) in arguments.items() if value != default
-    ]
-    if given:
-        raise TypeError(
-            f"module= is your whole Q-network, so {', '.join(given)} would build nothing; to "
-            "put this factory's MLP and head over your own layers, pass them as torso="
-        )
 
 
 def _output_width(torso: nn.Module, observation_spec: TensorSpec, in_keys: Sequence[str]) -> int:

@@ -15,30 +15,24 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
-from trl_cartpole import defaults
 from trl_cartpole.parts.models import reset_network_noise
-from trl_cartpole.parts.tuned import resolve
 
 __all__ = ["autocast_context", "make_optimizer", "make_update", "tapered_lr"]
 
 
 def make_optimizer(
     params: Iterable[nn.Parameter],
-    lr: float | None = None,
-    *args: Any,
-    amsgrad: bool | None = None,
-    weight_decay: float | None = None,
-    eps: float | None = None,
-    tuned: bool = False,
+    lr: float = 1e-3,
+    *,
+    amsgrad: bool = False,
+    weight_decay: float = 1e-2,
+    eps: float = 1e-8,
     **adamw_kwargs: Any,
 ) -> torch.optim.AdamW:
     """PyTorch's AdamW (Loshchilov & Hutter 2019), with ``AdamW``'s defaults.
 
-    PyTorch's fused implementation: one kernel for all parameters instead of a Python loop
-    over them (0.55 -> 0.17 ms per step for the default network, docs/performance.md), the
-    same update up to float rounding. ``tuned=True`` gives the arguments left out the
-    default config's ``optim`` values (:mod:`trl_cartpole.parts.tuned`), AMSGrad (Reddi et al.
-    2018) among them, as the PyTorch DQN tutorial.
+    PyTorch's fused implementation unless ``fused=`` is given: one kernel for all parameters
+    instead of a Python loop over them, the same update up to float rounding.
 
     Example::
 
@@ -47,40 +41,12 @@ def make_optimizer(
         >>> optimizer = make_optimizer(nn.Linear(4, 2).parameters(), lr=1e-3)
         >>> type(optimizer).__name__, optimizer.defaults["amsgrad"]
         ('AdamW', False)
-        >>> make_optimizer(nn.Linear(4, 2).parameters(), tuned=True).defaults["lr"]
-        0.004
 
-    :param params: the parameters to optimize, as ``AdamW`` takes them.
-    :param lr: the learning rate. Default 1e-3, ``AdamW``'s (``tuned=True``: 4e-3).
-    :param args: refused: the arguments after ``lr`` are keywords (``AdamW``'s third
-        positional argument is ``betas``); a positional one raises ``TypeError`` naming them.
-    :param amsgrad: AMSGrad (Reddi et al. 2018) on or off. Default False, ``AdamW``'s
-        (``tuned=True``: True).
-    :param weight_decay: AdamW's decoupled weight decay. Default 0.01, ``AdamW``'s
-        (``tuned=True``: 0.0; the tutorial's 0.01 is ``algo=tutorial``'s).
-    :param eps: the floor under AdamW's denominator. Default 1e-8, ``AdamW``'s (and tuned).
-    :param tuned: fill the arguments left out with this project's tuned values (above).
-    :param adamw_kwargs: go to ``AdamW`` (``fused=True`` unless given).
-    :returns: PyTorch's ``torch.optim.AdamW``.
+    :param adamw_kwargs: go to ``AdamW`` (``betas``, ``fused``, ...).
     """
-    if args:
-        raise TypeError(
-            "make_optimizer() takes params and lr, then keywords (AdamW's third positional "
-            "argument is betas): write make_optimizer(params, lr, "
-            + ", ".join(
-                f"{name}={value!r}"
-                for name, value in zip(("amsgrad", "weight_decay", "eps"), args, strict=False)
-            )
-            + ")"
-        )
     adamw_kwargs.setdefault("fused", True)
     return torch.optim.AdamW(
-        params,
-        lr=resolve("make_optimizer", "lr", lr, tuned),
-        amsgrad=resolve("make_optimizer", "amsgrad", amsgrad, tuned),
-        weight_decay=resolve("make_optimizer", "weight_decay", weight_decay, tuned),
-        eps=resolve("make_optimizer", "eps", eps, tuned),
-        **adamw_kwargs,
+        params, lr=lr, amsgrad=amsgrad, weight_decay=weight_decay, eps=eps, **adamw_kwargs
     )
 
 
@@ -116,8 +82,8 @@ def autocast_context(
 def make_update(
     loss_module: Callable[[TensorDictBase], TensorDictBase],
     optimizer: torch.optim.Optimizer,
-    grad_clip: str = defaults.GRAD_CLIP,
-    max_grad: float = defaults.MAX_GRAD,
+    grad_clip: str = "norm",
+    max_grad: float = 10.0,
     noisy_network: nn.Module | None = None,
     autocast_dtype: torch.dtype | None = None,
 ) -> Callable[[TensorDictBase], TensorDict]:
@@ -141,7 +107,7 @@ def make_update(
         ['grad_norm', 'loss']
 
     :param loss_module: the loss (:func:`~trl_cartpole.parts.losses.make_dqn_loss`), or a
-        function of it (:func:`~trl_cartpole.parts.fused_loss.fuse_dqn_loss`), whose output's
+        function of it (:func:`~trl_cartpole.fast.loss.fuse_dqn_loss`), whose output's
         ``"loss"`` is differentiated.
     :param optimizer: the optimizer stepped after each backward pass; the gradients clipped are
         those of its parameter groups.
@@ -155,7 +121,7 @@ def make_update(
     :param autocast_dtype: the loss computed under ``torch.autocast`` in this type
         (``torch.bfloat16``: the products and convolutions in bfloat16, the parameters, their
         gradients and AdamW in float32, Micikevicius et al. 2018); a loss module's outputs must
-        then be read in float32 (:class:`~trl_cartpole.parts.fused_loss.FusedDQNLoss` does).
+        then be read in float32 (:class:`~trl_cartpole.fast.loss.FusedDQNLoss` does).
         None: float32 throughout.
     :returns: this project's function ``update(batch) -> TensorDict(loss=[], grad_norm=[])``,
         with no Python-side state, so ``torch.compile`` can take it whole.

@@ -12,9 +12,8 @@
   ``steps_to_next_obs`` = k makes the TD target bootstrap with gamma ** k.
   ``("next", "terminated")`` is taken from step t+k-1, so a window that ends in a termination
   does not bootstrap and one that ends in a truncation does. A window ends where its
-  trajectory does, however the data is handed over (:func:`trajectory_ends`). The windows are
-  built on the batch's tensors (:mod:`~trl_cartpole.parts.n_step_windows`), bitwise what the
-  stock transform builds, in about 0.6 of its time.
+  trajectory does, however the data is handed over (:func:`trajectory_ends`). ``fast=true``
+  builds the same windows on the batch's tensors (:mod:`trl_cartpole.fast.n_step`).
 """
 
 from __future__ import annotations
@@ -34,14 +33,12 @@ from torchrl.data import (
 from torchrl.data.replay_buffers import PrioritizedSampler, RandomSampler, Sampler, Storage
 from torchrl.envs import Compose, MultiStepTransform, Transform
 
-from trl_cartpole.parts.compat import (
+from trl_cartpole.compat import (
     cuda_segment_trees_available,
     held_steps,
     n_step_transform,
     set_held_steps,
 )
-from trl_cartpole.parts.n_step_windows import Leaves, leaves_of, n_step_windows, tensordict_of
-from trl_cartpole.parts.tuned import resolve
 
 __all__ = [
     "N_STEP_GAMMA_KEY",
@@ -66,7 +63,7 @@ _NOT_STATE = {"reward", "done", "terminated", "truncated", "episode_reward"}
 # The collector's trajectory ids ([*B, T], at the root only): a new id starts a trajectory.
 TRAJECTORY_ID_KEY = ("collector", "traj_ids")
 # Where a window must end (["next"], [*B, T, 1], set while extending and never stored).
-_WINDOW_END_KEY = "_window_end"
+WINDOW_END_KEY = "_window_end"
 
 
 class NStepTransform(MultiStepTransform):
@@ -93,64 +90,26 @@ class NStepTransform(MultiStepTransform):
         super().__init__(
             n_steps,
             gamma,
-            done_key=_WINDOW_END_KEY,
-            done_keys=["done", "truncated", _WINDOW_END_KEY],
+            done_key=WINDOW_END_KEY,
+            done_keys=["done", "truncated", WINDOW_END_KEY],
         )
 
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase | None:
+        """The windows by TorchRL's own ``MultiStepTransform._inv_call``, given the ends."""
         if not tensordict.batch_dims:
             raise ValueError("an n-step buffer extends with a batch [T] or [envs, T] in time order")
         held = held_steps(self)  # [*B, n] kept back from the previous extend, or None
-        new = leaves_of(tensordict)
-        old = None if held is None else leaves_of(held)
-        if not self._windows_apply(new, old):
-            return self._stock_inv_call(tensordict, held)
-        time_dim = tensordict.batch_dims - 1
-        steps = new
-        if old is not None:  # [*B, n + T]
-            steps = {key: torch.cat([old[key], value], time_dim) for key, value in new.items()}
-        length = next(iter(steps.values())).shape[time_dim]
-        ends = _trajectory_ends(steps, tensordict.batch_size[:-1], length, tensordict.device)
-        keep = min(self.n_steps, length)
-        kept = {key: value.narrow(time_dim, length - keep, keep) for key, value in steps.items()}
-        batch = (*tensordict.batch_size[:-1], keep)
-        set_held_steps(self, tensordict_of(kept, batch, tensordict.device))
-        if length <= self.n_steps:
-            return None
-        done_keys = [key for key in self.done_keys if key != _WINDOW_END_KEY]
-        windows = n_step_windows(
-            steps, tensordict.batch_dims, ends, self.n_steps, self.gamma, done_keys
-        )
-        size = tensordict.batch_size[:-1].numel() * (length - self.n_steps)
-        return tensordict_of(windows, (size,), tensordict.device)
-
-    def _windows_apply(self, new: Leaves, held: Leaves | None) -> bool:
-        """Whether :func:`n_step_windows` covers this extend: the reward at ``("next",
-        "reward")`` only, no mask entry, done entries held directly under ``"next"``, and the
-        same entries as the held-back steps."""
-        return (
-            list(self.reward_keys) == ["reward"]
-            and ("next", "reward") in new
-            and all(isinstance(key, str) for key in self.done_keys)
-            and (self.mask_key if isinstance(self.mask_key, tuple) else (self.mask_key,)) not in new
-            and (held is None or held.keys() == new.keys())
-        )
-
-    def _stock_inv_call(
-        self, tensordict: TensorDictBase, held: TensorDictBase | None
-    ) -> TensorDictBase | None:
-        """The windows by TorchRL's own ``MultiStepTransform._inv_call``, given the ends."""
         joined = tensordict if held is None else torch.cat([held, tensordict], -1)
         ends = trajectory_ends(joined)  # [*B, T', 1]
         data = tensordict.clone(False)
-        data.set(("next", _WINDOW_END_KEY), ends[..., joined.shape[-1] - tensordict.shape[-1] :, :])
+        data.set(("next", WINDOW_END_KEY), ends[..., joined.shape[-1] - tensordict.shape[-1] :, :])
         if held is not None:
-            held.set(("next", _WINDOW_END_KEY), ends[..., : held.shape[-1], :])
+            held.set(("next", WINDOW_END_KEY), ends[..., : held.shape[-1], :])
         out = super()._inv_call(data)
-        set_held_steps(self, held_steps(self).exclude(("next", _WINDOW_END_KEY)))
+        set_held_steps(self, held_steps(self).exclude(("next", WINDOW_END_KEY)))
         if out is None:
             return None
-        out = out.exclude(("next", _WINDOW_END_KEY))
+        out = out.exclude(("next", WINDOW_END_KEY))
         steps = out.get("steps_to_next_obs")  # [*B]
         out.set("steps_to_next_obs", steps.reshape(out["next", "reward"].shape))
         return out.reshape(-1)  # [N, T'] windows of a vector env -> [N * T'] transitions
@@ -176,13 +135,25 @@ def trajectory_ends(steps: TensorDictBase) -> torch.Tensor:
     :raises ValueError: when ``steps`` holds no entry both at the root and under ``"next"``,
         so where one trajectory ends and another begins cannot be told.
     """
-    ends = _trajectory_ends(
+    ends = trajectory_ends_of_leaves(
         leaves_of(steps), steps.batch_size[:-1], steps.batch_size[-1], steps.device
     )
     return ends.unsqueeze(-1)
 
 
-def _trajectory_ends(
+# a TensorDict's leaves by their full key, ("observation",) or ("next", "reward")
+Leaves = dict[tuple[str, ...], torch.Tensor]
+
+
+def leaves_of(data: TensorDictBase) -> Leaves:
+    """The leaves of ``data`` by their full key as a tuple (``("next", "reward")``)."""
+    return {
+        key if isinstance(key, tuple) else (key,): value
+        for key, value in data.items(include_nested=True, leaves_only=True)
+    }
+
+
+def trajectory_ends_of_leaves(
     steps: Leaves, batch: torch.Size, length: int, device: torch.device | None
 ) -> torch.Tensor:
     """:func:`trajectory_ends` of the leaves of ``[*batch, length]`` steps, ``[*B, T]`` bool."""
@@ -231,20 +202,8 @@ def is_prioritized(buffer: ReplayBuffer) -> bool:
     return isinstance(buffer.sampler, PrioritizedSampler)
 
 
-def _refuse_positional(args: tuple[Any, ...]) -> None:
-    if args:
-        earlier = ", ".join(
-            f"{name}={value!r}"
-            for name, value in zip(("max_size", "batch_size"), args, strict=False)
-        )
-        raise TypeError(
-            f"make_replay_buffer() takes keyword arguments only, as TorchRL's buffers do: "
-            f"make_replay_buffer({earlier})"
-        )
-
-
 def make_replay_buffer(
-    *args: Any,
+    *,
     storage: Storage | None = None,
     sampler: Sampler | None = None,
     batch_size: int | None = None,
@@ -257,7 +216,6 @@ def make_replay_buffer(
     eps: float | None = None,
     n_steps: int = 1,
     gamma: float | None = None,
-    tuned: bool = False,
     **buffer_kwargs: Any,
 ) -> TensorDictReplayBuffer:
     """Return TorchRL's ``TensorDictReplayBuffer`` (``TensorDictPrioritizedReplayBuffer``).
@@ -265,15 +223,13 @@ def make_replay_buffer(
     Keyword arguments only, as TorchRL's buffers. The arguments are TorchRL's, with their
     meanings, behaviour and defaults: a buffer built from TorchRL's arguments alone stores the
     one-step transitions it is given, holds 1 000 of them and samples the batch size given to
-    ``sample``. ``tuned=True`` gives the arguments left out this project's values (the
-    default config's ``buffer`` section, :mod:`trl_cartpole.parts.tuned`).
+    ``sample``.
 
     Priorities, TorchRL's way: after ``loss(sample)``, ``buffer.update_tensordict_priority(
     sample)`` stores ``(td_error + eps) ** alpha`` for each sampled index. ``DQNLoss`` writes
     ``td_error`` = delta ** 2 (``DistributionalDQNLoss`` the cross-entropy), so alpha acts on
-    delta ** 2: Schaul et al.'s exponent on |delta| is ``2 * alpha``. The training pipeline
-    writes its priorities this way too (its ``buffer.alpha`` is Schaul's, halved for
-    ``DQNLoss``).
+    delta ** 2: Schaul et al.'s exponent on |delta| is ``2 * alpha`` (their 0.6 is
+    ``alpha=0.3`` here; the config's ``buffer.alpha`` is this same argument).
 
     With ``n_steps > 1`` give the loss the same discount:
     ``make_dqn_loss(actor, replay_buffer=buffer)``. Each ``extend`` then stores the
@@ -289,40 +245,35 @@ def make_replay_buffer(
         >>> buffer = make_replay_buffer(max_size=10_000, batch_size=64)
         >>> type(buffer).__name__, buffer.batch_size
         ('TensorDictReplayBuffer', 64)
-        >>> make_replay_buffer(tuned=True).batch_size  # this project's
-        512
 
-    :param args: refused: keyword arguments only, as TorchRL's buffers (a positional one raises
-        ``TypeError`` naming the keyword).
     :param storage: Default ``LazyTensorStorage(max_size, device=device)`` (TorchRL:
         ``ListStorage(1_000)``); it allocates on the first ``extend`` from the batch's layout,
         so it serves any env.
     :param sampler: Default ``RandomSampler()``, uniform with replacement, as TorchRL. Your
         own sampler (a ``PrioritizedSampler`` included) is used as given; refused with
         ``prioritized=True``, which brings its own.
-    :param batch_size: Default None, as TorchRL: given to ``sample`` (``tuned=True``: 512).
+    :param batch_size: Default None, as TorchRL: given to ``sample``.
     :param transform: yours, as given (TorchRL: none); with ``n_steps > 1`` it follows
         ``NStepTransform`` in the ``Compose`` and sees each extended batch before it.
     :param max_size: the default storage's capacity. Default 1 000, the capacity of TorchRL's
-        default storage (``tuned=True``: 50 000).
+        default storage.
     :param device: ``LazyTensorStorage``'s, for the default storage. Default ``"cpu"``.
     :param prioritized: ``True``: ``TensorDictPrioritizedReplayBuffer`` (Schaul et al. 2016,
         proportional), TorchRL's ``PrioritizedSampler`` with ``alpha``, ``beta`` and ``eps``.
         Default False.
     :param alpha: the priority exponent, ``PrioritizedSampler``'s: required with
-        ``prioritized=True``, as there (``tuned=True``: 0.3); refused without it, as TorchRL's
+        ``prioritized=True``, as there; refused without it, as TorchRL's
         plain buffer refuses it.
     :param beta: the importance-sampling exponent, ``PrioritizedSampler``'s: required with
-        ``prioritized=True`` (``tuned=True``: 0.4); refused without it.
+        ``prioritized=True``; refused without it.
     :param eps: added to ``td_error`` before the exponent, ``PrioritizedSampler``'s. Default
-        1e-8, as there (``tuned=True``: 1e-6); refused without ``prioritized=True``.
+        1e-8, as there; refused without ``prioritized=True``.
     :param n_steps: this project's; default 1: one-step transitions, as TorchRL. With
         ``n_steps > 1`` the buffer's transform is ``Compose(NStepTransform(n_steps, gamma),
         transform)``, TorchRL's ``MultiStepTransform`` storing R_t^(n) = sum_{j<k} gamma^j
         r_{t+j} (Sutton 1988).
     :param gamma: the n-step discount. Default 0.99, the discount of a ``DQNLoss`` left to its
-        defaults (``tuned=True``: 0.995, the tuned loss's); refused without ``n_steps > 1``.
-    :param tuned: fill the arguments left out with this project's tuned values (above).
+        defaults; refused without ``n_steps > 1``.
     :param buffer_kwargs: go to the buffer's constructor (``prefetch``, ``pin_memory``,
         ``priority_key``, ...). ``sampler_device`` (the priority trees' device, with
         ``prioritized=True``): default ``None``, TorchRL's, where the installed TorchRL has CUDA
@@ -332,24 +283,16 @@ def make_replay_buffer(
         with ``prioritized=True``.
     :raises ValueError: when ``sampler`` is given with ``prioritized=True``, ``alpha``,
         ``beta`` or ``eps`` without it, or ``gamma`` without ``n_steps > 1``.
-    :raises TypeError: with ``prioritized=True`` but no ``alpha`` or ``beta`` (and no
-        ``tuned=True``).
+    :raises TypeError: with ``prioritized=True`` but no ``alpha`` or ``beta``.
     """
-    _refuse_positional(args)
     _check_n_steps(n_steps, gamma)
     if storage is None:
-        max_size = resolve("make_replay_buffer", "max_size", max_size, tuned)
-        storage = LazyTensorStorage(max_size, device=device)
+        storage = LazyTensorStorage(1_000 if max_size is None else max_size, device=device)
     elif max_size is not None:
         raise ValueError(
             "max_size sizes the default storage; with storage= given, size that storage instead"
         )
-    batch_size = resolve("make_replay_buffer", "batch_size", batch_size, tuned)
-    n_step = (
-        NStepTransform(n_steps, resolve("make_replay_buffer", "gamma", gamma, tuned))
-        if n_steps > 1
-        else None
-    )
+    n_step = NStepTransform(n_steps, 0.99 if gamma is None else gamma) if n_steps > 1 else None
     transforms = [t for t in (n_step, transform) if t is not None]
     combined = Compose(*transforms) if n_step is not None else transform
     if prioritized:
@@ -358,12 +301,10 @@ def make_replay_buffer(
                 "prioritized=True brings its own PrioritizedSampler; pass sampler= or "
                 "prioritized=True, not both"
             )
-        alpha = resolve("make_replay_buffer", "alpha", alpha, tuned)
-        beta = resolve("make_replay_buffer", "beta", beta, tuned)
         if alpha is None or beta is None:
             raise TypeError(
                 "prioritized=True needs alpha= and beta= (TorchRL's PrioritizedSampler "
-                "requires them), or tuned=True for this project's alpha=0.3, beta=0.4"
+                "requires them): Schaul et al.'s alpha=0.3 here (on delta ** 2), beta=0.4"
             )
         if buffer_kwargs.get("sampler_device") is None and not cuda_segment_trees_available():
             # TorchRL's documented default for a CUDA storage on a build without CUDA trees
@@ -371,7 +312,7 @@ def make_replay_buffer(
         return TensorDictPrioritizedReplayBuffer(
             alpha=alpha,
             beta=beta,
-            eps=resolve("make_replay_buffer", "eps", eps, tuned),
+            eps=1e-8 if eps is None else eps,
             storage=storage,
             batch_size=batch_size,
             transform=combined,

@@ -20,11 +20,11 @@ import numpy as np
 import torch
 from torchrl.envs import Compose, EnvBase, ObservationNorm, SerialEnv, TransformedEnv
 
+from trl_cartpole.compat import gym_env
 from trl_cartpole.config.schema import Config, EnvConfig
 from trl_cartpole.env_ids import resolve_env_id
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.atari import ATARI_DEFAULTS, make_atari_env
-from trl_cartpole.parts.compat import gym_env
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
 from trl_cartpole.parts.pixels import drawn_pixel_transforms, pixel_transforms
 from trl_cartpole.run.env_faults import StepDeadline

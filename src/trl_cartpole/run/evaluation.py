@@ -34,8 +34,7 @@ from torchrl.envs import (
 from torchrl.envs.transforms import VecGymEnvTransform
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
-from trl_cartpole.parts.compat import PARTIAL_STEP_KEY, gym_env, next_step_input
-from trl_cartpole.parts.earlier_forms import upgrade_evaluator_state
+from trl_cartpole.compat import PARTIAL_STEP_KEY, gym_env, next_step_input
 from trl_cartpole.parts.env import OBSERVATION_KEY
 from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.run.env_faults import StepAlarm, StepDeadline
@@ -428,7 +427,6 @@ class Evaluator:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        state = upgrade_evaluator_state(state)  # a state saved by an earlier version
         self.best_return, self.best_state = state["best_return"], state["best_state"]
         self.frames_to_solve = state["frames_to_solve"]
         self.seconds_to_solve = state["seconds_to_solve"]

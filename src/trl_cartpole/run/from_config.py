@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,10 @@ from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActo
 
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.fast.compiled_update import make_lean_update
+from trl_cartpole.fast.loss import fuse_dqn_loss
+from trl_cartpole.fast.n_step import use_windowed_n_steps
+from trl_cartpole.fast.soft_update import fuse_soft_update
 from trl_cartpole.parts.atari import EOL_KEY, LearnerView
 from trl_cartpole.parts.chunked_storage import TrackedTensorStorage
 from trl_cartpole.parts.collectors import (
@@ -25,10 +30,8 @@ from trl_cartpole.parts.collectors import (
 )
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.frame_storage import FrameStackStorage
-from trl_cartpole.parts.fused_loss import fuse_dqn_loss
-from trl_cartpole.parts.lean_update import make_lean_update
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
-from trl_cartpole.parts.models import ACTIVATIONS, make_q_actor
+from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
 from trl_cartpole.parts.pixels import PIXELS_KEY, RandomShift
 from trl_cartpole.parts.replay import make_replay_buffer
@@ -51,7 +54,6 @@ __all__ = [
     "build_replay_buffer",
     "build_schedules",
     "run_title",
-    "torchrl_priority_exponent",
     "transition_keys",
 ]
 
@@ -127,15 +129,9 @@ def build_actor(
         _per_env_action_spec(env),
         in_keys=[PIXELS_KEY] if cnn else ["observation"],
         torso=network.torso,
-        cnn_kwargs={
-            "channels": network.cnn_channels,
-            "kernel_sizes": network.cnn_kernels,
-            "strides": network.cnn_strides,
-        }
-        if cnn
-        else None,
-        num_cells=network.hidden_sizes,
-        activation_class=ACTIVATIONS[network.activation],
+        cnn_kwargs=asdict(network.cnn_kwargs) if cnn else None,
+        num_cells=network.num_cells,
+        activation_class=network.activation_class,
         head=network.head,
         device=cfg.device if device is None else device,
         noisy=network.noisy,
@@ -146,15 +142,7 @@ def build_actor(
 
 def build_exploration(cfg: Config, env: TransformedEnv) -> EGreedyModule | None:
     """The epsilon-greedy module of ``cfg.exploration`` (None for noisy networks)."""
-    explore = cfg.exploration
-    return make_exploration(
-        env.action_spec,
-        eps_init=explore.eps_start,
-        eps_end=explore.eps_end,
-        annealing_num_steps=explore.decay_frames,
-        schedule=explore.schedule,
-        device=cfg.device,
-    )
+    return make_exploration(env.action_spec, **asdict(cfg.exploration), device=cfg.device)
 
 
 # Where buffer.storage=memmap keeps its files, in the run directory.
@@ -172,14 +160,14 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
     buffer = cfg.buffer
     # in memory: TorchRL's LazyTensorStorage, its checkpoints writing what changed since the
     # last (parts/chunked_storage.py)
-    storage = TrackedTensorStorage(buffer.size, device=cfg.device)
+    storage = TrackedTensorStorage(buffer.max_size, device=cfg.device)
     if buffer.storage == "frames":
-        storage = FrameStackStorage(buffer.size, device=cfg.device)
+        storage = FrameStackStorage(buffer.max_size, device=cfg.device)
     if buffer.storage == "memmap":
         scratch_dir = None if run_dir is None else str(run_dir / REPLAY_FILES)
         # existsok: a resumed run writes over the files its stopped run left
         storage = LazyMemmapStorage(
-            buffer.size, scratch_dir=scratch_dir, device=cfg.device, existsok=True
+            buffer.max_size, scratch_dir=scratch_dir, device=cfg.device, existsok=True
         )
     replay_buffer = make_replay_buffer(
         storage=storage,
@@ -188,11 +176,7 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         device=cfg.device,
         prioritized=buffer.prioritized,
         **(
-            {
-                "alpha": torchrl_priority_exponent(buffer.alpha, cfg.network.distributional),
-                "beta": buffer.beta,
-                "eps": buffer.priority_eps,
-            }
+            {"alpha": buffer.alpha, "beta": buffer.beta, "eps": buffer.eps}
             if buffer.prioritized
             else {}
         ),
@@ -200,6 +184,8 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
         **({"gamma": cfg.loss.gamma} if buffer.n_steps > 1 else {}),
         transform=_buffer_transform(cfg),
     )
+    if cfg.fast:
+        use_windowed_n_steps(replay_buffer)
     return replay_buffer
 
 
@@ -218,16 +204,6 @@ def _buffer_transform(cfg: Config) -> Transform | None:
     return transforms[0] if transforms else None
 
 
-def torchrl_priority_exponent(alpha: float, distributional: bool) -> float:
-    """TorchRL's ``alpha`` for Schaul et al.'s exponent ``alpha`` on |delta| (``buffer.alpha``).
-
-    TorchRL stores ``(td_error + eps) ** alpha``, and ``DQNLoss`` writes ``td_error`` =
-    delta ** 2, so |delta| ** alpha is (delta ** 2) ** (alpha / 2). ``DistributionalDQNLoss``
-    writes the cross-entropy, Rainbow's priority itself (Hessel et al. 2018), so C51 keeps it.
-    """
-    return alpha if distributional else alpha / 2
-
-
 def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayBuffer) -> Learner:
     """``DQNLoss`` (or C51's), its target updater, AdamW and the gradient step of ``cfg``."""
     loss_cfg = cfg.loss
@@ -241,12 +217,9 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
             double_dqn=loss_cfg.double_dqn,
             replay_buffer=buffer,
         )
-    if loss_cfg.target_update == "soft":
-        target_updater = make_target_updater(loss, tau=loss_cfg.tau)
-    else:
-        target_updater = make_target_updater(  # TorchRL counts a copy every interval + 1
-            loss, value_network_update_interval=loss_cfg.hard_update_interval - 1
-        )
+    target_updater = make_target_updater(loss, **asdict(cfg.target_updater))
+    if cfg.fast:
+        target_updater = fuse_soft_update(target_updater)
     optimizer = make_optimizer(
         actor.parameters(),
         lr=cfg.optim.lr,
@@ -254,7 +227,7 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         weight_decay=cfg.optim.weight_decay,
         eps=cfg.optim.eps,
     )
-    fused = fuse_dqn_loss(loss) if loss_cfg.fused else None  # None: C51, noisy layers
+    fused = fuse_dqn_loss(loss) if cfg.fast else None  # None: C51, noisy layers
     autocast_dtype = None if cfg.optim.autocast == "none" else getattr(torch, cfg.optim.autocast)
     update = make_update(
         loss if fused is None else fused,
@@ -265,8 +238,16 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         autocast_dtype=autocast_dtype,
     )
     if cfg.compile:
-        lean = make_lean_update(
-            loss, optimizer, cfg.optim.grad_clip, cfg.optim.max_grad, autocast_dtype=autocast_dtype
+        lean = (
+            None
+            if not cfg.fast
+            else make_lean_update(
+                loss,
+                optimizer,
+                cfg.optim.grad_clip,
+                cfg.optim.max_grad,
+                autocast_dtype=autocast_dtype,
+            )
         )
         if lean is None and cfg.optim.lr_end is not None:  # validate's rule, for any other case
             raise ConfigError(

@@ -13,7 +13,6 @@ import torch
 from tensordict import TensorDictBase
 from torch import Tensor
 
-from trl_cartpole.parts.earlier_forms import history_curves
 from trl_cartpole.report.plotting import FinalEvaluation, LearningCurves
 from trl_cartpole.run.evaluation import EvalCurve
 from trl_cartpole.run.learner import UpdateReport
@@ -115,9 +114,9 @@ class History:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Read :meth:`state_dict`'s tensors, or the lists a checkpoint held before them."""
-        for name, values in history_curves(state).items():
-            getattr(self, name)[:] = values
+        """Read :meth:`state_dict`'s tensors."""
+        for name, values in state.items():
+            getattr(self, name)[:] = values.tolist()
 
 
 # the curves of floats, by their annotation (the others, list[int], count frames and steps)

@@ -1,6 +1,6 @@
 """What a run will hold in memory, known before its buffer and networks are allocated.
 
-A replay buffer of ``buffer.size`` transitions and networks of ``network.hidden_sizes`` are
+A replay buffer of ``buffer.max_size`` transitions and networks of ``network.num_cells`` are
 allocated as the run goes (TorchRL's ``LazyTensorStorage`` fills on the first write); a size
 that cannot fit would end in the allocator's traceback, or in the kernel's out-of-memory kill
 hours into the run. :func:`check_fits_in_memory` refuses such a run before it starts, with a
@@ -103,8 +103,8 @@ def check_fits_in_memory(
     if available is None or total <= available:
         return
     buffer = (
-        f"the replay buffer {need.buffer_bytes / GIB:.1f} GiB (buffer.size={need.transitions} x "
-        f"{need.transition_bytes} bytes), "
+        f"the replay buffer {need.buffer_bytes / GIB:.1f} GiB (buffer.max_size="
+        f"{need.transitions} x {need.transition_bytes} bytes), "
         if buffer_in_memory
         else ""
     )
@@ -113,8 +113,8 @@ def check_fits_in_memory(
         f"{available / GIB:.1f} GiB is available: {buffer}the networks "
         f"{need.network_bytes / GIB:.1f} GiB ({need.parameters} parameters, with their target, "
         "gradients and optimizer state); lower "
-        + ("buffer.size, set buffer.storage=memmap, or lower " if buffer_in_memory else "")
-        + "network.hidden_sizes"
+        + ("buffer.max_size, set buffer.storage=memmap, or lower " if buffer_in_memory else "")
+        + "network.num_cells"
     )
 
 
@@ -135,6 +135,6 @@ def check_buffer_fits_on_disk(need: MemoryNeed, directory: Path, free: int) -> N
         return
     raise ConfigError(
         f"buffer.storage=memmap needs {need.buffer_bytes / GIB:.1f} GiB for its files in "
-        f"{directory} and {free / GIB:.1f} GiB is free there; lower buffer.size, free space on "
+        f"{directory} and {free / GIB:.1f} GiB is free there; lower buffer.max_size, free space on "
         "that disk, or choose another run_dir"
     )

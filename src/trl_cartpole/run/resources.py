@@ -52,7 +52,7 @@ def run_memory_need(cfg: Config, env: TransformedEnv) -> MemoryNeed:
     """The lower bound of what ``cfg``'s replay buffer and networks take in memory."""
     return memory_need(
         env,
-        cfg.buffer.size,
+        cfg.buffer.max_size,
         partial(build_actor, cfg, env),
         amsgrad=cfg.optim.amsgrad,
         frames_stored_once=cfg.buffer.storage == "frames",

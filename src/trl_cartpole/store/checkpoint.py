@@ -31,7 +31,6 @@ from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, 
 from trl_cartpole.config.schema import Config, flat_fields, to_config
 from trl_cartpole.config.validation import check_boolean_overrides, validate
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.earlier_forms import upgrade_stored_config
 from trl_cartpole.store.files import write_json_atomic
 from trl_cartpole.store.pickle_scan import no_unpickling, refuse_code
 
@@ -73,14 +72,10 @@ RESUMABLE_FIELDS = (
 )
 
 
-# The layout of a training state's components; a state of a format not in
-# READABLE_TRAINING_STATE_FORMATS is refused in one line (format 5: the history's curves as
-# tensors; format 4, the same with the curves as lists, still read
-# (parts/earlier_forms.history_curves); both keep a buffer in memory or of frames in files of
-# rows linked between checkpoints, parts/chunked_storage.py; format 3, the plain Q-network in
-# TorchRL's MLP layout, and format 2, the loop's history under "history", are not read any more).
-TRAINING_STATE_FORMAT = 5
-READABLE_TRAINING_STATE_FORMATS = (4, 5)
+# The layout of a training state's components; a state of another format is refused in one line
+# (format 6: the config's sections named by the factories' keywords, before the first release).
+TRAINING_STATE_FORMAT = 6
+READABLE_TRAINING_STATE_FORMATS = (6,)
 
 # Room asked for beyond a checkpoint's expected size before it is written (file-system blocks,
 # the manifest, the integrity record): a full disk would otherwise end the run mid-write, where
@@ -372,10 +367,17 @@ def read_checkpoint_config(path: str | Path) -> Config:
         raise ConfigError(f"checkpoint={str(path)!r} does not exist; pass a checkpoint directory")
     try:
         manifest = Checkpoint.manifest(path)
-        return to_config(upgrade_stored_config(manifest["metadata"]["config"]))
+        stored = manifest["metadata"]["config"]
     except (CheckpointError, KeyError, TypeError, ValueError, OSError) as error:
         raise ConfigError(
             f"checkpoint={str(path)!r} is not a trl_cartpole checkpoint ({error})"
+        ) from None
+    try:
+        return to_config(stored)
+    except Exception:  # OmegaConf's errors for a key the schema no longer has
+        raise ConfigError(
+            f"checkpoint={str(path)!r} was saved by an earlier layout of trl_cartpole's config, "
+            "which this version does not read; train it anew"
         ) from None
 
 

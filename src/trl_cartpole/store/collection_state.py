@@ -25,7 +25,7 @@ from typing import Any
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
-from trl_cartpole.parts.compat import carrier_of, n_step_window, set_n_step_window
+from trl_cartpole.compat import carrier_of, n_step_window, set_n_step_window
 from trl_cartpole.store.env_state import (
     autoreset_snapshot,
     env_snapshot,

@@ -30,7 +30,7 @@ the setting is read from the command that loads, never from the checkpoint. Gymn
 env never reset, so they are reset even then. Collector worker processes snapshot their own
 envs with the same functions (:mod:`trl_cartpole.store.worker_state`).
 
-The private TorchRL names these live under are read through :mod:`trl_cartpole.parts.compat`.
+The private TorchRL names these live under are read through :mod:`trl_cartpole.compat`.
 """
 
 from __future__ import annotations
@@ -46,8 +46,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch.nn.parameter import is_lazy
 from torchrl.envs import CatFrames, EnvBase, GymWrapper, SerialEnv, TransformedEnv
 
-from trl_cartpole.parts.atari import LastAction, ResizeFrame
-from trl_cartpole.parts.compat import (
+from trl_cartpole.compat import (
     ale_action_set,
     autoreset_state,
     gym_env,
@@ -55,6 +54,7 @@ from trl_cartpole.parts.compat import (
     set_autoreset_state,
     set_gym_env,
 )
+from trl_cartpole.parts.atari import LastAction, ResizeFrame
 from trl_cartpole.parts.episode_log import EpisodeLog
 
 __all__ = [

@@ -26,7 +26,7 @@ from tensordict import TensorDict
 from torchrl.collectors import BaseCollector, MultiSyncCollector
 from torchrl.envs import Transform
 
-from trl_cartpole.parts.compat import (
+from trl_cartpole.compat import (
     is_synchronous_ray_collector,
     set_worker_carriers,
     worker_carriers,

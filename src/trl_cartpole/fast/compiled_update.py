@@ -21,7 +21,7 @@ read from the optimizer's parameter group at each call, so a taper needs no reco
 
 The result equals the eager update's within float rounding, not bitwise (Inductor orders and
 fuses the arithmetic its own way; tested). :func:`make_lean_update` returns None where it does
-not apply (what :func:`~trl_cartpole.parts.fused_loss.fuse_dqn_loss` refuses, an optimizer that
+not apply (what :func:`~trl_cartpole.fast.loss.fuse_dqn_loss` refuses, an optimizer that
 is not one group of ``Adam``/``AdamW``, buffers in the network); a sample with one of TorchRL's
 loss masks is handed to the eager update.
 """
@@ -38,8 +38,7 @@ from torch import nn
 from torch.func import functional_call, grad_and_value
 from torch.optim.adam import adam
 
-from trl_cartpole import defaults
-from trl_cartpole.parts.fused_loss import FusedDQNLoss, fuse_dqn_loss
+from trl_cartpole.fast.loss import FusedDQNLoss, fuse_dqn_loss
 from trl_cartpole.parts.optim import autocast_context, make_update
 
 __all__ = ["make_lean_update"]
@@ -61,8 +60,8 @@ _INSTANCES = itertools.count()
 def make_lean_update(
     loss_module: nn.Module,
     optimizer: torch.optim.Optimizer,
-    grad_clip: str = defaults.GRAD_CLIP,
-    max_grad: float = defaults.MAX_GRAD,
+    grad_clip: str = "norm",
+    max_grad: float = 10.0,
     autocast_dtype: torch.dtype | None = None,
 ) -> Callable[[TensorDictBase], TensorDict] | None:
     """``update(batch) -> TensorDict(loss=[], grad_norm=[])`` compiled whole, or None.

@@ -32,7 +32,7 @@ from torchrl.modules import NoisyLinear, QValueModule
 from torchrl.objectives import DQNLoss
 from torchrl.objectives.value import TD0Estimator
 
-from trl_cartpole.parts.compat import greedy_action_rule, greedy_value_rule, loss_mask_keys
+from trl_cartpole.compat import greedy_action_rule, greedy_value_rule, loss_mask_keys
 
 __all__ = ["FusedDQNLoss", "fuse_dqn_loss"]
 

@@ -255,6 +255,11 @@ def soft_update_pairs(updater: Any) -> tuple[list[torch.Tensor], list[torch.Tens
     return sources, targets
 
 
+def foreach_lerp(targets: list[torch.Tensor], sources: list[torch.Tensor], weight: float) -> None:
+    """``torch._foreach_lerp_``: ``target.lerp_(source, weight)`` for every pair, one call."""
+    torch._foreach_lerp_(targets, sources, weight)
+
+
 # --- what DQNLoss reads: its loss masks, the greedy value rule -------------------------------
 
 
