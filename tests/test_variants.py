@@ -107,6 +107,8 @@ RAINBOW = {
     "network.distributional": True,
     "loss.double_dqn": True,
     "buffer.prioritized": True,
+    # TorchRL's exponent on C51's cross-entropy priority (the default's 0.3 is on delta ** 2)
+    "buffer.alpha": 0.6,
 }
 # What each preset changes relative to the default preset (configs/algo/dqn.yaml).
 PRESET_CHANGES = {
