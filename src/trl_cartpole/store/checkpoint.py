@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from tensordict import is_tensor_collection
 from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError, CheckpointRotation, GlobalRNGState
@@ -374,7 +375,7 @@ def read_checkpoint_config(path: str | Path) -> Config:
         ) from None
     try:
         return to_config(stored)
-    except Exception:  # OmegaConf's errors for a key the schema no longer has
+    except OmegaConfBaseException:  # a key the schema no longer has, or of another type
         raise ConfigError(
             f"checkpoint={str(path)!r} was saved by an earlier layout of trl_cartpole's config, "
             "which this version does not read; train it anew"
