@@ -107,7 +107,7 @@ def raw_update(cfg, obs_dim: int, num_actions: int, size: int = RANDOM_FRAMES):
         torch.nn.utils.clip_grad_norm_(params, cfg.optim.max_grad, foreach=True)
         optimizer.step()
         counter[0] += 1
-        if counter[0] % cfg.target_updater.value_network_update_interval == 0:
+        if counter[0] % (cfg.target_updater.value_network_update_interval + 1) == 0:  # HardUpdate's
             torch._foreach_copy_(list(target.parameters()), params)
         return sampled - start, time.perf_counter() - sampled
 

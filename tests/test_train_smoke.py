@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from trl_cartpole.parts.env import make_env
-from trl_cartpole.parts.models import make_q_actor
+from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.run.training import train
 from trl_cartpole.store.checkpoint import load_policy
 
@@ -114,10 +114,10 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
 
 
 @pytest.mark.slow  # evaluates the smoke run twice
-def test_best_checkpoint_loads_and_evaluates(smoke_run):
+def test_best_checkpoint_loads_and_evaluates(smoke_run, compose):
     run_dir, _ = smoke_run
     env = make_env("CartPole-v1")
-    actor = make_q_actor(env.observation_spec, env.action_spec, tuned=True)  # the run's network
+    actor = build_actor(compose(*SMOKE_OVERRIDES), env)  # the run's network
     before = [p.clone() for p in actor.parameters()]
     load_policy(run_dir / "checkpoints" / "best", actor)
     assert any(not torch.equal(a, b) for a, b in zip(before, actor.parameters(), strict=True))
@@ -150,7 +150,7 @@ def test_same_seed_same_figures(compose, tmp_path):
     losses = [(tmp_path / n / "metrics/scalars/train/td_loss.csv").read_text() for n in "ab"]
     assert losses[0] == losses[1] and losses[0].count("\n") >= 1
     env = make_env("CartPole-v1")
-    actors = [make_q_actor(env.observation_spec, env.action_spec, tuned=True) for _ in "ab"]
+    actors = [build_actor(cfg, env) for _ in "ab"]
     for actor, name in zip(actors, "ab", strict=True):
         load_policy(tmp_path / name / "checkpoints" / "best", actor)
     for p_a, p_b in zip(actors[0].parameters(), actors[1].parameters(), strict=True):

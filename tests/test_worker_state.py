@@ -13,6 +13,7 @@ import pytest
 import torch
 from tensordict.nn import TensorDictSequential
 
+from trl_cartpole.config.schema import to_config
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.run.envs import make_env_from_config, worker_env_constructors
 from trl_cartpole.run.from_config import build_actor, build_exploration
@@ -33,7 +34,7 @@ def _collector(cfg, policy, init_random_frames: int = 0):
 
 @pytest.mark.slow  # worker processes, twice
 def test_a_batch_after_restoring_the_workers_is_the_batch_they_would_have_collected(compose):
-    cfg = compose("collector.workers=2", "env.num_envs=2", "seed=3")
+    cfg = to_config(compose("collector.workers=2", "env.num_envs=2", "seed=3"))
     env = make_env_from_config(cfg.env, cfg.seed)
     torch.manual_seed(0)
     policy = TensorDictSequential(build_actor(cfg, env), build_exploration(cfg, env))

@@ -64,7 +64,7 @@ def main() -> None:
     net = Net(
         state_shape=space.observation_space.shape,
         action_shape=space.action_space.n,
-        num_cells=EXAMPLE["hidden_sizes"],
+        hidden_sizes=EXAMPLE["hidden_sizes"],
     )
     policy = DiscreteQLearningPolicy(
         model=net, action_space=space.action_space, eps_training=EXAMPLE["eps_train"]
