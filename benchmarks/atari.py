@@ -40,8 +40,8 @@ import torch
 from torchrl.envs.utils import step_mdp
 
 from trl_cartpole.config.compose import compose_config
-from trl_cartpole.env_ids import register_atari_games
-from trl_cartpole.parts.atari import ATARI_DEFAULTS
+from trl_cartpole.envs.atari import ATARI_DEFAULTS
+from trl_cartpole.envs.ids import register_atari_games
 
 SEEDS = [0]
 OUT = "runs/bench/atari"
@@ -210,7 +210,7 @@ def _env_speed(args: argparse.Namespace) -> None:
     import ale_py
     from torchrl.envs import SerialEnv
 
-    from trl_cartpole.parts.atari import make_atari_env
+    from trl_cartpole.envs.atari import make_atari_env
 
     env_id = str(compose_config("configs", ["env=breakout", *args.overrides]).env.id)
     register_atari_games()

@@ -5,7 +5,7 @@
 Fills a buffer of the preset's ``buffer.max_size`` in memory with ``--filled`` transitions shaped
 like the env's (random values) and checkpoints it as a run does (TorchRL's ``Checkpoint``,
 then the integrity record), then adds ``--added`` more and checkpoints again: the storage a
-run uses (:class:`~trl_cartpole.parts.chunked_storage.TrackedTensorStorage`, files linked
+run uses (:class:`~trl_cartpole.storage.chunked.TrackedTensorStorage`, files linked
 where unchanged), then TorchRL's ``LazyTensorStorage`` with its own checkpointer (the whole
 storage each time; the earlier version of this project wrote its filled rows each time, the
 same once the buffer is full). For each: the seconds, the bytes written
@@ -30,8 +30,8 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from trl_cartpole.config.compose import compose_config
 from trl_cartpole.config.schema import to_config
-from trl_cartpole.parts.chunked_storage import TrackedTensorStorage, confirm_chunked_writes
 from trl_cartpole.run.from_config import build_env
+from trl_cartpole.storage.chunked import TrackedTensorStorage, confirm_chunked_writes
 from trl_cartpole.store.checkpoint import write_integrity
 
 SEEDS = [0]  # the config's seed: the harness's common arguments

@@ -11,6 +11,8 @@ wrote, never from a hand copy:
   and meaning, the source ``--help`` prints;
 - ``algo-presets`` (docs/guide.md): what each ``configs/algo/`` preset sets, read from the YAML;
 - ``train-listing`` (docs/architecture.md): ``train()`` as the code has it;
+- ``folder-table``, ``module-table`` (docs/architecture.md): the package's folders in
+  pyproject.toml's import layers and every module, each with its docstring's first paragraph;
 - ``readme-speed`` (README.md): the 20-seed comparison's interquartile means, from
   ``docs/results/performance.json``;
 - ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
@@ -46,6 +48,7 @@ wrote, never from a hand copy:
 from __future__ import annotations
 
 import argparse
+import ast
 import inspect
 import json
 import math
@@ -796,6 +799,57 @@ def train_listing() -> str:
     return _fenced(inspect.getsource(train), "python")
 
 
+PACKAGE = ROOT / "src" / "trl_cartpole"
+
+
+def _summary(path: Path) -> str:
+    """A module's docstring's first paragraph, on one line (``a`` for ``:mod:`~x.a```)."""
+    doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+    text = " ".join(doc.split("\n\n")[0].split()).replace("``", "`")
+    return re.sub(r":\w+:`~?([^`]+)`", lambda m: f"`{m.group(1).rsplit('.', 1)[-1]}`", text)
+
+
+def _layers() -> list[list[str]]:
+    """The import-linter layers of ``pyproject.toml``, top first: each a list of names."""
+    import tomllib  # Python 3.11+, as the maintainer's tools are
+
+    contract = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    layers = contract["contracts"][0]["layers"]
+    return [[n.strip().split(".")[-1] for n in re.split(r"[|:]", layer)] for layer in layers]
+
+
+def _folder_name(name: str) -> str:
+    return f"`{name}/`" if (PACKAGE / name).is_dir() else f"`{name}.py`"
+
+
+def folder_table() -> str:
+    """The package's folders in their import layers, each with its ``__init__`` docstring (a
+    folder imports only from the layers below its own; those of one layer not each other)."""
+    layers = [[n for n in layer if n not in ("__main__", "trl_cartpole")] for layer in _layers()]
+    rows = ["| folder | owns | may import |", "| --- | --- | --- |"]
+    for index, layer in enumerate(layers):
+        lower = layers[index + 1] if index + 1 < len(layers) else []
+        may = f"{', '.join(map(_folder_name, lower))} and below" if lower else "nothing"
+        for name in layer:
+            init = PACKAGE / name / "__init__.py"
+            owns = _summary(init if init.exists() else PACKAGE / f"{name}.py")
+            rows.append(f"| {_folder_name(name)} | {owns} | {may} |")
+    return "\n".join(rows)
+
+
+def module_table() -> str:
+    """Every module of the package with its docstring's first paragraph, folder by folder."""
+    order = [n for layer in _layers() for n in layer if n not in ("__main__", "trl_cartpole")]
+    rows = ["| module | owns |", "| --- | --- |"]
+    for name in order:
+        folder = PACKAGE / name
+        paths = sorted(folder.rglob("*.py")) if folder.is_dir() else [PACKAGE / f"{name}.py"]
+        for path in paths:
+            if path.name != "__init__.py":
+                rows.append(f"| `{path.relative_to(PACKAGE)}` | {_summary(path)} |")
+    return "\n".join(rows)
+
+
 def factory_defaults() -> str:
     """Each factory's defaults beside TorchRL's, and what it returns, read off the signatures."""
     from maintain.reference import defaults_table
@@ -811,6 +865,8 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "config-fields": ("docs/reference/config.md", config_fields),
     "algo-presets": ("docs/guide.md", algo_presets),
     "train-listing": ("docs/architecture.md", train_listing),
+    "folder-table": ("docs/architecture.md", folder_table),
+    "module-table": ("docs/architecture.md", module_table),
     "performance-tables": ("docs/performance.md", performance_tables),
     "performance-phases": ("docs/performance.md", performance_phases),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),

@@ -20,11 +20,11 @@ from tests.conftest import run_script_in_process
 from trl_cartpole.compat import gym_env
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
-from trl_cartpole.env_ids import register_atari_games
+from trl_cartpole.envs.atari import EOL_KEY, LearnerView, make_atari_env
+from trl_cartpole.envs.ids import register_atari_games
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.atari import EOL_KEY, LearnerView, make_atari_env
-from trl_cartpole.parts.frame_storage import FrameStackStorage
 from trl_cartpole.parts.replay import make_replay_buffer
+from trl_cartpole.storage.frames import FrameStackStorage
 
 pytest.importorskip("ale_py")
 pytest.importorskip("cv2")

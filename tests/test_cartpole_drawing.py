@@ -22,8 +22,8 @@ from torchrl.envs.transforms.functional import rgb_to_grayscale
 
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
+from trl_cartpole.envs.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
 from trl_cartpole.run.envs import make_pixel_env, rendered_envs
 from trl_cartpole.run.from_config import build_actor
 from trl_cartpole.run.judging import Judge

@@ -288,7 +288,7 @@ def test_a_classic_control_env_continues_exactly_from_its_stored_data(tmp_path, 
 
 
 def test_an_env_that_is_not_data_is_replayed_or_else_pickled_only_when_trusted(monkeypatch):
-    from trl_cartpole.parts import episode_log
+    from trl_cartpole.envs import episode_log
 
     monkeypatch.syspath_prepend(str(ROOT / "examples"))
     env = make_env("corridor:Corridor", seed=0)

@@ -11,7 +11,7 @@ from tensordict import TensorDict
 from torchrl.checkpoint import Checkpoint, CheckpointRotation
 from torchrl.data import TensorDictReplayBuffer
 
-from trl_cartpole.parts.chunked_storage import (
+from trl_cartpole.storage.chunked import (
     INDEX_FILE,
     ChunkedStorageCheckpointer,
     TrackedTensorStorage,
@@ -168,7 +168,7 @@ def _stacks(start: int, count: int) -> TensorDict:
 
 
 def test_a_frames_checkpoint_links_the_pools_unchanged_frames(tmp_path):
-    from trl_cartpole.parts.frame_storage import FrameStackStorage
+    from trl_cartpole.storage.frames import FrameStackStorage
 
     buffer = TensorDictReplayBuffer(storage=FrameStackStorage(5000), batch_size=8)
     buffer.extend(_stacks(0, 2100))  # 2 102 frames: pool files 0, 1 and 2
@@ -205,7 +205,7 @@ def test_a_linked_file_keeps_its_digest_and_both_checkpoints_verify(tmp_path):
 def test_a_file_holding_more_rows_than_now_filled_is_written_anew(tmp_path):
     # The frame pool's filled end can move down (its top slots freed): a file of the previous
     # write with more rows than the new end is not linked, so each file holds its rows exactly.
-    from trl_cartpole.parts.chunked_storage import ChunkWriter, read_chunks
+    from trl_cartpole.storage.chunked import ChunkWriter, read_chunks
 
     writer = ChunkWriter(chunk_rows=64)
     frames = torch.arange(200 * 3, dtype=torch.int16).reshape(200, 3)

@@ -13,7 +13,7 @@ import torch
 
 from tests.conftest import SMOKE_OVERRIDES
 from tests.test_pixels import TINY_PIXEL_RUN
-from trl_cartpole.parts.cartpole_drawing import draw_cartpole
+from trl_cartpole.envs.cartpole_drawing import draw_cartpole
 from trl_cartpole.policy.load import evaluate_checkpoint
 from trl_cartpole.run.training import train
 from trl_cartpole.store.checkpoint import (

@@ -19,8 +19,8 @@ from torchrl.envs import GymWrapper, TransformedEnv
 
 from tests.conftest import CONFIG_DIR, SCRIPTS, SMOKE_OVERRIDES
 from trl_cartpole.config.compose import compose_config
+from trl_cartpole.envs.faults import check_finite_batch, env_fault, worker_env_fault
 from trl_cartpole.errors import TrainingFailed
-from trl_cartpole.run.env_faults import check_finite_batch, env_fault, worker_env_fault
 from trl_cartpole.run.training import train
 
 FAULTY_ENVS = textwrap.dedent(
@@ -160,8 +160,8 @@ def test_the_finite_check_names_the_entry_the_step_and_the_value():
 def test_a_step_deadline_raises_where_the_env_is_stuck_and_clears_itself():
     from gymnasium.envs.classic_control import CartPoleEnv
 
+    from trl_cartpole.envs.faults import EnvStepTimeout, StepDeadline
     from trl_cartpole.parts.env import make_env
-    from trl_cartpole.run.env_faults import EnvStepTimeout, StepDeadline
 
     class SlowCartPole(CartPoleEnv):
         delay = 0.0
@@ -248,7 +248,7 @@ def test_a_fault_in_a_worker_process_is_named_in_one_line(tmp_path, env_class, e
 
 
 def test_a_step_alarm_is_a_good_guest_of_the_process():
-    from trl_cartpole.run.env_faults import StepAlarm
+    from trl_cartpole.envs.faults import StepAlarm
 
     fired = []
     previous = signal.signal(signal.SIGALRM, lambda *_: fired.append(True))

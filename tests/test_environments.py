@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from trl_cartpole.config.schema import EnvConfig, to_config
-from trl_cartpole.env_ids import resolve_env_id, solve_threshold
+from trl_cartpole.envs.ids import resolve_env_id, solve_threshold
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, make_env
 from trl_cartpole.parts.models import make_q_actor

@@ -8,9 +8,9 @@ import torch
 from torchrl.envs.utils import step_mdp
 
 from trl_cartpole.compat import gym_env
-from trl_cartpole.parts import episode_log
+from trl_cartpole.envs import episode_log
+from trl_cartpole.envs.episode_log import EpisodeLog, records_episodes
 from trl_cartpole.parts.env import make_env
-from trl_cartpole.parts.episode_log import EpisodeLog, records_episodes
 from trl_cartpole.store.env_state import env_snapshot, restore_env_snapshot
 
 

@@ -14,7 +14,7 @@ from torchrl.envs import RewardSum, StepCounter, TransformedEnv
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
-from trl_cartpole.env_ids import solve_threshold
+from trl_cartpole.envs.ids import solve_threshold
 from trl_cartpole.fast.soft_update import FusedSoftUpdate, fuse_soft_update
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env

@@ -768,7 +768,7 @@ def test_an_env_pickled_as_constructor_arguments_is_reset_on_resume(compose, tmp
     # checkpoint records it as missing and the resumed run starts new episodes (it crashed in
     # LunarLander.step when the unpickled env was taken for the one mid-episode). Its episodes
     # are logged for a replay; here none is (every episode longer than the log holds).
-    from trl_cartpole.parts import episode_log
+    from trl_cartpole.envs import episode_log
 
     monkeypatch.setattr(episode_log, "MAX_LOGGED_STEPS", 0)
     run_dir = tmp_path / "run"

@@ -54,7 +54,7 @@ def test_every_install_hint_names_an_extra_and_installs_as_the_readme_does():
         for path in (ROOT / "src" / "trl_cartpole").rglob("*.py")
         for match in re.findall(r"install_hint\(['\"](\w+)['\"]\)", path.read_text())
     }
-    named |= {"box2d"}  # env_ids.OPTIONAL_EXTRAS: the extra of an env family
+    named |= {"box2d"}  # envs.ids.OPTIONAL_EXTRAS: the extra of an env family
     assert named and named <= set(extras), named - set(extras)
     hint = install_hint("tensorboard")
     pip = Path(sys.executable).with_name("pip").absolute()  # this interpreter's own pip

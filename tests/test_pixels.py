@@ -13,9 +13,9 @@ from tensordict import TensorDict
 from tests.conftest import run_script_in_process
 from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
+from trl_cartpole.envs.cartpole_drawing import DrawCartPole
+from trl_cartpole.envs.pixels import CropFrame, PoolImage, RandomShift
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.cartpole_drawing import DrawCartPole
-from trl_cartpole.parts.pixels import CropFrame, PoolImage, RandomShift
 from trl_cartpole.policy.load import evaluate_checkpoint, load_trained_policy
 from trl_cartpole.run import resources
 from trl_cartpole.run.build import build_components

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from trl_cartpole.env_ids import solve_threshold
+from trl_cartpole.envs.ids import solve_threshold
 from trl_cartpole.parts.env import make_sync_vector_env
 from trl_cartpole.run.evaluation import EvalResult, Evaluator, play_greedy_episodes
 from trl_cartpole.run.judging import evaluation_seed

@@ -47,7 +47,7 @@ __all__ = [
 @dataclass
 class AtariConfig:
     """The standard Atari preprocessing (Mnih et al. 2015; Machado et al. 2018), for an
-    ``env.id`` of ALE's (``ALE/Breakout-v5``): trl_cartpole.parts.atari, docs/atari.md."""
+    ``env.id`` of ALE's (``ALE/Breakout-v5``): trl_cartpole.envs.atari, docs/atari.md."""
 
     noop_max: int = 30  # NOOP frames after a reset: 1 to noop_max, drawn per game (0: none)
     frame_skip: int = 4  # frames each action is held; the max of the last two is seen
@@ -84,7 +84,7 @@ class EnvConfig:
     pixels_frames: int = 1  # the last N patches stacked (CatFrames): the motion
     # who draws the training frames: "gymnasium" (its render(), one env at a time) or "drawn"
     # (CartPole only: the same pooled frame drawn from a batch of states,
-    # parts/cartpole_drawing.py); the evaluations always play on Gymnasium's own picture
+    # envs/cartpole_drawing.py); the evaluations always play on Gymnasium's own picture
     pixels_renderer: str = "gymnasium"
     # drawn only: this share of each drawn batch's envs (its first share * num_envs, rounded
     # up) shows Gymnasium's own picture instead (its pygame calls, about 0.4 ms a frame), so

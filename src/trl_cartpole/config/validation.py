@@ -16,7 +16,7 @@ from typing import Any
 
 from trl_cartpole import choices
 from trl_cartpole.config.schema import Config, flat_fields
-from trl_cartpole.env_ids import (
+from trl_cartpole.envs.ids import (
     CARTPOLE_FRAME,
     cartpole_crop_bounds,
     check_builtin_env_fits,

@@ -1,11 +1,11 @@
 """The factories: each returns a TorchRL object and takes the arguments of the TorchRL class it
 builds, with TorchRL's meanings and behaviour.
 
-One module a part: ``env`` (``TransformedEnv(GymWrapper)``), ``pixels`` (the transforms of an
-env seen through its frames), ``models`` (``QValueActor``), ``exploration`` (``EGreedyModule``),
-``replay`` (``TensorDictReplayBuffer``), ``losses`` (``DQNLoss``, ``SoftUpdate``/``HardUpdate``),
-``optim`` (AdamW and one gradient step), ``collectors`` (``Collector``), and ``compat`` (every
-private TorchRL name read, and every stand-in for a TorchRL part). They import nothing of the
+One module a part: ``env`` (``TransformedEnv(GymWrapper)``), ``models`` (``QValueActor``),
+``exploration`` (``EGreedyModule``), ``replay`` (``TensorDictReplayBuffer``), ``losses``
+(``DQNLoss``, ``SoftUpdate``/``HardUpdate``), ``optim`` (AdamW and one gradient step) and
+``collectors`` (``Collector``). What an env is lives in :mod:`trl_cartpole.envs`, the storages
+beside TorchRL's in :mod:`trl_cartpole.storage`. They import nothing of the
 application (the config schema, its validation, the run, the command line): the import-linter
 contract in ``pyproject.toml`` holds it, and ``trl_cartpole.run.from_config`` joins the two.
 

@@ -2,7 +2,7 @@
 
 DQN as built here needs a single observation vector and a finite set of actions. The check
 runs on the TorchRL specs of the built env, so the message names what the env really has. The
-ids accepted are :mod:`trl_cartpole.env_ids`'s (:func:`~trl_cartpole.env_ids.resolve_env_id`).
+ids accepted are :mod:`trl_cartpole.envs.ids`'s (:func:`~trl_cartpole.envs.ids.resolve_env_id`).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from torchrl.envs import (
     TransformedEnv,
 )
 
-from trl_cartpole.env_ids import check_env_fits, missing_dependency, resolve_env_id
+from trl_cartpole.envs.episode_log import EpisodeLog, records_episodes
+from trl_cartpole.envs.ids import check_env_fits, missing_dependency, resolve_env_id
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.episode_log import EpisodeLog, records_episodes
 
 __all__ = [
     "GYM_WRAPPER_KEYWORDS",
@@ -138,7 +138,7 @@ def make_env(
         (``categorical_action_encoding=False``: one-hot actions); every other keyword goes to
         ``gymnasium.make`` (an env's own options), as ``GymEnv`` does. ``from_pixels=True``
         renders frames into ``"pixels"``; ``make_q_actor(..., torso="cnn",
-        in_keys=["pixels"])`` reads them (``trl_cartpole.parts.pixels`` has the transforms
+        in_keys=["pixels"])`` reads them (``trl_cartpole.envs.pixels`` has the transforms
         that crop, pool and stack the frames).
     :returns: TorchRL's ``TransformedEnv`` over the ``GymWrapper``, with ``StepCounter``,
         ``RewardSum``, the dtype cast where one is needed and ``ObservationNorm`` with
@@ -159,7 +159,7 @@ def make_env(
     try:
         if num_envs == 1:
             gym_env = gym.make(env_id, **make_kwargs)
-            if records_episodes(env_id):  # for an exact resume (parts/episode_log.py)
+            if records_episodes(env_id):  # for an exact resume (envs/episode_log.py)
                 gym_env = EpisodeLog(gym_env)
             spaces = gym_env.observation_space, gym_env.action_space
         else:

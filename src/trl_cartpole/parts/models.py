@@ -33,8 +33,8 @@ from torchrl.modules import (
 
 from trl_cartpole import choices
 from trl_cartpole.compat import use_first_greedy_action
+from trl_cartpole.envs.pixels import ScaleImage
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.pixels import ScaleImage
 
 __all__ = [
     "ACTIVATIONS",
@@ -198,7 +198,7 @@ def make_cnn_features(
 ) -> tuple[nn.Module, int]:
     """``[*B, C, H, W]`` uint8 pixels -> ``[*B, F]`` features, and ``F``.
 
-    The pixels are scaled to [0, 1] (:class:`~trl_cartpole.parts.pixels.ScaleImage`), then go
+    The pixels are scaled to [0, 1] (:class:`~trl_cartpole.envs.pixels.ScaleImage`), then go
     through TorchRL's ``ConvNet`` (a convolution and ``activation_class`` per entry of
     ``num_cells``, flattened at the end). The defaults are the three 5x5, stride-2 convolutions
     of 16, 32 and 32 channels of the PyTorch DQN tutorial's first, pixel version (without its

@@ -23,8 +23,8 @@ from torch import nn
 from torchrl.envs import EnvBase, ObservationNorm, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 
+from trl_cartpole.envs.pixels import PIXELS_KEY
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.pixels import PIXELS_KEY
 from trl_cartpole.policy.formats import check_onnx_installed
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.store.files import write_atomic

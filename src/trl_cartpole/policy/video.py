@@ -22,8 +22,8 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 
 from trl_cartpole.compat import gym_env
+from trl_cartpole.envs.pixels import PIXELS_KEY
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.pixels import PIXELS_KEY
 from trl_cartpole.policy.formats import check_video_arguments, check_video_output
 from trl_cartpole.policy.load import load_trained_policy
 from trl_cartpole.report.console import quiet_libraries, shown_path

@@ -1,4 +1,4 @@
-"""The one place where config sections become factory arguments.
+"""A run assembled: its parts built from the config and joined into :class:`Components`.
 
 :func:`build_components` turns a validated :class:`~trl_cartpole.config.schema.Config` into the
 :class:`Components` of a run, every one a stock TorchRL object or a small object with one
@@ -9,8 +9,9 @@ the metrics log, the progress bar and the history. ``Components`` is a context m
 leaving it, normally or by an exception, closes the collector (its worker processes or Ray
 actors), the envs and the logger.
 
-The ``build_*`` functions build one part each from the config; evaluation, rendering, the
-notebook and the benchmark tools use them too, so every tool builds what training builds.
+Each TorchRL part comes from a ``build_*`` function of :mod:`trl_cartpole.run.from_config`,
+the one module that turns a factory's config section into its arguments; this module reads
+only the run's own sections (checkpoint, logger, eval) and joins the parts.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActo
 
 from trl_cartpole.config.compose import variant_label
 from trl_cartpole.config.schema import Config
-from trl_cartpole.env_ids import solve_threshold, time_limit
+from trl_cartpole.envs.ids import solve_threshold, time_limit
 from trl_cartpole.parts.collectors import (
     check_ray_address,
     is_distributed,

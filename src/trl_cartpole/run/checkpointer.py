@@ -18,10 +18,10 @@ from torchrl.checkpoint import Checkpoint
 
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import DiskFull, TrainingInterrupted, WorkerLost
-from trl_cartpole.parts.chunked_storage import confirm_chunked_writes
 from trl_cartpole.report.console import command, shown_path
 from trl_cartpole.run.progress import Progress
-from trl_cartpole.store.buffer_checkpoint import restore_last_written_row
+from trl_cartpole.storage.buffer_checkpoint import restore_last_written_row
+from trl_cartpole.storage.chunked import confirm_chunked_writes
 from trl_cartpole.store.checkpoint import (
     DISK_MARGIN_BYTES,
     DISK_MARGIN_FRACTION,
@@ -109,7 +109,7 @@ class Checkpointer:
             if name != "replay_buffer" or len(buffer) > 0
         }
         # A training state is about as large as the one before it; the first is estimated from
-        # its tensors, the replay buffer's for its filled rows (parts/chunked_storage.py).
+        # its tensors, the replay buffer's for its filled rows (storage/chunked.py).
         expected = self.state_size or sum(
             _saved_bytes(name, component) for name, component in components.items()
         )

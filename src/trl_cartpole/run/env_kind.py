@@ -3,7 +3,7 @@
 Four kinds: the env's state vector; pixels drawn from CartPole's state
 (``env.pixels_renderer=drawn``, a share of the envs painted by Gymnasium's own calls); pixels
 Gymnasium renders; and an Atari game's screen (an ``ALE/...`` id, preprocessed as
-``env.atari`` says: :mod:`trl_cartpole.parts.atari`). What differs between them is asked of
+``env.atari`` says: :mod:`trl_cartpole.envs.atari`). What differs between them is asked of
 :class:`EnvKind`, nowhere else: the env a policy is judged on and the one a video records,
 the run's title, whether the collector's own state is saved with a checkpoint, how many envs
 one evaluation holds at once.
@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from trl_cartpole.config.schema import EnvConfig
-from trl_cartpole.env_ids import is_atari_id
+from trl_cartpole.envs.ids import is_atari_id
 
 __all__ = ["KINDS", "EnvKind"]
 

@@ -22,12 +22,12 @@ from torchrl.envs import Compose, EnvBase, ObservationNorm, SerialEnv, Transform
 
 from trl_cartpole.compat import gym_env
 from trl_cartpole.config.schema import Config, EnvConfig
-from trl_cartpole.env_ids import resolve_env_id
+from trl_cartpole.envs.atari import ATARI_DEFAULTS, make_atari_env
+from trl_cartpole.envs.faults import StepDeadline
+from trl_cartpole.envs.ids import resolve_env_id
+from trl_cartpole.envs.pixels import drawn_pixel_transforms, pixel_transforms
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.atari import ATARI_DEFAULTS, make_atari_env
 from trl_cartpole.parts.env import MIN_OBSERVATION_SCALE, OBSERVATION_KEY, make_env
-from trl_cartpole.parts.pixels import drawn_pixel_transforms, pixel_transforms
-from trl_cartpole.run.env_faults import StepDeadline
 from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.store.worker_state import WorkerSnapshot
 
@@ -115,7 +115,7 @@ def make_pixel_env(
     device: str | torch.device = "cpu",
     num_envs: int | None = None,
 ) -> EnvBase:
-    """The env of ``env_cfg`` seen through its rendered frames only (``trl_cartpole.parts.pixels``).
+    """The env of ``env_cfg`` seen through its rendered frames only (``trl_cartpole.envs.pixels``).
 
     With ``env.pixels_renderer=drawn`` (CartPole), the frames are drawn from a vector env's
     states in one call (:func:`_drawn_pixel_env`). Otherwise Gymnasium renders them: one env is
@@ -142,7 +142,7 @@ def make_game_env(
     num_envs: int | None = None,
     render_mode: str | None = None,
 ) -> EnvBase:
-    """The Atari game of ``env_cfg`` (:func:`~trl_cartpole.parts.atari.make_atari_env`, its
+    """The Atari game of ``env_cfg`` (:func:`~trl_cartpole.envs.atari.make_atari_env`, its
     preprocessing ``env.atari``, ``env.make_kwargs`` given to ``gymnasium.make``); ``num_envs
     > 1``: TorchRL's ``SerialEnv`` of such games, seeded ``seed``, ``seed + 1``, ...
     ``render_mode="rgb_array"`` lets a video read the game's colour screen (one env)."""

@@ -35,9 +35,9 @@ from torchrl.envs.transforms import VecGymEnvTransform
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
 from trl_cartpole.compat import PARTIAL_STEP_KEY, gym_env, next_step_input
+from trl_cartpole.envs.faults import StepAlarm, StepDeadline
 from trl_cartpole.parts.env import OBSERVATION_KEY
 from trl_cartpole.parts.models import expected_action_values
-from trl_cartpole.run.env_faults import StepAlarm, StepDeadline
 from trl_cartpole.run.progress import Progress, resident_mb
 
 __all__ = [
@@ -202,7 +202,7 @@ def play_greedy_episodes(
     env is reset (with ``seed`` if given, else continuing its seeded random streams), stepped
     until every env has ended one episode or ``max_steps``, and only each env's first episode
     counts (Gymnasium's same-step autoreset starts the next one at once). ``step_timeout``
-    bounds each reset and step (:class:`~trl_cartpole.run.env_faults.StepAlarm`).
+    bounds each reset and step (:class:`~trl_cartpole.envs.faults.StepAlarm`).
     """
     alarm = StepAlarm(step_timeout)
     num_envs = vector_env.num_envs

@@ -1,6 +1,8 @@
-"""The config's sections as factory arguments: each ``build_x(cfg, ...)`` calls the factory of
-``trl_cartpole.parts`` with the values of its section, as TorchRL's own examples'
-``make_x(cfg)`` do. The one place where config fields become TorchRL objects."""
+"""The config's factory sections as factory arguments, the one place where they are read.
+
+Each ``build_x(cfg, ...)`` calls the factory of :mod:`trl_cartpole.parts` with the values of
+its section, as TorchRL's own examples' ``make_x(cfg)`` do; evaluation, rendering, the notebook
+and the benchmarks use them too, so every tool builds what training builds."""
 
 from __future__ import annotations
 
@@ -16,24 +18,22 @@ from torchrl.envs import Compose, EnvBase, Transform, TransformedEnv
 from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActor
 
 from trl_cartpole.config.schema import Config
+from trl_cartpole.envs.atari import EOL_KEY, LearnerView
+from trl_cartpole.envs.pixels import PIXELS_KEY, RandomShift
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.fast.compiled_update import make_lean_update
 from trl_cartpole.fast.loss import fuse_dqn_loss
 from trl_cartpole.fast.n_step import use_windowed_n_steps
 from trl_cartpole.fast.soft_update import fuse_soft_update
-from trl_cartpole.parts.atari import EOL_KEY, LearnerView
-from trl_cartpole.parts.chunked_storage import TrackedTensorStorage
 from trl_cartpole.parts.collectors import (
     RAY_ACTOR_OPTIONS,
     is_distributed,
     make_collector,
 )
 from trl_cartpole.parts.exploration import make_exploration
-from trl_cartpole.parts.frame_storage import FrameStackStorage
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import make_q_actor
 from trl_cartpole.parts.optim import make_optimizer, make_update
-from trl_cartpole.parts.pixels import PIXELS_KEY, RandomShift
 from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.envs import (
@@ -43,6 +43,8 @@ from trl_cartpole.run.envs import (
 from trl_cartpole.run.learner import Learner
 from trl_cartpole.run.run_dir import fresh_worker_log_dir
 from trl_cartpole.run.schedules import Schedules
+from trl_cartpole.storage.chunked import TrackedTensorStorage
+from trl_cartpole.storage.frames import FrameStackStorage
 
 __all__ = [
     "REPLAY_FILES",
@@ -155,11 +157,11 @@ def build_replay_buffer(cfg: Config, run_dir: Path | None = None) -> TensorDictR
     ``buffer.storage=memmap`` stores it in TorchRL's ``LazyMemmapStorage``, in files under
     ``run_dir/replay_buffer`` (TorchRL's temporary directory without ``run_dir``);
     ``buffer.storage=frames`` keeps each distinct frame of the pixel stacks once
-    (:class:`~trl_cartpole.parts.frame_storage.FrameStackStorage`).
+    (:class:`~trl_cartpole.storage.frames.FrameStackStorage`).
     """
     buffer = cfg.buffer
     # in memory: TorchRL's LazyTensorStorage, its checkpoints writing what changed since the
-    # last (parts/chunked_storage.py)
+    # last (storage/chunked.py)
     storage = TrackedTensorStorage(buffer.max_size, device=cfg.device)
     if buffer.storage == "frames":
         storage = FrameStackStorage(buffer.max_size, device=cfg.device)

@@ -18,9 +18,9 @@ from pathlib import Path
 import torch
 from torchrl.envs import EnvBase
 
+from trl_cartpole.envs.pixels import PIXELS_KEY
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.parts.frame_storage import pool_capacity
-from trl_cartpole.parts.pixels import PIXELS_KEY
+from trl_cartpole.storage.frames import pool_capacity
 
 __all__ = [
     "MemoryNeed",
@@ -66,7 +66,7 @@ def memory_need(
 
     ``frames_stored_once`` (``buffer.storage=frames``): a transition's two pixel stacks
     ``[k, H, W]`` take ``2 k`` slots of 8 bytes and one frame of the pool, whose first
-    capacity (:func:`~trl_cartpole.parts.frame_storage.pool_capacity`) is counted."""
+    capacity (:func:`~trl_cartpole.storage.frames.pool_capacity`) is counted."""
     step = env.fake_tensordict()  # [*env.batch_size]: one step of each env, with "next"
     envs = max(step.batch_size.numel(), 1)
     per_transition = step.bytes() // envs

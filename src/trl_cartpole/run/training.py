@@ -20,18 +20,18 @@ from tensordict import TensorDictBase
 
 from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.config.validation import validate
+from trl_cartpole.envs.faults import (
+    check_finite_batch,
+    disarm_step_deadline,
+    env_fault,
+    worker_env_fault,
+)
 from trl_cartpole.errors import DiskFull, TrainingFailed, TrainingInterrupted, WorkerLost
 from trl_cartpole.parts.collectors import lost_worker
 from trl_cartpole.parts.models import expected_action_values
 from trl_cartpole.parts.replay import extend_with_batch
 from trl_cartpole.report.console import quiet_libraries
 from trl_cartpole.run.build import Components, build_components
-from trl_cartpole.run.env_faults import (
-    check_finite_batch,
-    disarm_step_deadline,
-    env_fault,
-    worker_env_fault,
-)
 from trl_cartpole.run.evaluation import Evaluation
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.signals import StopRequest

@@ -231,7 +231,7 @@ def _read_manifest(path: Path) -> dict[str, Any]:
 
 # The digests of the files of the checkpoints this process wrote, by file identity (device,
 # inode, size, modification time): a file hard-linked into a later checkpoint (a replay
-# buffer's unchanged rows, parts/chunked_storage.py) is the same file, not read again. The
+# buffer's unchanged rows, storage/chunked.py) is the same file, not read again. The
 # oldest are dropped past DIGESTS_KEPT (a run's checkpoints hold a few hundred files each).
 _written_digests: dict[tuple[int, int, int, int], str] = {}
 DIGESTS_KEPT = 20_000

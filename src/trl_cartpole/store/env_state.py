@@ -18,7 +18,7 @@ the Gymnasium env's RNG (the NOOP starts) and the preprocessing's own state (the
 frames, the lives at the last step: the transforms' ``state_dict``), for each game of the env.
 
 Other envs (Box2D's LunarLander, MuJoCo, a user's own) do not expose their state as data. Each
-logs its episode under way (:class:`~trl_cartpole.parts.episode_log.EpisodeLog`: how it began
+logs its episode under way (:class:`~trl_cartpole.envs.episode_log.EpisodeLog`: how it began
 and every action since), and the resumed run plays that log again on its fresh envs, checking
 that each reaches the saved observation; where one does not (an env that is not deterministic
 given its random generator and actions), the resumed run resets them and says so. Where no
@@ -54,8 +54,8 @@ from trl_cartpole.compat import (
     set_autoreset_state,
     set_gym_env,
 )
-from trl_cartpole.parts.atari import LastAction, ResizeFrame
-from trl_cartpole.parts.episode_log import EpisodeLog
+from trl_cartpole.envs.atari import LastAction, ResizeFrame
+from trl_cartpole.envs.episode_log import EpisodeLog
 
 __all__ = [
     "autoreset_snapshot",

@@ -12,7 +12,7 @@ the old cost.
 
 :class:`TrackedTensorStorage` is TorchRL's ``LazyTensorStorage`` that notes the rows each
 write reaches, checkpointed by :class:`ChunkedStorageCheckpointer`; the frames storage's pool
-(:mod:`trl_cartpole.parts.frame_storage`) is written the same way. The files are raw arrays
+(:mod:`trl_cartpole.storage.frames`) is written the same way. The files are raw arrays
 with a JSON index, nothing pickled; a storage loaded from a checkpoint links its next
 checkpoint's unchanged files to that one.
 """

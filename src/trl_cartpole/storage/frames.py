@@ -13,7 +13,7 @@ A frame is found again by its bytes (a hash, then an exact comparison), so any l
 data stores correctly: the batches of several envs, n-step windows, resets, frames repeated
 within a stack. Checkpoints save the rows and the pool's counts (TorchRL's memory-mapped
 tensors) and the pool's frames in files of rows linked to the last complete checkpoint's where
-unchanged (:mod:`trl_cartpole.parts.chunked_storage`), nothing pickled:
+unchanged (:mod:`trl_cartpole.storage.chunked`), nothing pickled:
 :class:`FrameStackCheckpointer`.
 """
 
@@ -30,7 +30,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import LazyTensorStorage
 from torchrl.data.replay_buffers.checkpointers import TensorStorageCheckpointer
 
-from trl_cartpole.parts.chunked_storage import INDEX_FILE, ChunkWriter, read_chunks
+from trl_cartpole.storage.chunked import INDEX_FILE, ChunkWriter, read_chunks
 
 __all__ = [
     "FramePool",
@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 POOL_DIR = "frame_pool"
-FRAMES_DIR = "frames"  # the pool's frames, in files of rows (parts/chunked_storage.py)
+FRAMES_DIR = "frames"  # the pool's frames, in files of rows (storage/chunked.py)
 
 
 def slots_key(key: NestedKey) -> NestedKey:
@@ -275,7 +275,7 @@ class FrameStackCheckpointer(TensorStorageCheckpointer):
     """TorchRL's checkpointer of a tensor storage (the rows, memory-mapped), plus the frame
     pool in ``frame_pool/`` beside them: its counts memory-mapped, its frames in files of rows
     linked to the last complete checkpoint's where unchanged
-    (:class:`~trl_cartpole.parts.chunked_storage.ChunkWriter`)."""
+    (:class:`~trl_cartpole.storage.chunked.ChunkWriter`)."""
 
     def dumps(self, storage: FrameStackStorage, path: Any) -> None:
         path = Path(path)

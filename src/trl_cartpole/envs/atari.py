@@ -56,8 +56,8 @@ from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.utils import _set_missing_tolerance
 
 from trl_cartpole.compat import gym_env
-from trl_cartpole.env_ids import register_atari_games
-from trl_cartpole.parts.pixels import PIXELS_KEY
+from trl_cartpole.envs.ids import register_atari_games
+from trl_cartpole.envs.pixels import PIXELS_KEY
 
 __all__ = [
     "ATARI_DEFAULTS",
@@ -349,7 +349,7 @@ def make_atari_env(
 
     Example::
 
-        >>> from trl_cartpole.parts.atari import make_atari_env
+        >>> from trl_cartpole.envs.atari import make_atari_env
         >>> env = make_atari_env("ALE/Breakout-v5", seed=0)
         >>> env.reset()["pixels"].shape
         torch.Size([4, 84, 84])

@@ -6,7 +6,7 @@ wide rectangle of colour (202, 152, 101), ``2 * length * 125`` px long, turned b
 about the axle 7.5 px below the cart's top), the axle (a circle of radius 5, (129, 132, 203))
 and the track (a black line across the screen at the cart's top), 125 px a metre. The pixel
 preset crops that frame, turns it gray and averages ``pool x pool`` blocks
-(:mod:`trl_cartpole.parts.pixels`). :func:`draw_cartpole` computes the same pooled gray image
+(:mod:`trl_cartpole.envs.pixels`). :func:`draw_cartpole` computes the same pooled gray image
 from the states directly: each full-resolution row crossed by a shape is an interval per
 shape (the pole's from its four edge inequalities), the painter's order is kept by
 inclusion-exclusion of those intervals, and each pooled pixel is the exact mean of its block
@@ -31,7 +31,7 @@ from torchrl.data.tensor_specs import Bounded, TensorSpec
 from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.functional import rgb_to_grayscale
 
-from trl_cartpole.env_ids import CARTPOLE_FRAME, cartpole_crop_bounds
+from trl_cartpole.envs.ids import CARTPOLE_FRAME, cartpole_crop_bounds
 
 __all__ = [
     "SCREEN_HEIGHT",
@@ -87,7 +87,7 @@ def draw_cartpole(
 
     :param state: ``[*B, 4]`` CartPole states (x, x_dot, theta, theta_dot).
     :param crop: rows ``[top, bottom)`` and columns ``[left, right)`` of the 400x600 frame
-        (``None``: up to the edge), as :class:`~trl_cartpole.parts.pixels.CropFrame` takes it.
+        (``None``: up to the edge), as :class:`~trl_cartpole.envs.pixels.CropFrame` takes it.
     :param pool: the block size the cropped frame is averaged over.
     :param length: the env's half pole length (``CartPoleEnv.length``).
     :param x_threshold: the env's ``x_threshold`` (the screen spans twice it).
@@ -290,7 +290,7 @@ class DrawCartPole(Transform):
 
     Append it to a state env (``make_env("CartPole-v1", num_envs=64)``): one call draws the
     whole batch. Follow it with ``CatFrames`` and ``ExcludeTransform("observation")`` for a
-    policy that sees pixels only (:func:`trl_cartpole.parts.pixels.drawn_pixel_transforms`).
+    policy that sees pixels only (:func:`trl_cartpole.envs.pixels.drawn_pixel_transforms`).
     ``rendered``: the first that many envs of the batch (in its flattened order) get
     Gymnasium's exact picture instead (:func:`render_cartpole`, about 0.4 ms a frame).
     """

@@ -1,8 +1,8 @@
 """What a loaded replay buffer needs back that TorchRL's storage checkpointers leave out.
 
-A buffer in memory is checkpointed by :mod:`trl_cartpole.parts.chunked_storage` (its filled
+A buffer in memory is checkpointed by :mod:`trl_cartpole.storage.chunked` (its filled
 rows, in files linked between checkpoints where unchanged), a frames storage by
-:class:`~trl_cartpole.parts.frame_storage.FrameStackCheckpointer`, a memory-mapped one by
+:class:`~trl_cartpole.storage.frames.FrameStackCheckpointer`, a memory-mapped one by
 TorchRL's own.
 """
 

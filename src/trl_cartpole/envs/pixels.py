@@ -17,7 +17,7 @@ wheel from PyPI (PyPI's torchvision is built for CUDA torch and fails to load it
 :class:`CropFrame` slices and :class:`PoolImage` uses ``torch.nn.functional.avg_pool2d``.
 
 For CartPole the same pooled frame can be drawn from a batch of states at once instead
-(:func:`drawn_pixel_transforms`, :mod:`trl_cartpole.parts.cartpole_drawing`): one call for
+(:func:`drawn_pixel_transforms`, :mod:`trl_cartpole.envs.cartpole_drawing`): one call for
 every env of a Gymnasium vector env, no pygame, except for a share of the envs painted with
 Gymnasium's own pygame calls.
 """
@@ -39,7 +39,7 @@ from torchrl.envs.transforms import (
 )
 from torchrl.envs.transforms.utils import _set_missing_tolerance
 
-from trl_cartpole.parts.cartpole_drawing import DrawCartPole
+from trl_cartpole.envs.cartpole_drawing import DrawCartPole
 
 __all__ = [
     "PIXELS_KEY",
