@@ -7,12 +7,15 @@ compatibility module reads it, and that reading and writing it does what the cal
 from __future__ import annotations
 
 import inspect
+import subprocess
 
 import gymnasium as gym
 import pytest
 import torch
 from tensordict import TensorDict
+from torch import nn
 from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import DistributionalQValueActor
 
 from trl_cartpole import compat
@@ -208,3 +211,63 @@ def test_a_partial_step_leaves_the_unmarked_envs_and_the_next_input_is_rollouts(
     # what the policy reads next: the next observation, as env.rollout's step_mdp gives it
     assert torch.equal(following["observation"][0], stepped["next", "observation"][0])
     env.close()
+
+
+def test_a_storage_is_allocated_from_a_row_and_told_how_full_it_is():
+    storage = LazyTensorStorage(4)
+    compat.allocate_storage(storage, TensorDict({"x": torch.zeros(2)}, batch_size=[]))
+    assert compat.storage_tensors(storage)["x"].shape == (4, 2)  # every row, allocated
+    assert len(storage) == 0
+    compat.set_storage_length(storage, 3)
+    assert len(storage) == 3
+
+
+def test_the_last_written_row_is_the_one_before_the_writers_cursor():
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(4))
+    buffer.extend(TensorDict({"x": torch.arange(6.0)}, batch_size=[6]))  # rows 0-3, then 0, 1
+    buffer.storage._last_cursor = None  # as a loaded storage checkpoint leaves it
+    compat.restore_last_written_row(buffer)
+    assert buffer.storage._last_cursor == 1
+
+
+def test_forward_hooks_are_seen_and_pre_hooks_listed_in_order():
+    layer = nn.Linear(2, 2)
+    assert not compat.forward_hooks_set(layer) and compat.forward_pre_hooks(layer) == []
+    first, second = (lambda module, args: None), (lambda module, args: None)
+    layer.register_forward_pre_hook(first)
+    layer.register_forward_pre_hook(second)
+    layer.register_forward_hook(lambda module, args, out: None)
+    assert compat.forward_hooks_set(layer) and compat.forward_pre_hooks(layer) == [first, second]
+
+
+def test_a_tensors_version_moves_on_an_in_place_write():
+    tensor = torch.zeros(1)
+    before = compat.tensor_version(tensor)
+    tensor.add_(1)
+    assert compat.tensor_version(tensor) > before
+
+
+def test_a_gymnasium_envs_generator_is_none_until_seeded():
+    env = gym.make("CartPole-v1").unwrapped
+    assert compat.gym_generator(env) is None
+    env.reset(seed=0)
+    assert compat.gym_generator(env) is env.np_random
+
+
+def test_the_exit_steps_run_the_atexit_functions(python):
+    code = (
+        "import atexit, os\n"
+        "from trl_cartpole.compat import run_exit_steps\n"
+        "atexit.register(print, 'ran')\n"
+        "run_exit_steps()\n"
+        "os._exit(0)\n"
+    )
+    proc = subprocess.run([python, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout == "ran\n", proc.stderr[-2000:]
+
+
+def test_a_transforms_parent_is_stepped_and_reset_below_the_transform():
+    env = make_env("CartPole-v1", seed=0)
+    start = compat.parent_reset(env.base_env, env.base_env.reset())
+    stepped = compat.parent_step(env.base_env, start.set("action", env.action_spec.zero()))
+    assert stepped["observation"].shape == (4,) and not stepped["done"].any()

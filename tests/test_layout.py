@@ -1,4 +1,4 @@
-"""The package's layout rules: TorchRL internals in one module, no benchmarks.
+"""The package's layout rules: other libraries' private names in one module, no benchmarks.
 
 The layers of its imports are import-linter contracts in pyproject.toml (lint-imports, in CI).
 """
@@ -14,21 +14,118 @@ from pathlib import Path
 from .conftest import ROOT
 
 PACKAGE = ROOT / "src" / "trl_cartpole"
-PRIVATE_TORCHRL_NAMES = re.compile(
-    r"\._carrier|\._memo\b|base_env\._env|\._transform\b|\._buffer\b|[.'\"]_weight_sync_schemes"
-    r"|action_func_mapping|prioritized\.(Sum|Min)SegmentTree"
-)
+PUBLIC_DESPITE_THE_UNDERSCORE = {"_exit"}  # os._exit: documented API
 
 
-def test_private_torchrl_names_are_read_only_in_the_compatibility_module():
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not name.endswith("__")
+
+
+def _own_bases(node: ast.ClassDef, own_classes: set[str]) -> bool:
+    """Whether every base of a class is the package's own (or ``object``)."""
+    names = [ast.unparse(base).rsplit(".", 1)[-1] for base in node.bases]
+    return all(name in own_classes or name in ("object", "Protocol", "Generic") for name in names)
+
+
+def _own_private_names(trees: list[ast.Module]) -> set[str]:
+    """The private names the package's own classes define (methods, ``self._x = ...``): those of
+    classes that inherit from another library's are not the package's to read elsewhere."""
+    classes = [n for tree in trees for n in ast.walk(tree) if isinstance(n, ast.ClassDef)]
+    own_classes = {c.name for c in classes}
+    for _ in range(3):  # a class on a class on a class of the package's own
+        own_classes = {c.name for c in classes if _own_bases(c, own_classes)}
+    names = {
+        n.name for tree in trees for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)
+    } - {n.name for c in classes if not _own_bases(c, own_classes) for n in c.body if
+         isinstance(n, ast.FunctionDef)}  # fmt: skip
+    for c in classes:
+        if _own_bases(c, own_classes):
+            for n in ast.walk(c):
+                if isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store):
+                    names.add(n.attr)
+                if isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name):
+                    names.add(n.target.id)  # a dataclass's field
+    return {name for name in names if _is_private(name)}
+
+
+def _foreign_private_uses(tree: ast.Module, own: set[str]) -> list[tuple[int, str]]:
+    """Where a module reads another library's private name: ``obj._x`` on anything but
+    ``self``/``cls``/``super()`` or the module's own class (a subclass's override of a hook
+    such as ``_default_checkpointer``), ``getattr(obj, "_x")``, ``from lib._private import x``."""
+    classes = {n.name for n in ast.walk(tree) if isinstance(n, ast.ClassDef)}
+    found = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Attribute) and _is_private(n.attr) and n.attr not in own:
+            owner = n.value
+            if isinstance(owner, ast.Name) and owner.id in ("self", "cls", *classes):
+                continue
+            if isinstance(owner, ast.Call) and ast.unparse(owner.func) == "super":
+                continue
+            if n.attr not in PUBLIC_DESPITE_THE_UNDERSCORE:
+                found.append((n.lineno, ast.unparse(n)))
+        elif isinstance(n, ast.Call) and ast.unparse(n.func) in ("getattr", "hasattr", "setattr"):
+            name = (
+                n.args[1].value if len(n.args) > 1 and isinstance(n.args[1], ast.Constant) else ""
+            )
+            if isinstance(name, str) and _is_private(name) and name not in own:
+                found.append((n.lineno, ast.unparse(n)))
+        elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
+            if n.module.split(".")[0] == "trl_cartpole":
+                continue
+            parts = [*n.module.split("."), *(alias.name for alias in n.names)]
+            if any(_is_private(part) for part in parts):
+                found.append((n.lineno, f"from {n.module} import ..."))
+    return found
+
+
+def test_private_names_of_other_libraries_are_read_only_in_the_compatibility_module():
+    """Another library's private name (TorchRL's, Gymnasium's, Ray's, Python's) is read in
+    ``compat.py`` alone, where tests/test_compat.py checks each still means what it did."""
+    paths = sorted(PACKAGE.rglob("*.py"))
+    trees = {path: ast.parse(path.read_text()) for path in paths}
+    own = _own_private_names(list(trees.values()))
     found = [
-        f"{path.name}:{number}"
-        for path in sorted(PACKAGE.rglob("*.py"))
+        f"{path.relative_to(PACKAGE)}:{line} {text}"
+        for path, tree in trees.items()
         if path.name != "compat.py"
-        for number, line in enumerate(path.read_text().splitlines(), 1)
-        if PRIVATE_TORCHRL_NAMES.search(line)
+        for line, text in _foreign_private_uses(tree, own)
     ]
     assert found == []
+
+
+def test_the_private_name_rule_sees_each_form():
+    code = """
+import threading
+from torchrl.envs.transforms.utils import _set_missing_tolerance
+from ray._raylet import Config
+class Mine:
+    def __init__(self):
+        self._mine = 1
+    def _helper(self):
+        return self._inherited
+class Theirs(LazyTensorStorage):
+    def _step(self):
+        self._len = 0
+Theirs._default_checkpointer = None
+def f(storage, mine, parent):
+    threading._shutdown()
+    getattr(storage, "_last_cursor", 0)
+    parent._step(None)
+    storage._len = 3
+    return mine._mine, mine._helper(), super()._x
+"""
+    tree = ast.parse(code)
+    found = [text for _, text in _foreign_private_uses(tree, _own_private_names([tree]))]
+    assert sorted(found) == sorted(
+        [
+            "from torchrl.envs.transforms.utils import ...",
+            "from ray._raylet import ...",
+            "threading._shutdown",
+            "getattr(storage, '_last_cursor', 0)",
+            "parent._step",
+            "storage._len",
+        ]
+    )
 
 
 def test_the_package_does_not_import_the_benchmarks_or_their_peers():

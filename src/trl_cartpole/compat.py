@@ -4,7 +4,7 @@ TorchRL's private attributes can move between releases without notice. Reading t
 means one file to fix when one moves, and ``tests/test_compat.py`` has a test per name that fails
 on a TorchRL version where it moved. Written against torchrl 0.14.1.
 
-Private names read (each through one function below):
+Private names read (each through one function below), TorchRL's first:
 
 - ``Collector._carrier``: the in-process collector's last observation and running counters
   (the env's mid-episode step), saved for an exact resume; a multi-process collector's
@@ -26,10 +26,26 @@ Private names read (each through one function below):
   collector's ``shutdown()`` leaves open (the process hung at exit);
 - ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action;
 - ``SoftUpdate._sources`` / ``_targets``: the parameters a soft update lerps, for the fused step.
+- ``EnvBase._step`` / ``_reset`` of a transform's parent: the game stepped inside one of its
+  transforms (NOOP starts, frame skip, FIRE), as TorchRL's own ``FrameSkipTransform`` does;
+  ``torchrl.envs.transforms.utils._set_missing_tolerance``, which lets such a transform see
+  the step it is called inside;
+- ``TensorStorage._storage`` / ``_init`` / ``_len``: a storage's tensors, allocated from a row
+  and its fill set, for the storages that write their own checkpoints; ``ReplayBuffer._writer``
+  ``_cursor`` and ``Storage._last_cursor`` / ``_set_last_cursor``: the row of the last write,
+  which TorchRL's storage checkpointers do not restore;
+- ``nn.Module._forward_hooks`` / ``_forward_pre_hooks``: the hooks a fused loss must run as
+  ``loss(sample)`` does; ``Tensor._version``: whether a tensor was written in place;
 - ``torchrl.data.replay_buffers.samplers.prioritized.CudaSumSegmentTreeFp32`` (and its Min and
   Fp64 siblings): ``None`` where
   the installed TorchRL has no CUDA priority trees (PyPI's 0.14.1 wheel), so that a prioritized
   buffer over a CUDA storage is given CPU trees (:func:`cuda_segment_trees_available`).
+
+Other libraries' private names: Gymnasium's ``Env._np_random`` (an env's generator, None
+until seeded, which the public ``np_random`` would create); Ray's ``ActorHandle._actor_id``
+and ``ray._raylet``'s settings (re-read after the run sets its token); Python's
+``threading._shutdown`` and ``atexit._run_exitfuncs``, the first steps of the interpreter's
+exit (:func:`run_exit_steps`).
 
 Stand-ins for TorchRL parts:
 
@@ -59,31 +75,46 @@ from torchrl.data import ReplayBuffer
 from torchrl.data.postprocs.postprocs import _get_reward
 from torchrl.envs import Compose, EnvBase, MultiStepTransform
 from torchrl.envs.transforms import VecGymEnvTransform
+from torchrl.envs.transforms.utils import _set_missing_tolerance as set_missing_tolerance
 
 __all__ = [
     "TensorMinSegmentTree",
     "TensorSumSegmentTree",
+    "allocate_storage",
     "autoreset_state",
     "carrier_of",
     "close_weight_sync_schemes",
     "cuda_segment_trees_available",
+    "forward_hooks_set",
+    "forward_pre_hooks",
     "greedy_action_rule",
     "greedy_value_rule",
     "gym_env",
+    "gym_generator",
     "held_steps",
     "install_segment_trees_if_missing",
     "loss_mask_keys",
     "n_step_returns",
     "n_step_transform",
     "n_step_window",
+    "parent_reset",
+    "parent_step",
+    "ray_actor_id",
+    "reload_ray_settings",
     "replay_transform",
+    "restore_last_written_row",
+    "run_exit_steps",
     "serial_envs",
     "set_autoreset_state",
     "set_gym_env",
     "set_held_steps",
+    "set_missing_tolerance",
     "set_n_step_window",
+    "set_storage_length",
     "set_worker_carriers",
     "soft_update_pairs",
+    "storage_tensors",
+    "tensor_version",
     "use_first_greedy_action",
     "worker_carriers",
 ]
@@ -401,3 +432,97 @@ def install_segment_trees_if_missing() -> bool:
             prioritized, f"MinSegmentTree{precision}", partial(TensorMinSegmentTree, dtype=dtype)
         )
     return True
+
+
+# --- a transform's parent env, stepped inside the transform ----------------------------------
+
+
+def parent_step(parent: EnvBase, tensordict: TensorDictBase) -> TensorDictBase:
+    """One step of a transform's ``parent`` env (its ``_step``, no step counting or checks), as
+    TorchRL's ``FrameSkipTransform`` repeats an action."""
+    return parent._step(tensordict)
+
+
+def parent_reset(parent: EnvBase, tensordict: TensorDictBase) -> TensorDictBase:
+    """A reset of a transform's ``parent`` env (its ``_reset``)."""
+    return parent._reset(tensordict)
+
+
+# --- storages that write their own checkpoints -----------------------------------------------
+
+
+def storage_tensors(storage: Any) -> TensorDictBase:
+    """A ``TensorStorage``'s TensorDict of all its rows (allocated ones, filled or not)."""
+    return storage._storage
+
+
+def allocate_storage(storage: Any, row: TensorDictBase) -> None:
+    """Allocate a lazy storage's tensors from one ``row`` (what its first write would do)."""
+    storage._init(row)
+
+
+def set_storage_length(storage: Any, filled: int) -> None:
+    """Say how many rows of ``storage`` hold data (a loaded checkpoint's)."""
+    storage._len = filled
+
+
+def restore_last_written_row(buffer: Any) -> None:
+    """Give a loaded buffer's storage the row of its last write (``_last_cursor``).
+
+    TorchRL's storage checkpointers do not restore it, so a state saved again before the next
+    write (a resumed run's ending, or a window of n steps still filling) warned "last_cursor is
+    None". It is the row before the writer's cursor (the next row to write).
+    """
+    storage, writer = buffer.storage, getattr(buffer, "_writer", None)
+    cursor = getattr(writer, "_cursor", None)
+    if getattr(storage, "_last_cursor", 0) is None and len(storage) > 0 and cursor is not None:
+        storage._set_last_cursor((int(cursor) - 1) % storage.max_size)
+
+
+# --- torch modules and tensors ---------------------------------------------------------------
+
+
+def forward_hooks_set(module: nn.Module) -> bool:
+    """Whether ``module`` has forward hooks (which a call of ``module`` would run)."""
+    return bool(module._forward_hooks)
+
+
+def forward_pre_hooks(module: nn.Module) -> list[Callable[..., Any]]:
+    """``module``'s forward pre-hooks, in the order a call of ``module`` runs them."""
+    return list(module._forward_pre_hooks.values())
+
+
+def tensor_version(tensor: torch.Tensor) -> int:
+    """A counter that moves on each in-place write of ``tensor``."""
+    return tensor._version
+
+
+# --- Gymnasium, Ray, the interpreter ----------------------------------------------------------
+
+
+def gym_generator(unwrapped: Any) -> np.random.Generator | None:
+    """A Gymnasium env's own generator, None until it is seeded (``np_random`` would make one)."""
+    return unwrapped._np_random
+
+
+def ray_actor_id(actor: Any) -> str:
+    """A Ray actor handle's id, in hex, as Ray's errors name it."""
+    return actor._actor_id.hex()
+
+
+def reload_ray_settings() -> None:
+    """Make an imported Ray read its settings and auth token from the environment again."""
+    from ray._raylet import AuthenticationTokenLoader, Config
+
+    Config.initialize("")  # what Ray's own _enable_token_auth does
+    AuthenticationTokenLoader.instance().reset_cache()
+
+
+def run_exit_steps() -> None:
+    """What Python's exit does before it frees the modules: join the non-daemon threads (after
+    the hooks that tell pools to stop), then run the ``atexit`` functions."""
+    import atexit
+    import threading
+
+    threading._shutdown()  # type: ignore[attr-defined]  # Py_FinalizeEx's first step
+    atexit._run_exitfuncs()

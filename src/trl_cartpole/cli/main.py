@@ -16,13 +16,11 @@ the resume command. Set ``HYDRA_FULL_ERROR=1`` to get the full traceback instead
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import errno
 import gc
 import os
 import sys
-import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -204,11 +202,16 @@ def exit_process(status: int) -> NoReturn:
     multiprocessing's children, logging's flush) and flushes stdout and stderr. Then it frees
     every module and object one by one: about 1.4 s once torch and TorchRL are imported, for
     nothing anyone reads (docs/performance.md). This does the first part, with the same
-    private hooks the interpreter calls, and ends with ``os._exit``. For a command's end only:
-    in a process that goes on (a test, a notebook) call the command's function instead.
+    private hooks the interpreter calls (``compat.run_exit_steps``), and ends with ``os._exit``;
+    a command that never imported torch exits as usual (its teardown is quick). For a
+    command's end only: in a process that goes on (a test, a notebook) call the command's
+    function instead.
     """
-    threading._shutdown()  # type: ignore[attr-defined]  # Py_FinalizeEx's first step
-    atexit._run_exitfuncs()
+    if "torch" not in sys.modules:
+        sys.exit(status)
+    from trl_cartpole.compat import run_exit_steps  # imports torch, as the command did
+
+    run_exit_steps()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError, ValueError):  # a closed pipe: nothing more to say
             stream.flush()

@@ -53,9 +53,8 @@ from torchrl.envs import (
     TransformedEnv,
 )
 from torchrl.envs.transforms import Transform
-from torchrl.envs.transforms.utils import _set_missing_tolerance
 
-from trl_cartpole.compat import gym_env
+from trl_cartpole.compat import gym_env, parent_reset, parent_step, set_missing_tolerance
 from trl_cartpole.envs.ids import register_atari_games
 from trl_cartpole.envs.pixels import PIXELS_KEY
 
@@ -104,9 +103,9 @@ class NoopStarts(Transform):
         state = tensordict_reset
         for _ in range(noops):
             action = parent.full_action_spec.zero()  # NOOP is action 0 in every ALE game
-            stepped = parent._step(state.clone(False).update(action))
+            stepped = parent_step(parent, state.clone(False).update(action))
             if stepped.get("done").any():
-                state = parent._reset(state.clone(False))
+                state = parent_reset(parent, state.clone(False))
                 continue
             state = stepped.exclude("reward")
         return tensordict_reset.update(state.exclude("reward", "action"))
@@ -133,7 +132,7 @@ class MaxPoolFrameSkip(Transform):
             if next_tensordict.get("done").any():
                 break
             previous = next_tensordict.get(self.screen_key)
-            next_tensordict = parent._step(tensordict)
+            next_tensordict = parent_step(parent, tensordict)
             reward = reward + next_tensordict.get("reward")
         if previous is not None:
             last = next_tensordict.get(self.screen_key)
@@ -168,7 +167,7 @@ class ResizeFrame(ObservationTransform):
         return out.exclude(*(k for k in self.in_keys if k not in self.out_keys))
 
     def _reset(self, tensordict, tensordict_reset):
-        with _set_missing_tolerance(self, True):
+        with set_missing_tolerance(self, True):
             return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: TensorSpec) -> TensorSpec:
@@ -210,12 +209,12 @@ class FireOnReset(Transform):
         action = parent.full_action_spec.zero()
         key = parent.action_key
         action.set(key, torch.full_like(action.get(key), self.fire_action))
-        stepped = parent._step(state.clone(False).update(action))
+        stepped = parent_step(parent, state.clone(False).update(action))
         reward = stepped.get("reward")
         for _ in range(self.steps - 1):
             if stepped.get("done").any():
                 break
-            stepped = parent._step(state.clone(False).update(action))
+            stepped = parent_step(parent, state.clone(False).update(action))
             reward = reward + stepped.get("reward")
         return stepped.set("reward", reward)
 
@@ -226,7 +225,7 @@ class FireOnReset(Transform):
         stepped = self._fire(tensordict_reset)
         self.lives_before.fill_(self._lives())
         if stepped.get("done").any():  # the game ended on its first moves: start again
-            restarted = self.parent._reset(tensordict_reset.clone(False))
+            restarted = parent_reset(self.parent, tensordict_reset.clone(False))
             self.lives_before.fill_(self._lives())  # the new game's, not the ended one's
             return restarted
         return tensordict_reset.update(stepped.exclude("reward", "action"))

@@ -37,8 +37,8 @@ from torchrl.envs.transforms import (
     ToTensorImage,
     Transform,
 )
-from torchrl.envs.transforms.utils import _set_missing_tolerance
 
+from trl_cartpole.compat import set_missing_tolerance
 from trl_cartpole.envs.cartpole_drawing import DrawCartPole
 
 __all__ = [
@@ -61,7 +61,7 @@ class _ImageTransform(ObservationTransform):
         super().__init__(in_keys=list(in_keys), out_keys=list(in_keys))
 
     def _reset(self, tensordict, tensordict_reset):
-        with _set_missing_tolerance(self, True):
+        with set_missing_tolerance(self, True):
             return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: TensorSpec) -> TensorSpec:

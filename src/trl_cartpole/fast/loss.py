@@ -32,7 +32,13 @@ from torchrl.modules import NoisyLinear, QValueModule
 from torchrl.objectives import DQNLoss
 from torchrl.objectives.value import TD0Estimator
 
-from trl_cartpole.compat import greedy_action_rule, greedy_value_rule, loss_mask_keys
+from trl_cartpole.compat import (
+    forward_hooks_set,
+    forward_pre_hooks,
+    greedy_action_rule,
+    greedy_value_rule,
+    loss_mask_keys,
+)
 
 __all__ = ["FusedDQNLoss", "fuse_dqn_loss"]
 
@@ -64,7 +70,7 @@ def fuse_dqn_loss(loss_module: nn.Module) -> FusedDQNLoss | None:
         or loss_module.loss_function not in _DISTANCES
         or loss_module.reduction != "mean"
         or loss_module.action_space not in ("one_hot", "categorical")
-        or loss_module._forward_hooks
+        or forward_hooks_set(loss_module)
     ):
         return None
     return FusedDQNLoss(loss_module)
@@ -116,7 +122,7 @@ class FusedDQNLoss:
     def run_pre_hooks(self, sample: TensorDictBase) -> None:
         """The loss module's forward pre-hooks, as ``loss_module(sample)`` runs them."""
         loss_module = self.loss_module
-        for hook in loss_module._forward_pre_hooks.values():
+        for hook in forward_pre_hooks(loss_module):
             hook(loss_module, (sample,))
 
     def masked(self, sample: TensorDictBase) -> bool:

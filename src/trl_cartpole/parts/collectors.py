@@ -31,7 +31,7 @@ from torchrl.collectors import BaseCollector, Collector
 from torchrl.envs import EnvBase
 
 from trl_cartpole import choices
-from trl_cartpole.compat import close_weight_sync_schemes
+from trl_cartpole.compat import close_weight_sync_schemes, ray_actor_id, reload_ray_settings
 from trl_cartpole.errors import ConfigError
 
 __all__ = [
@@ -95,10 +95,7 @@ def guard_local_ray_with_a_token_of_its_own() -> None:
     os.environ.setdefault("RAY_AUTH_MODE", "token")
     os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(32))
     if "ray._raylet" in sys.modules:  # Ray read its settings at import: make it read them again
-        from ray._raylet import AuthenticationTokenLoader, Config
-
-        Config.initialize("")  # what Ray's own _enable_token_auth does
-        AuthenticationTokenLoader.instance().reset_cache()
+        reload_ray_settings()
 
 
 def whole_batches(frames: int, frames_per_batch: int) -> int:
@@ -431,7 +428,7 @@ def lost_worker(error: BaseException, collector: BaseCollector) -> str | None:
             fields[key] = value
         else:
             reasons.append(line)
-    actors = [actor._actor_id.hex() for actor in getattr(collector, "remote_collectors", [])]
+    actors = [ray_actor_id(actor) for actor in getattr(collector, "remote_collectors", [])]
     if error.actor_id in actors:
         which = f"{actors.index(error.actor_id) + 1} of {len(actors)}"
     else:

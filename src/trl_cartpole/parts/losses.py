@@ -15,6 +15,7 @@ projected onto the support, and the cross-entropy to it.
 from __future__ import annotations
 
 import math
+import weakref
 from typing import Any
 
 import torch
@@ -26,6 +27,7 @@ from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
 from torchrl.objectives import DistributionalDQNLoss, DQNLoss, HardUpdate, SoftUpdate
 from torchrl.objectives.utils import TargetNetUpdater
 
+from trl_cartpole.compat import tensor_version
 from trl_cartpole.parts.replay import N_STEP_GAMMA_KEY, n_step_gamma
 
 __all__ = [
@@ -152,6 +154,12 @@ def discount_tensor(loss: nn.Module) -> torch.Tensor:
     return loss.gamma if isinstance(loss, DistributionalDQNLoss) else loss.value_estimator.gamma
 
 
+# Each loss module's discount as last read: (its gamma tensor, that tensor's version, the value)
+_DISCOUNT_READS: weakref.WeakKeyDictionary[nn.Module, tuple[torch.Tensor, int, float]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
 def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
     """A forward pre-hook: an n-step batch's discount must be the one ``loss`` uses.
 
@@ -167,13 +175,13 @@ def _check_n_step_discount(loss: nn.Module, args: tuple[Any, ...]) -> None:
     if marked is None:
         return
     gamma_tensor = discount_tensor(loss)
-    version = getattr(gamma_tensor, "_version", None)  # moves on each in-place write
-    cached = getattr(loss, "_n_step_discount_read", None)  # (tensor, version, value)
+    version = tensor_version(gamma_tensor)  # moves on each in-place write
+    cached = _DISCOUNT_READS.get(loss)  # (tensor, version, value)
     if cached is not None and cached[0] is gamma_tensor and cached[1] == version:
         loss_gamma = cached[2]
     else:
         loss_gamma = float(gamma_tensor)
-        loss._n_step_discount_read = (gamma_tensor, version, loss_gamma)
+        _DISCOUNT_READS[loss] = (gamma_tensor, version, loss_gamma)
     check_discounts(loss_gamma, float(marked.reshape(-1)[0]))
 
 

@@ -16,11 +16,11 @@ from typing import Any
 from torch import nn
 from torchrl.checkpoint import Checkpoint
 
+from trl_cartpole.compat import restore_last_written_row
 from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import DiskFull, TrainingInterrupted, WorkerLost
 from trl_cartpole.report.console import command, shown_path
 from trl_cartpole.run.progress import Progress
-from trl_cartpole.storage.buffer_checkpoint import restore_last_written_row
 from trl_cartpole.storage.chunked import confirm_chunked_writes
 from trl_cartpole.store.checkpoint import (
     DISK_MARGIN_BYTES,

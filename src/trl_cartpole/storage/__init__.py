@@ -4,5 +4,4 @@
   the rows filled since the last one (a buffer of millions of transitions saved in seconds);
 - :mod:`~trl_cartpole.storage.frames`: Atari frames stored once, not four times per
   transition (a frame stack rebuilt on sampling);
-- :mod:`~trl_cartpole.storage.buffer_checkpoint`: which checkpointer a buffer's storage takes.
 """

@@ -33,6 +33,8 @@ from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage
 from torchrl.data.replay_buffers.checkpointers import StorageCheckpointerBase
 
+from trl_cartpole.compat import allocate_storage, set_storage_length, storage_tensors
+
 __all__ = [
     "CHUNK_ROWS",
     "INDEX_FILE",
@@ -263,7 +265,7 @@ class ChunkedStorageCheckpointer(StorageCheckpointerBase):
             raise RuntimeError("Cannot save a non-initialized storage.")
         tensors = {
             key if isinstance(key, tuple) else (key,): tensor
-            for key, tensor in storage._storage.items(include_nested=True, leaves_only=True)
+            for key, tensor in storage_tensors(storage).items(include_nested=True, leaves_only=True)
         }
         storage.chunks.write(tensors, len(storage), Path(path), capacity=storage.max_size)
 
@@ -283,13 +285,13 @@ class ChunkedStorageCheckpointer(StorageCheckpointerBase):
                 )
                 for entry in index["entries"].values()
             }
-            storage._init(TensorDict(row, batch_size=[]))
+            allocate_storage(storage, TensorDict(row, batch_size=[]))
         leaves = {
             key if isinstance(key, tuple) else (key,): tensor
-            for key, tensor in storage._storage.items(include_nested=True, leaves_only=True)
+            for key, tensor in storage_tensors(storage).items(include_nested=True, leaves_only=True)
         }
         read_chunks(path, out=leaves)  # each file into its rows: no second copy of the buffer
-        storage._len = index["filled"]
+        set_storage_length(storage, index["filled"])
         storage.chunks.loaded_from(path)
 
 

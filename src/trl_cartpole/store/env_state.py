@@ -50,6 +50,7 @@ from trl_cartpole.compat import (
     ale_action_set,
     autoreset_state,
     gym_env,
+    gym_generator,
     serial_envs,
     set_autoreset_state,
     set_gym_env,
@@ -93,7 +94,7 @@ def _layers(env: Any) -> list[Any]:
 
 
 def _single_env_snapshot(env: Any) -> dict[str, Any]:
-    rng = env.unwrapped._np_random  # None until the env is seeded
+    rng = gym_generator(env.unwrapped)  # None until the env is seeded
     return {
         "layers": [_plain_attributes(layer) for layer in _layers(env)],
         "rng": None if rng is None else rng.bit_generator.state,
@@ -176,7 +177,7 @@ def _atari_games(env: EnvBase) -> list[TransformedEnv] | None:
 def _atari_snapshot(game: TransformedEnv) -> dict[str, Any]:
     unwrapped = gym_env(game).unwrapped
     state = unwrapped.ale.cloneState(include_rng=True).serialize()
-    rng = unwrapped._np_random
+    rng = gym_generator(unwrapped)
     wrapper = gym_env(game)
     last_action = wrapper.last_action if isinstance(wrapper, LastAction) else None
     return {
