@@ -232,11 +232,11 @@ def test_the_preset_is_the_sixth_form_of_the_recipe_as_docs_atari_names_it(compo
     """``env=breakout`` alone trains the form whose seeds docs/atari.md records: the same
     configuration as its named command's overrides, 2 hours of training that end the run before
     its 300 000 steps, and a learning rate that tapers from 1e-4 to 1e-5 at 135 000 steps (half
-    way: 1e-4 - 0.5 x 9e-5 = 5.5e-5), then holds."""
+    way: 1e-4 - 0.5 x 9e-5 = 5.5e-5), then holds. Its update's number type is the machine's
+    (``auto``: the named seeds' bfloat16 where the CPU computes it)."""
     from trl_cartpole.parts.optim import tapered_lr
 
     named = (
-        "optim.autocast=bfloat16",
         "optim.lr_end=1e-5",
         "optim.lr_decay_frames=135000",
         "collector.total_frames=300000",
@@ -246,7 +246,7 @@ def test_the_preset_is_the_sixth_form_of_the_recipe_as_docs_atari_names_it(compo
     assert preset == to_config(compose(*run, *named))
     assert (preset.collector.total_frames, preset.collector.max_train_seconds) == (300_000, 7200)
     optim = preset.optim
-    assert (optim.lr, optim.lr_end, optim.autocast) == (1e-4, 1e-5, "bfloat16")
+    assert (optim.lr, optim.lr_end, optim.autocast) == (1e-4, 1e-5, "auto")
     assert tapered_lr(optim.lr, optim.lr_end, 67_500, optim.lr_decay_frames) == pytest.approx(
         5.5e-5
     )

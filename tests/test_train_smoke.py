@@ -18,6 +18,7 @@ from trl_cartpole.store.checkpoint import load_policy
 from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 
 SUMMARY_KEYS = {
+    "autocast",
     "env_id",
     "seed",
     "algo",

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -145,3 +148,31 @@ def test_the_config_sets_adamws_eps(compose, tmp_path):
             optimizer = components.learner.optimizer
         assert isinstance(optimizer, torch.optim.AdamW)
         assert optimizer.param_groups[0]["eps"] == pytest.approx(expected, rel=1e-12)
+
+
+def test_auto_autocast_is_bfloat16_only_where_the_cpu_computes_it(monkeypatch):
+    from trl_cartpole.parts import optim
+
+    monkeypatch.setattr(optim, "cpu_computes_bfloat16", lambda: True)
+    chosen, line = optim.choose_autocast("auto", "cpu")
+    assert chosen == "bfloat16" and "runs in bfloat16" in line
+    assert optim.choose_autocast("bfloat16", "cpu") == ("bfloat16", None)  # native: nothing said
+    monkeypatch.setattr(optim, "cpu_computes_bfloat16", lambda: False)
+    chosen, line = optim.choose_autocast("auto", "cpu")
+    assert chosen == "none" and "runs in float32" in line
+    chosen, line = optim.choose_autocast("bfloat16", "cpu")  # asked for: kept, and warned about
+    assert chosen == "bfloat16" and "emulates bfloat16" in line and "auto picks float32" in line
+    assert optim.choose_autocast("none", "cpu") == ("none", None)
+
+
+def test_an_avx2_only_cpu_is_given_float32(python):
+    """``ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2`` stand in for a CPU without AVX-512:
+    there oneDNN reports no bfloat16, and ``auto`` is float32 whatever this machine has."""
+    code = "from trl_cartpole.parts.optim import choose_autocast; print(choose_autocast('auto'))"
+    env = {**os.environ, "ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2"}
+    proc = subprocess.run(
+        [python, "-c", code], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.startswith("('none', 'optim.autocast=auto: the update runs in float32")
+    assert "AVX2" in proc.stdout

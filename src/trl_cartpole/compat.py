@@ -36,6 +36,8 @@ Private names read (each through one function below), TorchRL's first:
   which TorchRL's storage checkpointers do not restore;
 - ``nn.Module._forward_hooks`` / ``_forward_pre_hooks``: the hooks a fused loss must run as
   ``loss(sample)`` does; ``Tensor._version``: whether a tensor was written in place;
+- ``torch.ops.mkldnn._is_mkldnn_bf16_supported``: whether oneDNN computes bfloat16 on this CPU
+  (AVX-512 BF16 or AMX; ``ONEDNN_MAX_CPU_ISA`` lowers it), where it is otherwise emulated;
 - ``torchrl.data.replay_buffers.samplers.prioritized.CudaSumSegmentTreeFp32`` (and its Min and
   Fp64 siblings): ``None`` where
   the installed TorchRL has no CUDA priority trees (PyPI's 0.14.1 wheel), so that a prioritized
@@ -84,6 +86,7 @@ __all__ = [
     "autoreset_state",
     "carrier_of",
     "close_weight_sync_schemes",
+    "cpu_computes_bfloat16",
     "cuda_segment_trees_available",
     "forward_hooks_set",
     "forward_pre_hooks",
@@ -526,3 +529,10 @@ def run_exit_steps() -> None:
 
     threading._shutdown()  # type: ignore[attr-defined]  # Py_FinalizeEx's first step
     atexit._run_exitfuncs()
+
+
+def cpu_computes_bfloat16() -> bool:
+    """Whether oneDNN computes bfloat16 on this CPU (AVX-512 BF16, AMX), not emulates it."""
+    return bool(
+        torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    )

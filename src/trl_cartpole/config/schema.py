@@ -204,8 +204,10 @@ class OptimConfig:
     # each batch (null: lr the whole run)
     lr_end: float | None = None
     lr_decay_frames: int | None = None  # frames to reach lr_end; null: collector.total_frames
-    # none | bfloat16: the update's network passes under torch.autocast in that type (Breakout's
-    # whole update about two thirds of the time on a CPU with AVX-512 BF16; docs/performance.md)
+    # none | bfloat16 | auto: the update's network passes under torch.autocast in bfloat16
+    # (Breakout's whole update about two thirds of float32's time on a CPU with AVX-512 BF16,
+    # several times float32's where bfloat16 is emulated); auto: bfloat16 where the device
+    # computes it natively, float32 elsewhere, said when the run starts (docs/atari.md)
     autocast: str = "none"
 
 

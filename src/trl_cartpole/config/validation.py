@@ -44,7 +44,7 @@ _CHOICES = {
     "loss.loss_function": ("smooth_l1", "l2"),
     "target_updater.kind": choices.TARGET_UPDATERS,
     "optim.grad_clip": choices.GRAD_CLIPS,
-    "optim.autocast": ("none", "bfloat16"),
+    "optim.autocast": ("none", "bfloat16", "auto"),
     "logger.backend": ("csv", "tensorboard", "wandb", "none"),
     "collector.backend": choices.COLLECTOR_BACKENDS,
     "buffer.storage": ("memory", "memmap", "frames"),

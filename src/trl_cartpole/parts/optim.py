@@ -15,9 +15,17 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
+from trl_cartpole.compat import cpu_computes_bfloat16
 from trl_cartpole.parts.models import reset_network_noise
 
-__all__ = ["autocast_context", "make_optimizer", "make_update", "tapered_lr"]
+__all__ = [
+    "autocast_context",
+    "choose_autocast",
+    "make_optimizer",
+    "make_update",
+    "native_bfloat16",
+    "tapered_lr",
+]
 
 
 def make_optimizer(
@@ -64,6 +72,46 @@ def tapered_lr(lr_start: float, lr_end: float, frames: int, decay_frames: int) -
         (0.00055, 0.0001)
     """
     return lr_start + (lr_end - lr_start) * min(1.0, frames / decay_frames)
+
+
+def native_bfloat16(device: str | torch.device = "cpu") -> tuple[bool, str]:
+    """Whether ``device`` computes bfloat16 natively, and the hardware said in words.
+
+    A CPU does where oneDNN reports bfloat16 support (AVX-512 BF16 or AMX); without it torch
+    emulates bfloat16, and a Nature-CNN update took 7x as long as in float32 (docs/atari.md).
+    A CUDA device does where ``torch.cuda.is_bf16_supported()`` says so (Ampere and later).
+    """
+    device = torch.device(device)
+    if device.type == "cuda":
+        name = torch.cuda.get_device_name(device)
+        return torch.cuda.is_bf16_supported(), name
+    capability = torch.backends.cpu.get_cpu_capability()
+    if cpu_computes_bfloat16():
+        return True, f"this CPU ({capability}, with bfloat16 instructions)"
+    return False, f"this CPU ({capability}, no bfloat16 instructions)"
+
+
+def choose_autocast(requested: str, device: str | torch.device = "cpu") -> tuple[str, str | None]:
+    """``optim.autocast`` made concrete: ``("bfloat16" | "none", the line to say or None)``.
+
+    ``auto`` is bfloat16 where ``device`` computes it natively (:func:`native_bfloat16`), float32
+    (``"none"``) elsewhere, said in one line; ``bfloat16`` asked for where it is emulated is
+    kept, with a line that says it will be slow; ``none`` says nothing.
+    """
+    if requested == "none":
+        return "none", None
+    native, hardware = native_bfloat16(device)
+    if requested == "auto":
+        chosen = "bfloat16" if native else "none"
+        kind = "bfloat16" if native else "float32"
+        return chosen, f"optim.autocast=auto: the update runs in {kind} on {hardware}"
+    if requested == "bfloat16" and not native:
+        return requested, (
+            f"optim.autocast=bfloat16 on {hardware}: torch emulates bfloat16 there, and the "
+            "update takes several times as long as in float32 (optim.autocast=auto picks "
+            "float32 here)"
+        )
+    return requested, None
 
 
 def autocast_context(

@@ -17,6 +17,7 @@ only the run's own sections (checkpoint, logger, eval) and joins the parts.
 from __future__ import annotations
 
 import time
+import warnings
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from functools import partial
@@ -43,6 +44,7 @@ from trl_cartpole.parts.collectors import (
     shutdown_collector,
     whole_batches,
 )
+from trl_cartpole.parts.optim import choose_autocast
 from trl_cartpole.report.loggers import MetricsLog, make_logger, truncate_csv_metrics
 from trl_cartpole.report.plotting import LiveDurationPlot
 from trl_cartpole.report.progress_bar import ProgressBar
@@ -106,6 +108,7 @@ class RunFacts:
     time_limit: int | None  # the env's step limit, for the same reference
     max_grad_norm: float | None  # the dashboard's clip line (None: no norm clipping)
     best_checkpoint: Path | None  # checkpoints/best, when the run saves it
+    autocast: str  # the update's number type as chosen for this machine: bfloat16 | none
 
     @classmethod
     def of(cls, cfg: Config, run_dir: Path) -> RunFacts:
@@ -124,6 +127,7 @@ class RunFacts:
             time_limit=time_limit(cfg.env.id, cfg.env.max_episode_steps),
             max_grad_norm=cfg.optim.max_grad if cfg.optim.grad_clip == "norm" else None,
             best_checkpoint=run_dir / "checkpoints" / "best" if cfg.checkpoint.save_best else None,
+            autocast=choose_autocast(cfg.optim.autocast, cfg.device)[0],
         )
 
 
@@ -201,6 +205,7 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     """
     wall_start = time.perf_counter()
     warn_if_no_update(cfg)
+    say_autocast(cfg.optim.autocast, cfg.device)
     torch.set_num_threads(cfg.num_threads)
     seed_everything(cfg.seed)
     # Observation statistics are estimated once per run (a resumed run reads them back) and
@@ -241,6 +246,16 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         on_error.pop_all()
     components.progress_bar.open(components.progress.frames)
     return components
+
+
+def say_autocast(requested: str, device: str) -> None:
+    """The update's number type in one line where the machine chose it (``auto``), a warning
+    where the bfloat16 asked for is emulated (:func:`~trl_cartpole.parts.optim.choose_autocast`)."""
+    _, line = choose_autocast(requested, device)
+    if line is not None and requested == "bfloat16":
+        warnings.warn(line, stacklevel=2)
+    elif line is not None:
+        print(line, flush=True)
 
 
 def _assemble(

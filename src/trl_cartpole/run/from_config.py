@@ -33,7 +33,7 @@ from trl_cartpole.parts.collectors import (
 from trl_cartpole.parts.exploration import make_exploration
 from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
 from trl_cartpole.parts.models import make_q_actor
-from trl_cartpole.parts.optim import make_optimizer, make_update
+from trl_cartpole.parts.optim import choose_autocast, make_optimizer, make_update
 from trl_cartpole.parts.replay import make_replay_buffer
 from trl_cartpole.run.env_kind import EnvKind
 from trl_cartpole.run.envs import (
@@ -230,7 +230,8 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         eps=cfg.optim.eps,
     )
     fused = fuse_dqn_loss(loss) if cfg.fast else None  # None: C51, noisy layers
-    autocast_dtype = None if cfg.optim.autocast == "none" else getattr(torch, cfg.optim.autocast)
+    chosen, _ = choose_autocast(cfg.optim.autocast, cfg.device)  # the run says it once
+    autocast_dtype = None if chosen == "none" else getattr(torch, chosen)
     update = make_update(
         loss if fused is None else fused,
         optimizer,

@@ -75,6 +75,7 @@ def finish(run: Components) -> dict[str, Any]:
         updates_per_second=round(progress.updates / max(phases["update"], 1e-9), 1),
         phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
         checkpoint=None if facts.best_checkpoint is None else str(facts.best_checkpoint),
+        autocast=facts.autocast,
         kept_policy_frames=None if kept is None else kept.frames,
         **({"candidates": [asdict(score) for score in scores]} if scores else {}),
         **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
