@@ -306,3 +306,16 @@ def test_an_integer_vector_observation_reaches_the_network_as_float32(fresh_regi
     rollout = env.rollout(5, actor)
     assert rollout["observation"].dtype == torch.float32
     assert rollout["next", "observation"][0, -1].tolist() == [5.0, 5.0, 5.0]
+
+
+def test_an_env_class_in_the_folder_the_command_runs_from_is_found(tmp_path, monkeypatch):
+    """``env.id=my_module:MyEnv`` with ``my_module.py`` where the command runs: no PYTHONPATH
+    (``scripts/train.py`` starts ``sys.path`` with its own folder, not the working one)."""
+    from trl_cartpole.envs.ids import resolve_env_id
+
+    (tmp_path / "my_corridor_env.py").write_text((ROOT / "examples" / "corridor.py").read_text())
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", ".", str(tmp_path))])
+    monkeypatch.delitem(sys.modules, "my_corridor_env", raising=False)
+    assert resolve_env_id("my_corridor_env:Corridor") == "my_corridor_env.Corridor"
+    assert isinstance(gym.make("my_corridor_env.Corridor").observation_space, gym.spaces.Box)

@@ -10,7 +10,9 @@ module listed in ``env.imports``. :func:`resolve_env_id` turns each into a regis
 from __future__ import annotations
 
 import importlib
+import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -67,6 +69,12 @@ def register_atari_games() -> None:
 
 
 def _import_module(name: str, field: str) -> Any:
+    """Import ``name``; a module in the folder the command runs from is found too (as with
+    ``python -m``), where a script's own folder, not that one, starts ``sys.path``."""
+    top = name.split(".")[0]
+    here = Path.cwd()
+    if str(here) not in sys.path and ((here / f"{top}.py").is_file() or (here / top).is_dir()):
+        sys.path.append(str(here))  # after every installed package: it shadows none
     try:
         return importlib.import_module(name)
     except ImportError as error:
