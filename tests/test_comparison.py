@@ -126,3 +126,16 @@ def test_the_solved_column_says_how_many_solved_runs_did_not_hold_it():
     never = summary_of(None, None, 20.0) | {"solve_threshold": 475.0}
     table = markdown_table({"a": [held, dropped, never], "b": [held]}, label="config")
     assert "| a | 2/3 (1 not held) |" in table and "| b | 1/1 |" in table
+
+
+def test_a_run_of_an_env_without_a_solve_threshold_is_read(tmp_path):
+    """An own env has no threshold: its summary says ``solve_threshold: null``, as training
+    wrote it, and the comparison reads it (the solved column counts none)."""
+    from trl_cartpole.tools.comparison import read_summary
+
+    run_dir = _fake_run(tmp_path, "my_env-seed0", 0, 1e-3, None)
+    path = run_dir / "summary.json"
+    path.write_text(json.dumps(json.loads(path.read_text()) | {"solve_threshold": None}))
+    summary = read_summary(path)
+    assert summary["solve_threshold"] is None
+    assert "| runs | 0/1 | not solved |" in markdown_table({"runs": [summary]}, label="config")

@@ -163,7 +163,7 @@ def load_runs(run_dirs: Sequence[Path]) -> list[dict[str, Any]]:
 _NUMBER = (int, float)
 SUMMARY_FIELDS: dict[str, tuple[type, ...]] = {
     "solved": (bool,),
-    "solve_threshold": _NUMBER,
+    "solve_threshold": (*_NUMBER, type(None)),  # None: an env with no threshold
     "frames_to_solve": (int, type(None)),
     "seconds_to_solve": (*_NUMBER, type(None)),
     "final_eval_return_mean": _NUMBER,
