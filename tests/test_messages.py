@@ -271,3 +271,35 @@ def test_the_ending_names_the_variant_the_run_trained(overrides, label):
     assert variant_label(to_config(compose_config(overrides=overrides))) == label
     summary = _summary("MountainCar-v0", solved=True) | {"variant": label}
     assert verdict(summary).startswith(f"MountainCar-v0 [{label}, seed 0]: ")
+
+
+def _interrupt(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def test_ctrl_c_before_the_first_checkpoint_says_there_is_nothing_to_resume(
+    tmp_path, monkeypatch, capsys
+):
+    """A Ctrl-C while torch still imports, before the run directory exists: no resume command
+    that would fail (or resume another run through runs/latest)."""
+    import trl_cartpole.run.training as training
+    from trl_cartpole.cli.main import main
+
+    monkeypatch.setattr(training, "train", _interrupt)
+    assert main(["train", f"run_dir={tmp_path / 'new'}"]) == 130
+    said = capsys.readouterr().err
+    assert "nothing to resume" in said and "resume=" not in said
+
+
+def test_ctrl_c_after_a_checkpoint_names_the_run_directory_to_resume(tmp_path, monkeypatch, capsys):
+    import trl_cartpole.run.training as training
+    import trl_cartpole.store.checkpoint as checkpoint
+    from trl_cartpole.cli.main import main
+
+    run_dir = tmp_path / "run"
+    (run_dir / "checkpoints" / "last").mkdir(parents=True)
+    (run_dir / "checkpoints" / "last" / checkpoint.INTEGRITY).write_text("{}")
+    monkeypatch.setattr(training, "train", _interrupt)
+    assert main(["train", f"run_dir={run_dir}"]) == 130
+    said = capsys.readouterr().err
+    assert f"resume={run_dir}" in said and "checkpoint is intact" in said

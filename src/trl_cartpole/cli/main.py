@@ -132,11 +132,7 @@ def run_cli(main: Callable[[list[str]], Any], argv: Sequence[str] | None = None)
         )
         return EXIT_DISK_FULL
     except KeyboardInterrupt:
-        print(
-            "interrupted outside a safe point: exited at once; the newest complete "
-            f"checkpoint is intact ({command('train')} resume=RUN_DIR)",
-            file=sys.stderr,
-        )
+        print("interrupted: exited at once", file=sys.stderr)
         return EXIT_KEYBOARD_INTERRUPT
     return 0
 

@@ -15,6 +15,8 @@ examples:
 
 from __future__ import annotations
 
+import signal
+import sys
 from pathlib import Path
 
 from trl_cartpole.cli.main import freeze_imported_objects, split_resume
@@ -23,6 +25,7 @@ from trl_cartpole.config.help import print_train_help, wants_help
 from trl_cartpole.config.presets import PRESETS_DIR, preset_dirs
 from trl_cartpole.config.schema import Config, to_config
 from trl_cartpole.config.validation import validate
+from trl_cartpole.errors import TrainingInterrupted
 from trl_cartpole.report.console import command, ending, shown_path, verdict
 
 
@@ -49,12 +52,31 @@ def main(argv: list[str]) -> None:
             overrides = [f"run_dir={run_dir_of(checkpoint)}", *overrides]
         print(f"resuming from {checkpoint}", flush=True)
         cfg = resume_config(checkpoint, overrides)
-    from trl_cartpole.run.training import train
+    try:
+        from trl_cartpole.run.training import train
 
-    freeze_imported_objects()
-    summary = train(cfg, resume=checkpoint)
+        freeze_imported_objects()
+        summary = train(cfg, resume=checkpoint)
+    except KeyboardInterrupt:  # outside the loop's safe points: nothing was saved just now
+        raise TrainingInterrupted(_interrupted(Path(cfg.run_dir)), signal.SIGINT) from None
     run_cfg = to_config(cfg)
     print(ending(summary, overrides, run_cfg.logger.plots, run_cfg.env.from_pixels))
+
+
+def _interrupted(run_dir: Path) -> str:
+    """What a Ctrl-C outside the loop's safe points leaves: the resume command where the run
+    directory holds a complete training state, else that there is nothing to resume."""
+    checkpoints = sys.modules.get("trl_cartpole.store.checkpoint")  # loaded once training is
+    if (
+        checkpoints is not None
+        and run_dir.is_dir()
+        and checkpoints.find_complete_checkpoints(run_dir)
+    ):
+        return (
+            "interrupted outside a safe point: exited at once; its newest complete checkpoint "
+            f"is intact: {command('train')} resume={shown_path(run_dir)}"
+        )
+    return "interrupted before the run saved a checkpoint: nothing to resume; run it again"
 
 
 def _sweep(argv: list[str]) -> None:
