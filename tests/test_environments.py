@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -319,3 +320,10 @@ def test_an_env_class_in_the_folder_the_command_runs_from_is_found(tmp_path, mon
     monkeypatch.delitem(sys.modules, "my_corridor_env", raising=False)
     assert resolve_env_id("my_corridor_env:Corridor") == "my_corridor_env.Corridor"
     assert isinstance(gym.make("my_corridor_env.Corridor").observation_space, gym.spaces.Box)
+
+
+def test_a_run_of_an_env_class_is_named_without_a_colon(compose):
+    """``env.id=my_module:MyEnv`` gives ``runs/my_module-MyEnv-dqn-seed0-<time>``: no ``:``,
+    which some shells, tools and file systems take for something else."""
+    name = Path(str(compose("env.id=corridor:Corridor").run_dir)).name
+    assert name.startswith("corridor-Corridor-dqn-seed0-") and ":" not in name

@@ -312,8 +312,10 @@ if not OmegaConf.has_resolver("now"):
 
 def _run_env(_root_: Any) -> str:
     """``${run_env:}``: the env id a run directory is named after, ``-pixels`` added for a
-    pixel run, a namespace's ``/`` written ``-`` (``ALE-Breakout-v5``: one directory)."""
-    return f"{_root_.env.id}{'-pixels' if _root_.env.from_pixels else ''}".replace("/", "-")
+    pixel run, a namespace's ``/`` and a module's ``:`` written ``-`` (``ALE-Breakout-v5``,
+    ``my_module-MyEnv``: one directory, a name every shell and file system takes)."""
+    name = f"{_root_.env.id}{'-pixels' if _root_.env.from_pixels else ''}"
+    return name.replace("/", "-").replace(":", "-")
 
 
 if not OmegaConf.has_resolver("run_env"):
