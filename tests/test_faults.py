@@ -705,8 +705,15 @@ def test_a_directory_without_a_best_policy_is_one_line_naming_what_to_pass(
     shutil.copytree(finished_run, no_best)
     shutil.rmtree(no_best / "checkpoints" / "best")
     last = no_best / "checkpoints" / "last"
+    # a short run stopped before its first evaluation holds a periodic training state only
+    periodic_only = tmp_path / "short"
+    shutil.copytree(no_best, periodic_only)
+    periodic = periodic_only / "checkpoints" / "periodic" / "frames-000300"
+    periodic.parent.mkdir(exist_ok=True)
+    shutil.move(periodic_only / "checkpoints" / "last", periodic)
     cases = [
-        (no_best, f"has no best policy (no evaluation ran); pass checkpoint={last}"),
+        (no_best, f"has no best policy yet (no evaluation ran); pass checkpoint={last} for"),
+        (periodic_only, f"pass checkpoint={periodic} for the policy of its newest training state"),
         (tmp_path, "is neither a checkpoint nor a run directory"),
     ]
     output = tmp_path / ("policy.pt2" if script == "export.py" else "out.gif")

@@ -135,6 +135,10 @@ def test_best_checkpoint_loads_and_evaluates(smoke_run, compose):
     assert report["episodes"] == 7 == len(report["returns"])
     assert min(report["returns"]) == report["min"] and max(report["returns"]) == report["max"]
     assert "greedy return over 7 episodes" in proc.stdout
+    # without episodes=: as many as the run's own final evaluation (eval.final_episodes=4)
+    proc = run_script("evaluate.py", str(run_dir), f"output={out}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(out.read_text())["episodes"] == 4
 
 
 @pytest.mark.slow  # two runs

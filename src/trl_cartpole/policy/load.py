@@ -24,6 +24,7 @@ from trl_cartpole.run.evaluation import EvalResult
 from trl_cartpole.run.from_config import build_actor, build_env
 from trl_cartpole.run.judging import Judge
 from trl_cartpole.store.checkpoint import (
+    find_complete_checkpoints,
     load_policy,
     read_checkpoint_config,
     read_observation_norm,
@@ -54,10 +55,11 @@ def policy_checkpoint(path: str | Path) -> Path:
         return path  # a checkpoint, or a path whose reading says what is wrong with it
     if (checkpoints / "best" / "manifest.json").is_file():
         return checkpoints / "best"
-    if (checkpoints / "last" / "manifest.json").is_file():
+    states = find_complete_checkpoints(path)  # periodic and end-of-run training states
+    if states:
         raise ConfigError(
-            f"checkpoint={str(path)!r} has no best policy (no evaluation ran); pass "
-            f"checkpoint={checkpoints / 'last'} for its last one"
+            f"checkpoint={str(path)!r} has no best policy yet (no evaluation ran); pass "
+            f"checkpoint={states[-1]} for the policy of its newest training state"
         )
     raise ConfigError(
         f"checkpoint={str(path)!r} is neither a checkpoint nor a run directory with "

@@ -1,10 +1,12 @@
 """Evaluate a trained policy greedily over many episodes.
 
-usage: trl-cartpole evaluate [checkpoint=]RUN_DIR [episodes=100] [seed=N] [epsilon=0.0]
+usage: trl-cartpole evaluate [checkpoint=]RUN_DIR [episodes=N] [seed=N] [epsilon=0.0]
 
 RUN_DIR is the directory training printed (its best policy is evaluated) or one checkpoint
-in it (runs/.../checkpoints/last). Prints mean, std, min and max of the episode returns and
-writes them all as JSON beside the checkpoint (checkpoints/evaluation-best.json for best).
+in it (runs/.../checkpoints/last). It plays as many episodes as the run's final evaluation
+did (eval.final_episodes: 100 on CartPole, 30 whole games on Breakout) unless told. Prints
+mean, std, min and max of the episode returns and writes them all as JSON beside the
+checkpoint (checkpoints/evaluation-best.json for best).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from trl_cartpole.store.files import check_checkpoint_exists
 @dataclass
 class EvaluateArgs:
     checkpoint: str = "???"  # a run directory (its checkpoints/best) or a checkpoint directory
-    episodes: int = 100  # greedy episodes, stepped together
+    # greedy episodes, stepped together; null: the run's final evaluation's (eval.final_episodes)
+    episodes: int | None = None
     seed: int | None = None  # null: the seeds of the run's own final evaluation
     output: str | None = None  # JSON file; null: evaluation-<checkpoint>.json beside it
     epsilon: float = 0.0  # probability of a random action instead of the greedy one
@@ -31,9 +34,10 @@ class EvaluateArgs:
 def main(argv: list[str]) -> None:
     args = parse_args(EvaluateArgs, argv, __doc__, command("evaluate"), positional="checkpoint")
     check_checkpoint_exists(args.checkpoint)  # every check before the heavy imports below
-    if args.episodes < 1:
-        raise ConfigError(f"episodes={args.episodes} must be >= 1")
-    check_envs_at_once("episodes", args.episodes)  # the episodes are stepped together
+    if args.episodes is not None:
+        if args.episodes < 1:
+            raise ConfigError(f"episodes={args.episodes} must be >= 1")
+        check_envs_at_once("episodes", args.episodes)  # the episodes are stepped together
     check_seed("seed", args.seed)
     if not 0.0 <= args.epsilon <= 1.0:
         raise ConfigError(f"epsilon={args.epsilon} must lie in [0, 1]")
@@ -41,19 +45,21 @@ def main(argv: list[str]) -> None:
     from trl_cartpole.policy.load import evaluate_checkpoint, policy_checkpoint
     from trl_cartpole.report.progress_bar import clear_status, show_status
     from trl_cartpole.run.judging import cut_episodes_note
+    from trl_cartpole.store.checkpoint import read_checkpoint_config
     from trl_cartpole.store.files import write_json_atomic
 
     checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
-    playing = f"playing {args.episodes} episodes of {checkpoint}"
+    episodes = args.episodes or read_checkpoint_config(checkpoint).eval.final_episodes
+    playing = f"playing {episodes} episodes of {checkpoint}"
 
     def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
-        if played < args.episodes:
+        if played < episodes:
             show_status(f"{playing} ({played} played)")
 
     show_status(playing)
     try:
         result, cfg = evaluate_checkpoint(
-            checkpoint, args.episodes, args.seed, args.epsilon, on_turn=show_played
+            checkpoint, episodes, args.seed, args.epsilon, on_turn=show_played
         )
     finally:
         clear_status()
