@@ -4,7 +4,7 @@
         [--record docs/results/atari_breakout.json]
     python -m benchmarks atari --env-speed [--steps 2000] [env.id=ALE/Breakout-v5]
 
-``--checkpoint``: the run's kept policy, exported as ``scripts/export.py`` does to
+``--checkpoint``: the run's best policy, exported as ``scripts/export.py`` does to
 ``OUT/policy.pt2`` (``torch.export``), plays ``--games`` whole games (game i seeded
 ``--seeds``' first + i, the same games for every run) of the run's game in a loop of
 Gymnasium's own: ``gymnasium.make(id, frameskip=1, <the run's env.make_kwargs>)``,

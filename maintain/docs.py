@@ -31,7 +31,7 @@ wrote, never from a hand copy:
 - ``atari-taper-ablation`` (docs/atari.md): the fourth form trained on the fifth form's seeds for
   as many steps, from ``docs/results/atari_breakout_no_taper.json`` (the same command), each
   seed beside its tapered run;
-- ``atari-loop-gap`` (docs/atari.md): the kept policies in Gymnasium's loop against their runs'
+- ``atari-loop-gap`` (docs/atari.md): the best policies in Gymnasium's loop against their runs'
   own final evaluations, over the tables of ``atari-runs``;
 - ``atari-loop-seeds``, ``atari-100k``, ``atari-torchrl-settings`` (docs/atari.md): kept
   policies over 100 games of Gymnasium's loop, the Atari-100k runs beside published means, and
@@ -372,7 +372,7 @@ def lunarlander_in_budget() -> str:
     """docs/performance.md's LunarLander runs stopped after a few minutes of training, seed
     by seed, from ``docs/results/lunarlander_300s.json`` (``python -m benchmarks envs --envs
     lunarlander ... collector.max_train_seconds=300 --record`` writes it), with the verdict of
-    its target: every seed's kept policy at or above 200 over 100 episodes in the budget."""
+    its target: every seed's best policy at or above 200 over 100 episodes in the budget."""
     from benchmarks.harness import ENV_TARGETS, LUNARLANDER_BUDGET_SECONDS
 
     record = json.loads(LUNARLANDER_IN_BUDGET.read_text())
@@ -387,7 +387,7 @@ def lunarlander_in_budget() -> str:
     return _results_block(
         record,
         _seed_rows(runs, target),
-        f"Target (every seed's kept policy >= {target:g} over 100 episodes within "
+        f"Target (every seed's best policy >= {target:g} over 100 episodes within "
         f"{LUNARLANDER_BUDGET_SECONDS:g} s of training): {verdict}; {len(met)} of the "
         f"{len(runs)} seeds reach it.",
     )
@@ -445,7 +445,7 @@ def _recorded_atari_forms() -> list[tuple[str, str, dict]]:
 
 def atari_taper_ablation() -> str:
     """docs/atari.md's table of the fourth form (no taper) trained on the fifth form's seeds
-    (:data:`ATARI_NO_TAPER`), and a sentence setting each seed's kept policy beside its
+    (:data:`ATARI_NO_TAPER`), and a sentence setting each seed's best policy beside its
     tapered run's (:data:`ATARI_TAPERED`): the same seed, the same steps, the taper alone."""
     if not ATARI_NO_TAPER.is_file():
         return "Not measured yet."
@@ -462,7 +462,7 @@ def atari_taper_ablation() -> str:
             f"{_spaced(run['updates'])} updates and {with_taper['final_eval_return_mean']:.1f} "
             f"with it after {_spaced(with_taper['updates'])}"
         )
-    comparison = f"The kept policies over 30 whole games: {'; '.join(pairs)}." if pairs else ""
+    comparison = f"The best policies over 30 whole games: {'; '.join(pairs)}." if pairs else ""
     return _results_block(record, rows, comparison)
 
 
@@ -476,7 +476,7 @@ def atari_100k() -> str:
     authors = list(dict.fromkeys(name for means in ATARI_100K_PUBLISHED.values() for name in means))
     rows = [
         "| game | seed | agent steps | train time | greedy score at each evaluation | "
-        "kept policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
+        "best policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
         + " | ".join(f"{name}, published" for name in authors)
         + " |",
         "| --- " * (8 + len(authors)) + "|",
@@ -513,7 +513,7 @@ def _atari_100k_runs(record: dict) -> list[dict]:
 
 
 def atari_loop_seeds() -> str:
-    """docs/atari.md's table of kept policies over many games of Gymnasium's loop
+    """docs/atari.md's table of best policies over many games of Gymnasium's loop
     (:data:`ATARI_LOOP_SEEDS`): its first :data:`ATARI_LOOP_FIRST_GAMES` games, the games of the
     recipe's tables, against the games after them, and the run's own final evaluation on its own
     games; each difference with its standard error (from the games' spreads)."""
@@ -554,7 +554,7 @@ def atari_loop_seeds() -> str:
 
 def atari_loop_gap() -> str:
     """docs/atari.md's sentence on the recipe's tables (:data:`ATARI_RECORDS`): on how many
-    seeds the kept policy scores higher in Gymnasium's loop than in the run's own final
+    seeds the best policy scores higher in Gymnasium's loop than in the run's own final
     evaluation, by how much (the median and range), and the seeds that score lower."""
     runs = [run for _, _, record in _recorded_atari_forms() for run in record["runs"]]
     gaps = [run["plain_loop"]["mean"] - run["final_eval_return_mean"] for run in runs]
@@ -567,7 +567,7 @@ def atari_loop_gap() -> str:
     largest = runs[gaps.index(max(gaps))]
     span = f"by {higher[0]:.1f} to {higher[-1]:.1f} points, " if higher else ""
     return (
-        "Exported into Gymnasium's own loop, the kept policies score higher than in the run's "
+        "Exported into Gymnasium's own loop, the best policies score higher than in the run's "
         f"own final evaluation on {len(higher)} of the {len(runs)} seeds of these tables "
         f"({span}a median of {statistics.median(gaps):+.1f} over all of them; "
         f"{'lower or level: seed ' + ', '.join(lower) if lower else 'none lower'}; the largest "
@@ -598,7 +598,7 @@ def atari_torchrl_settings() -> str:
 
 def readme_atari() -> str:
     """The README's Breakout sentence: each seed of the preset's form of the recipe
-    (:data:`ATARI_PRESET_FORM`), its kept policy's 30 games and the same policy in Gymnasium's
+    (:data:`ATARI_PRESET_FORM`), its best policy's 30 games and the same policy in Gymnasium's
     loop."""
     whose, runs = next(
         (
@@ -622,7 +622,7 @@ def readme_atari() -> str:
         f"{met} of the {ATARI_TARGET['seeds']} seeds the target needs reach the Practical RL "
         f"DQN assignment's {ATARI_TARGET['score']:g} within its time and memory"
         f"{' so far' if len(runs) < ATARI_TARGET['seeds'] else ''}. Gymnasium's loop plays the "
-        f"same {ATARI_LOOP_FIRST_GAMES} games for every seed; for the kept policies of seeds "
+        f"same {ATARI_LOOP_FIRST_GAMES} games for every seed; for the best policies of seeds "
         f"{min(measured)} to {max(measured)} they score about {statistics.median(kinder):.1f} "
         "points above other games."
         f"{_readme_atari_100k()}"
@@ -643,12 +643,12 @@ def _readme_atari_100k() -> str:
         )
     return (
         " On the Atari-100k protocol (100 000 steps, no sticky actions), one seed a game, the "
-        f"kept policy (chosen among the run's evaluations) scores {' and '.join(games)}."
+        f"best policy (chosen among the run's evaluations) scores {' and '.join(games)}."
     )
 
 
 def _meets_atari_target(run: dict) -> bool:
-    """Whether one run's kept policy meets :data:`ATARI_TARGET`'s score, time and memory."""
+    """Whether one run's best policy meets :data:`ATARI_TARGET`'s score, time and memory."""
     return (
         run["final_eval_return_mean"] >= ATARI_TARGET["score"]
         and run["train_seconds"] <= ATARI_TARGET["train_seconds"] + ATARI_TIME_SLACK_SECONDS
@@ -660,7 +660,7 @@ def _atari_table(record: dict) -> tuple[list[str], str]:
     """One record's rows and its verdict on :data:`ATARI_TARGET`."""
     rows = [
         "| seed | agent steps | updates | train time | greedy score at each evaluation | "
-        "kept policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
+        "best policy (steps) | final: 30 games | exported, in Gymnasium's loop: 30 games | "
         "collecting: steps/s; updates/s | peak memory, MiB |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
@@ -680,7 +680,7 @@ def _atari_table(record: dict) -> tuple[list[str], str]:
     seeds = ATARI_TARGET["seeds"]
     met = len(meeting) == len(record["runs"]) >= seeds
     verdict = (
-        f"Target ({seeds} seeds, every one's kept policy >= {ATARI_TARGET['score']:g} over 30 "
+        f"Target ({seeds} seeds, every one's best policy >= {ATARI_TARGET['score']:g} over 30 "
         f"whole games within {ATARI_TARGET['train_seconds'] // 3600} hours of training and "
         f"{ATARI_TARGET['peak_rss_mb'] // 1024} GiB): {'met' if met else '**not met**'}; "
         f"{len(meeting)} of the {len(record['runs'])} seeds run here meet it"

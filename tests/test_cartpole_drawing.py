@@ -25,8 +25,8 @@ from trl_cartpole.config.validation import validate
 from trl_cartpole.envs.cartpole_drawing import DrawCartPole, draw_cartpole, render_cartpole
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.run.envs import make_pixel_env, rendered_envs
+from trl_cartpole.run.eval_protocol import EvalProtocol
 from trl_cartpole.run.from_config import build_actor
-from trl_cartpole.run.judging import Judge
 
 CROP = (120, 320, None, None)  # the preset's band of rows
 
@@ -173,17 +173,17 @@ def test_a_batch_of_drawn_envs_is_one_vector_env_and_evaluation_uses_gymnasiums_
     assert "observation" not in env.observation_spec.keys()  # noqa: SIM118 (a spec)
     frames = env.reset()["pixels"]  # [8, 3, 20, 60]
     assert frames.shape == (8, 3, 20, 60) and frames.float().std() > 0
-    built = []  # (envs, envs painted by Gymnasium's calls) of each judging env
+    built = []  # (envs, envs painted by Gymnasium's calls) of each evaluation env
 
-    class RecordingJudge(Judge):
+    class RecordingProtocol(EvalProtocol):
         def make_envs(self, seed, count):
-            judged = super().make_envs(seed, count)
-            (draw,) = [t for t in judged.transform if isinstance(t, DrawCartPole)]
-            built.append((judged.batch_size.numel(), draw.rendered))
-            return judged
+            evaluated = super().make_envs(seed, count)
+            (draw,) = [t for t in evaluated.transform if isinstance(t, DrawCartPole)]
+            built.append((evaluated.batch_size.numel(), draw.rendered))
+            return evaluated
 
-    judge = RecordingJudge(**vars(Judge.from_config(cfg)))
-    result = judge.play(build_actor(cfg, env), seed=3, episodes=2)
+    protocol = RecordingProtocol(**vars(EvalProtocol.from_config(cfg)))
+    result = protocol.play(build_actor(cfg, env), seed=3, episodes=2)
     assert built == [(2, 2)] and len(result.returns) == 2  # one drawn env, every frame rendered
 
 

@@ -127,7 +127,7 @@ def test_the_ending_never_says_solved_when_the_final_check_missed():
     assert "the best policy of 42 evaluations" in met
     scores = [{"frames": 1024, "eval_return_mean": 500.0, "replay_return_mean": 480.0}] * 3
     kept = verdict(_summary(candidates=scores))
-    assert "the kept policy (of the 3 best of 42 evaluations, the best over new episodes) " in kept
+    assert "the best policy (of the 3 best of 42 evaluations, the best over new episodes) " in kept
 
 
 def test_the_ending_of_an_unsolved_run_and_of_an_env_without_threshold():

@@ -155,7 +155,7 @@ def test_the_loop_gap_sentence_counts_every_form_of_the_recipe(tmp_path, monkeyp
     monkeypatch.setattr(docs, "ATARI_RECORDS", tuple(records))
     # differences: +2.6, -1.0, 0.0, +4.0 -> 2 higher, median (0.0 + 2.6) / 2 = 1.3
     assert docs.atari_loop_gap() == (
-        "Exported into Gymnasium's own loop, the kept policies score higher than in the run's "
+        "Exported into Gymnasium's own loop, the best policies score higher than in the run's "
         "own final evaluation on 2 of the 4 seeds of these tables (by 2.6 to 4.0 points, a "
         "median of +1.3 over all of them; lower or level: seed 2 by 1.0, 3 level; the largest "
         "seed 4's, 13.0 against 9.0)."
@@ -228,6 +228,6 @@ def test_the_taper_ablation_sets_each_seed_beside_its_tapered_run(tmp_path, monk
     generated = docs.atari_taper_ablation()
     assert "| 8 | 2 608 | 1 000 |" in generated  # every untapered seed has its row
     assert generated.endswith(
-        "The kept policies over 30 whole games: seed 7, 12.3 without the taper after 198 392 "
+        "The best policies over 30 whole games: seed 7, 12.3 without the taper after 198 392 "
         "updates and 18.0 with it after 198 392."
     )

@@ -217,7 +217,7 @@ def test_a_run_stopped_in_its_ending_finishes_on_resume(
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         resumed = train(resume_config(checkpoint, [f"run_dir={stopped}"]), resume=checkpoint)
-    # the same evaluations, kept policy and final games, and no frame collected again
+    # the same evaluations, best policy and final games, and no frame collected again
     assert _comparable(resumed) == _comparable(expected)
     # saved again before a write: TorchRL's "last_cursor is None" once warned here
     assert not [w for w in caught if "last_cursor" in str(w.message)]

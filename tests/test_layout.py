@@ -166,7 +166,7 @@ def test_no_function_of_the_package_is_longer_than_80_lines():
 
 
 # What runs after the build gets its values from the builder, never from the config.
-AFTER_THE_BUILD = ("summary", "kept_policy", "checkpointer", "learner", "evaluation", "history")
+AFTER_THE_BUILD = ("summary", "best_policy", "checkpointer", "learner", "evaluation", "history")
 
 
 def test_nothing_after_the_build_reads_the_config():

@@ -225,8 +225,8 @@ def test_the_next_commands_carry_the_pythonpath_the_run_needed(monkeypatch):
 
 
 def test_an_episode_cut_at_eval_max_steps_is_said():
+    from trl_cartpole.run.eval_protocol import cut_episodes_note
     from trl_cartpole.run.evaluation import EvalResult
-    from trl_cartpole.run.judging import cut_episodes_note
 
     whole = EvalResult(returns=[9.0, 20.0], lengths=[9, 20], initial_values=[0.0, 0.0])
     assert cut_episodes_note(whole, max_steps=50) is None

@@ -19,8 +19,8 @@ from trl_cartpole.errors import ConfigError
 from trl_cartpole.policy.load import evaluate_checkpoint, load_trained_policy
 from trl_cartpole.run import resources
 from trl_cartpole.run.build import build_components
+from trl_cartpole.run.eval_protocol import EvalProtocol
 from trl_cartpole.run.from_config import build_actor, build_env, build_replay_buffer, run_title
-from trl_cartpole.run.judging import Judge
 from trl_cartpole.run.resources import run_memory_need
 from trl_cartpole.run.training import train
 
@@ -127,13 +127,15 @@ def test_a_short_pixel_run_trains_evaluates_and_resumes(tmp_path):
     trained.env.close()
     sizes = []
 
-    class CountingJudge(Judge):
+    class CountingProtocol(EvalProtocol):
         def make_envs(self, seed, count):
             sizes.append(count)
             return super().make_envs(seed, count)
 
-    judge = CountingJudge(**vars(Judge.from_config(trained.cfg)) | {"pixel_envs_at_once": 2})
-    result = judge.play(trained.actor, judge.seed_for("final"), 5)
+    protocol = CountingProtocol(
+        **vars(EvalProtocol.from_config(trained.cfg)) | {"pixel_envs_at_once": 2}
+    )
+    result = protocol.play(trained.actor, protocol.seed_for("final"), 5)
     assert sizes == [2, 2, 1] and len(result.returns) == len(result.lengths) == 5
     result, _ = evaluate_checkpoint(run_dir, episodes=5)  # the script's path: 20 at a time
     assert len(result.returns) == 5
@@ -146,13 +148,13 @@ def _drawn_envs(env) -> tuple[int, int]:
     return env.batch_size.numel(), draw.rendered
 
 
-def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_path, compose):
-    judged = []  # the envs the end of the run judges on: the candidates, then the final
+def test_a_drawn_run_learns_on_its_share_and_is_evaluated_on_gymnasiums_frames(tmp_path, compose):
+    evaluated = []  # the envs the end of the run evaluates on: the candidates, then the final
 
-    class RecordingJudge(Judge):
+    class RecordingProtocol(EvalProtocol):
         def make_envs(self, seed, count):
             env = super().make_envs(seed, count)
-            judged.append(_drawn_envs(env))
+            evaluated.append(_drawn_envs(env))
             return env
 
     built = {}
@@ -162,7 +164,7 @@ def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_
         built["training"], built["periodic"] = map(
             _drawn_envs, (components.env, components.eval_env)
         )
-        components.judge = RecordingJudge(**vars(components.judge))
+        components.protocol = RecordingProtocol(**vars(components.protocol))
         return components
 
     overrides = ["env.num_envs=4", "env.pixels_rendered_share=0.5", "eval.episodes=3"]
@@ -170,14 +172,14 @@ def test_a_drawn_run_learns_on_its_share_and_is_judged_on_gymnasiums_frames(tmp_
     assert built["training"] == (4, 2)  # 2 of its 4 envs painted by Gymnasium's calls
     # the periodic evaluations and the candidates' new episodes (which choose the policy to
     # keep) and the final evaluation: every frame
-    assert built["periodic"] == (3, 3) and judged == [(2, 2), (2, 2), (2, 2)]
+    assert built["periodic"] == (3, 3) and evaluated == [(2, 2), (2, 2), (2, 2)]
 
 
 def test_periodic_evaluations_hold_no_more_pixel_envs_than_the_final_one(compose):
     cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "eval.episodes=5", "eval.max_steps=5")))
     actor = build_actor(cfg, build_env(cfg, seed=0))
-    judge = replace(Judge.from_config(cfg), pixel_envs_at_once=2)
-    periodic = judge.periodic()
+    protocol = replace(EvalProtocol.from_config(cfg), pixel_envs_at_once=2)
+    periodic = protocol.periodic()
     try:
         assert _drawn_envs(periodic.env) == (2, 2)  # one env of 2, kept for the run
         first, second = periodic.play(actor), periodic.play(actor)
@@ -241,9 +243,11 @@ def test_a_budget_that_ends_before_the_first_update_is_warned_in_one_line(compos
 def test_the_final_evaluation_of_pixels_says_how_many_episodes_it_played(compose):
     cfg = validate(to_config(compose(*TINY_PIXEL_RUN, "eval.max_steps=5")))
     actor = build_actor(cfg, build_env(cfg, seed=0))
-    judge = replace(Judge.from_config(cfg), pixel_envs_at_once=2)  # turns of 2: 2, 4, 5 episodes
+    protocol = replace(
+        EvalProtocol.from_config(cfg), pixel_envs_at_once=2
+    )  # turns of 2: 2, 4, 5 episodes
     played = []
-    result = judge.play(actor, seed=0, episodes=5, on_turn=played.append)
+    result = protocol.play(actor, seed=0, episodes=5, on_turn=played.append)
     assert played == [2, 4, 5] and len(result.returns) == 5
 
 

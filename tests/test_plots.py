@@ -65,7 +65,7 @@ def test_duration_plot_names_each_curve_and_shows_the_final_evaluation():
     assert labels[1].startswith("mean of the last 100 training episodes") and "lags" in labels[1]
     assert labels[2] == "greedy evaluation (mean of 20 episodes, no exploration)"
     assert "solved (475)" in labels
-    assert "final: kept policy, 100 new episodes: 499.5 +/- 1.2" in labels
+    assert "final: best policy, 100 new episodes: 499.5 +/- 1.2" in labels
     assert ax.get_xlabel() and ax.get_ylabel()
 
 

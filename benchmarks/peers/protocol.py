@@ -19,8 +19,8 @@ import torch
 
 from trl_cartpole.envs.ids import solve_threshold
 from trl_cartpole.parts.env import make_sync_vector_env
+from trl_cartpole.run.eval_protocol import evaluation_seed
 from trl_cartpole.run.evaluation import EvalResult, Evaluator, play_greedy_episodes
-from trl_cartpole.run.judging import evaluation_seed
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.summary import run_summary
 from trl_cartpole.store.files import write_json_atomic

@@ -88,7 +88,7 @@ class EnvConfig:
     pixels_renderer: str = "gymnasium"
     # drawn only: this share of each drawn batch's envs (its first share * num_envs, rounded
     # up) shows Gymnasium's own picture instead (its pygame calls, about 0.4 ms a frame), so
-    # the network also learns the frames it is judged on; 1.0: every frame Gymnasium's
+    # the network also learns the frames it is evaluated on; 1.0: every frame Gymnasium's
     pixels_rendered_share: float = 0.0
     # An Atari game (env.id=ALE/...) is learnt from its screen, preprocessed as configured here
     atari: AtariConfig = field(default_factory=AtariConfig)

@@ -18,7 +18,7 @@ reads it. :func:`render_cartpole` gives the exact frame: Gymnasium's own drawing
 (:class:`CartPoleCanvas`, about 0.4 ms a frame).
 :class:`DrawCartPole` is the TorchRL transform that draws a state env's observation; its
 ``rendered`` first envs are rendered by Gymnasium instead, so a network trained on it also
-sees the frames it is judged on.
+sees the frames it is evaluated on.
 """
 
 from __future__ import annotations

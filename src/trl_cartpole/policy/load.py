@@ -20,9 +20,9 @@ from trl_cartpole.config.schema import Config
 from trl_cartpole.errors import ConfigError
 from trl_cartpole.report.console import quiet_libraries
 from trl_cartpole.run.env_kind import EnvKind
+from trl_cartpole.run.eval_protocol import EvalProtocol
 from trl_cartpole.run.evaluation import EvalResult
 from trl_cartpole.run.from_config import build_actor, build_env
-from trl_cartpole.run.judging import Judge
 from trl_cartpole.store.checkpoint import (
     find_complete_checkpoints,
     load_policy,
@@ -86,11 +86,11 @@ def load_trained_policy(
     verify_checkpoint(path)  # before its config names modules to import and envs to build
     cfg = read_checkpoint_config(path)
     if seed is None:  # the final evaluation's episodes
-        seed = Judge.from_config(cfg).seed_for("final")
+        seed = EvalProtocol.from_config(cfg).seed_for("final")
     cfg.device = "cpu"  # a policy trained on a GPU is loaded for this machine's CPU
     kind = EnvKind(cfg.env)
     # a trained policy plays on Gymnasium's own picture; a video records its own render()
-    cfg.env = kind.judged() if render_mode is None else kind.recorded()
+    cfg.env = kind.evaluation_env() if render_mode is None else kind.recorded()
     with quiet_libraries():  # no TorchRL INFO lines (spec checks) from a library call
         env = build_env(cfg, seed, num_envs, read_observation_norm(path), render_mode)
     actor = load_policy(path, build_actor(cfg, env))
@@ -111,8 +111,8 @@ def evaluate_checkpoint(
     trained = load_trained_policy(checkpoint, num_envs=1, seed=seed)  # the actor, its config
     trained.env.close()
     cfg = trained.cfg
-    judge = Judge.from_config(cfg, read_observation_norm(trained.checkpoint))
-    seed = judge.seed_for("final") if seed is None else seed
+    protocol = EvalProtocol.from_config(cfg, read_observation_norm(trained.checkpoint))
+    seed = protocol.seed_for("final") if seed is None else seed
     with quiet_libraries():
-        result = judge.play(trained.actor, seed, episodes, epsilon, on_turn=on_turn)
+        result = protocol.play(trained.actor, seed, episodes, epsilon, on_turn=on_turn)
     return result, OmegaConf.to_container(OmegaConf.structured(cfg))

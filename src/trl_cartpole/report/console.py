@@ -157,7 +157,7 @@ def shown_path(path: str | Path) -> str:
 
 def verdict(summary: dict[str, Any]) -> str:
     """One line: env, the algorithm (its preset and the switches the run changed) and seed, then
-    solved or not and the kept policy's final check."""
+    solved or not and the best policy's final check."""
     label = summary.get("variant") or summary["algo"]
     return f"{summary['env_id']} [{label}, seed {summary['seed']}]: {_outcome(summary)}"
 
@@ -169,7 +169,7 @@ def _outcome(summary: dict[str, Any]) -> str:
     candidates = summary.get("candidates")
     if candidates:  # eval.candidates: the best few played again, the best over those kept
         kept = (
-            f"the kept policy (of the {len(candidates)} best of {evaluations} evaluations, the "
+            f"the best policy (of the {len(candidates)} best of {evaluations} evaluations, the "
             "best over new episodes)"
         )
     final = (

@@ -77,7 +77,7 @@ class LearningCurves:
     eval_returns: Sequence[float]  # its mean return over eval.episodes episodes
     threshold: float | None = None  # the solve threshold (475 on CartPole-v1), if any
     eval_episodes: int | None = None  # episodes per periodic evaluation, for the label
-    final: FinalEvaluation | None = None  # the kept policy's final evaluation, once run
+    final: FinalEvaluation | None = None  # the best policy's final evaluation, once run
     return_label: str = "Episode return"  # the y axis (CartPole's: "its length")
 
 
@@ -123,7 +123,7 @@ def draw_durations(ax, curves: LearningCurves, title: str = "") -> None:
             capsize=5,
             color="tab:red",
             zorder=5,
-            label=f"final: kept policy, {final.episodes} new episodes: "
+            label=f"final: best policy, {final.episodes} new episodes: "
             f"{final.mean:.1f} +/- {final.std:.1f}",
         )
     if curves.threshold is not None:

@@ -54,6 +54,7 @@ from trl_cartpole.run.envs import (
     close_env,
     estimate_observation_norm,
 )
+from trl_cartpole.run.eval_protocol import EvalProtocol, PeriodicEvaluation
 from trl_cartpole.run.evaluation import Evaluator
 from trl_cartpole.run.from_config import (
     REPLAY_FILES,
@@ -68,7 +69,6 @@ from trl_cartpole.run.from_config import (
     transition_keys,
 )
 from trl_cartpole.run.history import History
-from trl_cartpole.run.judging import Judge, PeriodicEvaluation
 from trl_cartpole.run.learner import Learner
 from trl_cartpole.run.memory_needs import (
     available_memory_bytes,
@@ -89,11 +89,11 @@ from trl_cartpole.store.collection_state import EnvState
 from trl_cartpole.store.files import free_bytes, write_text_atomic
 from trl_cartpole.store.run_lock import RunLock
 
-__all__ = ["Components", "RunFacts", "build_components"]
+__all__ = ["Components", "RunSettings", "build_components"]
 
 
 @dataclass(frozen=True)
-class RunFacts:
+class RunSettings:
     """What the end of a run needs of its config, read once by the builder (plain values)."""
 
     env_id: str
@@ -111,7 +111,7 @@ class RunFacts:
     autocast: str  # the update's number type as chosen for this machine: bfloat16 | none
 
     @classmethod
-    def of(cls, cfg: Config, run_dir: Path) -> RunFacts:
+    def of(cls, cfg: Config, run_dir: Path) -> RunSettings:
         return cls(
             env_id=cfg.env.id,
             seed=cfg.seed,
@@ -167,9 +167,9 @@ class Components:
     ray_nodes: dict[str, Any] | None  # Ray runs: the learner's and each actor's node id
     transition_keys: tuple[Any, ...]  # what the buffer stores of each frame (transition_keys)
     wall_start: float  # perf_counter() when the build began
-    judge: Judge  # the end of the run's evaluations: seeds, envs, episodes
+    protocol: EvalProtocol  # the end of the run's evaluations: seeds, envs, episodes
     worker_log_dir: Path | None  # where local worker processes write (None on Ray: Ray keeps it)
-    facts: RunFacts  # what the end of the run needs of the config
+    settings: RunSettings  # what the end of the run needs of the config
     _collector_released: bool = field(default=False, init=False, repr=False)
 
     def release_collector(self) -> None:
@@ -220,8 +220,8 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     env = build_env(
         cfg, cfg.seed, observation_norm=observation_norm, step_timeout=cfg.env.step_timeout
     )
-    judge = Judge.from_config(cfg, observation_norm)
-    periodic = judge.periodic()  # a pixel policy is chosen on the frames it is judged on
+    protocol = EvalProtocol.from_config(cfg, observation_norm)
+    periodic = protocol.periodic()  # a pixel policy is chosen on the frames it is evaluated on
     with ExitStack() as on_error:  # an error while building the rest closes what it holds
         on_error.callback(periodic.close)
         on_error.callback(close_env, env)
@@ -237,7 +237,16 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         lock = RunLock(run_dir)  # a second writer of run_dir stops here
         on_error.callback(lock.release)
         components = _assemble(
-            cfg, resume, run_dir, env, judge, periodic, observation_norm, lock, wall_start, on_error
+            cfg,
+            resume,
+            run_dir,
+            env,
+            protocol,
+            periodic,
+            observation_norm,
+            lock,
+            wall_start,
+            on_error,
         )
         if resume is not None:
             components.checkpointer.load(resume, components.progress)
@@ -263,7 +272,7 @@ def _assemble(
     resume: str | Path | None,
     run_dir: Path,
     env: TransformedEnv,
-    judge: Judge,
+    protocol: EvalProtocol,
     periodic: PeriodicEvaluation,
     observation_norm: dict[str, list[float]] | None,
     lock: RunLock,
@@ -332,9 +341,9 @@ def _assemble(
         ray_nodes=ray_placement(collector),
         transition_keys=transition_keys(actor.in_keys[0], atari=EnvKind(cfg.env).atari),
         wall_start=wall_start,
-        judge=judge,
+        protocol=protocol,
         worker_log_dir=worker_log_dir(cfg, run_dir),
-        facts=RunFacts.of(cfg, run_dir),
+        settings=RunSettings.of(cfg, run_dir),
     )
 
 

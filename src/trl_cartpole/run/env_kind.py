@@ -4,7 +4,7 @@ Four kinds: the env's state vector; pixels drawn from CartPole's state
 (``env.pixels_renderer=drawn``, a share of the envs painted by Gymnasium's own calls); pixels
 Gymnasium renders; and an Atari game's screen (an ``ALE/...`` id, preprocessed as
 ``env.atari`` says: :mod:`trl_cartpole.envs.atari`). What differs between them is asked of
-:class:`EnvKind`, nowhere else: the env a policy is judged on and the one a video records,
+:class:`EnvKind`, nowhere else: the env a policy is evaluated on and the one a video records,
 the run's title, whether the collector's own state is saved with a checkpoint, how many envs
 one evaluation holds at once.
 A new kind is one more case here.
@@ -66,8 +66,8 @@ class EnvKind:
             return self.env.num_envs == 1
         return not self.pixels
 
-    def judged(self) -> EnvConfig:
-        """The env a policy is judged on: a pixel policy on Gymnasium's own frames, whichever
+    def evaluation_env(self) -> EnvConfig:
+        """The env a policy is evaluated on: a pixel policy on Gymnasium's own frames, whichever
         renderer it trained on (a drawn env with every frame painted by Gymnasium's calls: the
         same vector env, one renderer for the batch); any other env as it is."""
         if self.name == "drawn pixels":
@@ -86,6 +86,6 @@ class EnvKind:
         return replace(self.env, pixels_renderer="gymnasium", pixels_rendered_share=0.0)
 
     def envs_at_once(self, episodes: int, pixel_envs_at_once: int) -> int:
-        """How many of ``episodes`` judging envs to build and play at a time: each Gymnasium
+        """How many of ``episodes`` evaluation envs to build and play at a time: each Gymnasium
         renderer holds its own frames, so pixel envs come ``pixel_envs_at_once`` at a time."""
         return max(min(episodes, pixel_envs_at_once) if self.pixels else episodes, 1)

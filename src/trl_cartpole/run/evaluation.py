@@ -336,7 +336,7 @@ class Evaluator:
     peer's own greedy episodes in the benchmark) and ``network`` is what plays them: its
     ``state_dict`` is kept at each new best, and with ``candidates=K`` the K best policies so
     far are kept (:attr:`candidates`, best first, the earlier one first on a tie; the run plays
-    them again before its final evaluation, :mod:`trl_cartpole.run.kept_policy`). :meth:`run`
+    them again before its final evaluation, :mod:`trl_cartpole.run.best_policy`). :meth:`run`
     only evaluates and keeps score; what follows (logging, the progress bar, the plot, saving
     the best policy) is the caller's.
     """

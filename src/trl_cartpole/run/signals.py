@@ -2,8 +2,8 @@
 
 :class:`StopRequest` turns the first SIGINT (Ctrl-C), SIGTERM (``kill``, a scheduler),
 SIGHUP (the terminal or SSH connection closed) or SIGUSR1 (SLURM's ``--signal=USR1@60``
-warning before preemption) into a flag the training loop reads at its next safe point (the end
-of a collected batch), where it writes a checkpoint and raises :class:`TrainingInterrupted`.
+warning before preemption) into a flag the training loop reads at its next chance to save (the
+end of a collected batch), where it writes a checkpoint and raises :class:`TrainingInterrupted`.
 A second signal leaves at once (checkpoint writes are atomic, so that corrupts nothing): in a
 command line's run (:func:`second_signal_ends_process`) the first signal hands the stop
 signals back to the operating system's default action, so the second ends the process

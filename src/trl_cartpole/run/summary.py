@@ -1,10 +1,10 @@
 """How a run ends: the final evaluation of the best policy, the plots and ``summary.json``.
 
 :func:`finish` runs after the loop: it saves the last training state, chooses the policy to
-keep (:mod:`trl_cartpole.run.kept_policy`), evaluates it over the judge's final episodes
-(:mod:`trl_cartpole.run.judging`), draws the plots and writes ``summary.json``, whose keys
-other tools rely on (docs/architecture.md). It reads the run's values (``run.facts``,
-``run.judge``), not its config.
+keep (:mod:`trl_cartpole.run.best_policy`), evaluates it over the protocol's final episodes
+(:mod:`trl_cartpole.run.eval_protocol`), draws the plots and writes ``summary.json``, whose keys
+other tools rely on (docs/architecture.md). It reads the run's values (``run.settings``,
+``run.protocol``), not its config.
 :func:`record_failure` writes the summary of a run stopped by a numerical fault.
 """
 
@@ -31,10 +31,10 @@ from trl_cartpole.report.plotting import (
     plot_dashboard,
     plot_durations,
 )
+from trl_cartpole.run.best_policy import CandidateScore, choose_best_policy
 from trl_cartpole.run.build import Components
+from trl_cartpole.run.eval_protocol import cut_episodes_note
 from trl_cartpole.run.evaluation import Candidate, EvalResult, Evaluator
-from trl_cartpole.run.judging import cut_episodes_note
-from trl_cartpole.run.kept_policy import CandidateScore, choose_kept_policy
 from trl_cartpole.store.files import write_json_atomic
 
 __all__ = ["finish", "peak_rss_mb", "record_failure", "run_summary"]
@@ -46,20 +46,20 @@ def peak_rss_mb() -> float:
 
 
 def finish(run: Components) -> dict[str, Any]:
-    """Save the last state, choose and evaluate the kept policy, draw the plots, write
+    """Save the last state, choose and evaluate the best policy, draw the plots, write
     ``summary.json``."""
     _save_last_state(run)
     kept, scores = _choose_kept_policy(run)
     final = _final_evaluation(run)
-    if run.facts.plots:
+    if run.settings.plots:
         run.progress_bar.status("drawing the plots")
         _draw_plots(run, final)
-    progress, facts = run.progress, run.facts
+    progress, settings = run.progress, run.settings
     phases = progress.phase_seconds
     summary = run_summary(
-        env_id=facts.env_id,
-        seed=facts.seed,
-        algo=facts.algo,
+        env_id=settings.env_id,
+        seed=settings.seed,
+        algo=settings.algo,
         frames=progress.frames,
         updates=progress.updates,
         train_seconds=progress.clock.seconds,
@@ -68,14 +68,14 @@ def finish(run: Components) -> dict[str, Any]:
         evaluator=run.evaluator,
         final=final,
         run_dir=run.run_dir,
-        variant=facts.variant,
+        variant=settings.variant,
         episodes=len(run.history.episode_returns),
         # Throughput of the two halves of the loop.
         collect_frames_per_second=round(progress.frames / max(phases["collect"], 1e-9)),
         updates_per_second=round(progress.updates / max(phases["update"], 1e-9), 1),
         phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
-        checkpoint=None if facts.best_checkpoint is None else str(facts.best_checkpoint),
-        autocast=facts.autocast,
+        checkpoint=None if settings.best_checkpoint is None else str(settings.best_checkpoint),
+        autocast=settings.autocast,
         kept_policy_frames=None if kept is None else kept.frames,
         **({"candidates": [asdict(score) for score in scores]} if scores else {}),
         **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
@@ -98,44 +98,42 @@ def _save_last_state(run: Components) -> None:
     run.progress_bar.status("saving the last training state")
     run.checkpointer.save_last(run.progress)
     run.release_collector()
-    if run.facts.replay_files is not None:  # the training state just saved holds its own copy
-        shutil.rmtree(run.facts.replay_files, ignore_errors=True)
+    if run.settings.replay_files is not None:  # the training state just saved holds its own copy
+        shutil.rmtree(run.settings.replay_files, ignore_errors=True)
     # a live plot to a file is the durations.png the end draws anew: no last redraw first
-    if run.live_plot is not None and not (run.facts.plots and run.live_plot.target == "file"):
+    if run.live_plot is not None and not (run.settings.plots and run.live_plot.target == "file"):
         run.live_plot.flush()
 
 
 def _choose_kept_policy(run: Components) -> tuple[Candidate | None, list[CandidateScore]]:
-    """The kept policy, in the network and, when it is not the best periodic one, saved as
-    ``checkpoints/best`` (:func:`~trl_cartpole.run.kept_policy.choose_kept_policy`)."""
-    judge, evaluator = run.judge, run.evaluator
-    kept, scores = choose_kept_policy(
-        judge,
+    """The best policy, in the network and, when it is not the best periodic one, saved as
+    ``checkpoints/best`` (:func:`~trl_cartpole.run.best_policy.choose_best_policy`)."""
+    protocol, evaluator = run.protocol, run.evaluator
+    kept, scores = choose_best_policy(
+        protocol,
         evaluator,  # its network is run.actor: the candidates play through it
         on_candidate=lambda number, count: run.progress_bar.status(
             f"choosing the policy to keep: candidate {number} of {count} over "
-            f"{judge.candidate_episodes} new episodes"
+            f"{protocol.candidate_episodes} new episodes"
         ),
     )
-    if scores and kept is not evaluator.candidates[0]:  # checkpoints/best: the kept policy
+    if scores and kept is not evaluator.candidates[0]:  # checkpoints/best: the best policy
         run.checkpointer.save_best(run.actor, kept.frames, kept.eval_return_mean)
     return kept, scores
 
 
 def _final_evaluation(run: Components) -> EvalResult:
-    """The kept policy over the judge's final episodes, logged; the metrics log closed."""
-    episodes = run.judge.final_episodes
-    # the verdict's words: the best policy, or with candidates the kept one of them
-    policy = "the kept policy" if run.evaluator.max_candidates > 1 else "the best policy"
-    say = f"final evaluation: {policy} over {episodes} new episodes"
+    """The best policy over the protocol's final episodes, logged; the metrics log closed."""
+    episodes = run.protocol.final_episodes
+    say = f"final evaluation: the best policy over {episodes} new episodes"
     run.progress_bar.status(say)
 
     def show_played(played: int) -> None:  # pixel episodes are played 20 at a time
         if played < episodes:
             run.progress_bar.status(f"{say} ({played} played)")
 
-    final = run.judge.final(run.actor, on_turn=show_played)
-    cut = cut_episodes_note(final, run.judge.max_steps, "final episodes")
+    final = run.protocol.final(run.actor, on_turn=show_played)
+    cut = cut_episodes_note(final, run.protocol.max_steps, "final episodes")
     if cut is not None:
         warnings.warn(cut, stacklevel=1)
     run.metrics.log({"eval/final_return_mean": final.mean}, run.progress.frames)
@@ -146,15 +144,15 @@ def _final_evaluation(run: Components) -> EvalResult:
 def _draw_plots(run: Components, final: EvalResult) -> None:
     """``durations.png`` (the PyTorch DQN tutorial's plot) and ``dashboard.png`` (the Practical
     RL DQN assignment's four panels)."""
-    history, curve, facts = run.history, run.evaluator.curve, run.facts
+    history, curve, settings = run.history, run.evaluator.curve, run.settings
     frames = run.progress.frames
     final_point = FinalEvaluation(frames, final.mean, final.std, len(final.returns))
     plot_durations(
         history.curves(
-            curve, run.threshold, run.judge.periodic_episodes, final_point, facts.return_label
+            curve, run.threshold, run.protocol.periodic_episodes, final_point, settings.return_label
         ),
         run.run_dir / "durations.png",
-        facts.title,
+        settings.title,
     )
     dashboard = DashboardData(
         update_frames=history.update_frames,
@@ -165,11 +163,11 @@ def _draw_plots(run: Components, final: EvalResult) -> None:
         epsilon_frames=history.epsilon_frames,
         epsilons=history.epsilons,
         value_reference=discounted_return_reference(
-            final.returns, final.lengths, facts.gamma, facts.time_limit
+            final.returns, final.lengths, settings.gamma, settings.time_limit
         ),
-        max_grad_norm=facts.max_grad_norm,
+        max_grad_norm=settings.max_grad_norm,
     )
-    plot_dashboard(dashboard, run.run_dir / "dashboard.png", title=facts.title)
+    plot_dashboard(dashboard, run.run_dir / "dashboard.png", title=settings.title)
 
 
 def run_summary(
@@ -248,12 +246,12 @@ def record_failure(run: Components, failure: TrainingFailed) -> TrainingFailed:
     """
     periodic = run.run_dir / "checkpoints" / "periodic"
     progress, evaluator = run.progress, run.evaluator
-    facts = run.facts
+    settings = run.settings
     summary = {
         **_where_the_run_stands(
-            facts.env_id,
-            facts.seed,
-            facts.algo,
+            settings.env_id,
+            settings.seed,
+            settings.algo,
             progress.frames,
             progress.updates,
             run.wall_start,

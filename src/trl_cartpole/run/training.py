@@ -211,8 +211,8 @@ def _record_evaluation(
         curves = run.history.curves(
             run.evaluator.curve,
             run.threshold,
-            run.judge.periodic_episodes,
-            return_label=run.facts.return_label,
+            run.protocol.periodic_episodes,
+            return_label=run.settings.return_label,
         )
         run.live_plot.update(curves)
     if on_evaluation is not None:

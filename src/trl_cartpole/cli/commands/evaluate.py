@@ -44,7 +44,7 @@ def main(argv: list[str]) -> None:
     # imported after the arguments are checked: a refusal comes before torch is loaded
     from trl_cartpole.policy.load import evaluate_checkpoint, policy_checkpoint
     from trl_cartpole.report.progress_bar import clear_status, show_status
-    from trl_cartpole.run.judging import cut_episodes_note
+    from trl_cartpole.run.eval_protocol import cut_episodes_note
     from trl_cartpole.store.checkpoint import read_checkpoint_config
     from trl_cartpole.store.files import write_json_atomic
 

@@ -57,14 +57,14 @@ def main(argv: list[str]) -> None:
 
         freeze_imported_objects()
         summary = train(cfg, resume=checkpoint)
-    except KeyboardInterrupt:  # outside the loop's safe points: nothing was saved just now
+    except KeyboardInterrupt:  # not between two batches, where the loop saves: exited at once
         raise TrainingInterrupted(_interrupted(Path(cfg.run_dir)), signal.SIGINT) from None
     run_cfg = to_config(cfg)
     print(ending(summary, overrides, run_cfg.logger.plots, run_cfg.env.from_pixels))
 
 
 def _interrupted(run_dir: Path) -> str:
-    """What a Ctrl-C outside the loop's safe points leaves: the resume command where the run
+    """What a Ctrl-C the loop could not save at leaves: the resume command where the run
     directory holds a complete training state, else that there is nothing to resume."""
     checkpoints = sys.modules.get("trl_cartpole.store.checkpoint")  # loaded once training is
     if (
@@ -73,8 +73,8 @@ def _interrupted(run_dir: Path) -> str:
         and checkpoints.find_complete_checkpoints(run_dir)
     ):
         return (
-            "interrupted outside a safe point: exited at once; its newest complete checkpoint "
-            f"is intact: {command('train')} resume={shown_path(run_dir)}"
+            "interrupted before the loop could save: exited at once; its newest complete "
+            f"checkpoint is intact: {command('train')} resume={shown_path(run_dir)}"
         )
     return "interrupted before the run saved a checkpoint: nothing to resume; run it again"
 

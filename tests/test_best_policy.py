@@ -10,9 +10,9 @@ from torch import nn
 from torchrl.checkpoint import Checkpoint
 
 from trl_cartpole.config.schema import Config
+from trl_cartpole.run.best_policy import choose_best_policy
+from trl_cartpole.run.eval_protocol import EvalProtocol
 from trl_cartpole.run.evaluation import EvalResult, Evaluator
-from trl_cartpole.run.judging import Judge
-from trl_cartpole.run.kept_policy import choose_kept_policy
 from trl_cartpole.run.progress import Progress
 from trl_cartpole.run.training import train
 
@@ -57,8 +57,8 @@ def test_the_evaluator_keeps_the_best_few_policies_best_first_the_earlier_on_a_t
 def test_one_candidate_is_the_best_periodic_policy_as_before():
     evaluator, network = _evaluator_over([10.0, 30.0, 20.0], candidates=1)
     assert _numbers(evaluator) == [1]
-    kept, scores = choose_kept_policy(
-        Judge.from_config(Config()), evaluator, play=pytest.fail
+    kept, scores = choose_best_policy(
+        EvalProtocol.from_config(Config()), evaluator, play=pytest.fail
     )  # plays nothing
     assert kept is evaluator.candidates[0] and scores == []
     assert network.bias.item() == 1.0  # the best's weights are in the network
@@ -77,9 +77,9 @@ def test_the_candidate_best_over_new_episodes_is_kept_and_in_the_network():
 
     cfg = Config()
     cfg.seed, cfg.eval.candidate_episodes = 7, 5
-    judge = Judge.from_config(cfg)
-    kept, scores = choose_kept_policy(judge, evaluator, play)
-    seed = judge.seed_for("candidates")
+    protocol = EvalProtocol.from_config(cfg)
+    kept, scores = choose_best_policy(protocol, evaluator, play)
+    seed = protocol.seed_for("candidates")
     assert seed == 7 + 3 * cfg.eval.seed_offset == 3_000_007
     # every candidate plays the same episodes: the same first seed, the same count
     assert played == [(1, seed, 5), (3, seed, 5), (2, seed, 5)]
@@ -91,8 +91,10 @@ def test_the_candidate_best_over_new_episodes_is_kept_and_in_the_network():
 
 def test_a_tie_over_new_episodes_keeps_the_better_periodic_candidate():
     evaluator, network = _evaluator_over([10.0, 30.0, 20.0], candidates=2)
-    kept, _ = choose_kept_policy(
-        Judge.from_config(Config()), evaluator, lambda seed, episodes: EvalResult(returns=[500.0])
+    kept, _ = choose_best_policy(
+        EvalProtocol.from_config(Config()),
+        evaluator,
+        lambda seed, episodes: EvalResult(returns=[500.0]),
     )
     assert kept is evaluator.candidates[0] and network.bias.item() == 1.0
 

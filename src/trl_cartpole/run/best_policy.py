@@ -4,10 +4,10 @@ The best of many noisy means is biased upward (the winner's curse): the policy c
 highest periodic mean plays worse on new episodes (docs/environments-measured.md).
 With ``eval.candidates=K`` the evaluator keeps the K policies with the highest periodic means;
 before the final evaluation each plays ``eval.candidate_episodes`` new episodes, the same
-episodes for every candidate (the judge's candidate seeds, neither the periodic evaluations'
-nor the final's: :mod:`trl_cartpole.run.judging`), and the candidate with the highest mean
+episodes for every candidate (the protocol's candidate seeds, neither the periodic evaluations'
+nor the final's: :mod:`trl_cartpole.run.eval_protocol`), and the candidate with the highest mean
 over them is kept (the best periodic one on a tie). The final evaluation then measures the
-kept policy on episodes no choice was made on.
+best policy on episodes no choice was made on.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from trl_cartpole.run.eval_protocol import EvalProtocol
 from trl_cartpole.run.evaluation import Candidate, EvalResult, Evaluator
-from trl_cartpole.run.judging import Judge
 
-__all__ = ["CandidateScore", "choose_kept_policy"]
+__all__ = ["CandidateScore", "choose_best_policy"]
 
 
 @dataclass
@@ -30,17 +30,17 @@ class CandidateScore:
     replay_return_mean: float  # over eval.candidate_episodes new episodes
 
 
-def choose_kept_policy(
-    judge: Judge,
+def choose_best_policy(
+    protocol: EvalProtocol,
     evaluator: Evaluator,
     play: Callable[[int, int], EvalResult] | None = None,
     on_candidate: Callable[[int, int], None] | None = None,
 ) -> tuple[Candidate | None, list[CandidateScore]]:
     """Play each of ``evaluator.candidates`` again, keep the best, put it into the network.
 
-    :param judge: the run's judge: the candidates' seeds and episodes.
+    :param protocol: the run's protocol: the candidates' seeds and episodes.
     :param play: ``play(seed, episodes)`` plays the network's greedy episodes from ``seed`` on;
-        default: ``judge.play`` with the evaluator's network.
+        default: ``protocol.play`` with the evaluator's network.
     :param on_candidate: called with (candidate number from 1, candidates) before each plays.
     :returns: the kept candidate and every candidate's score, best periodic first; no scores
         when there is a single candidate (nothing to choose: nothing is played).
@@ -48,7 +48,7 @@ def choose_kept_policy(
     if play is None:
 
         def play(seed: int, episodes: int) -> EvalResult:
-            return judge.play(evaluator.network, seed, episodes)
+            return protocol.play(evaluator.network, seed, episodes)
 
     candidates = evaluator.candidates
     if len(candidates) <= 1:  # the best periodic evaluation's policy, as is
@@ -59,7 +59,7 @@ def choose_kept_policy(
         if on_candidate is not None:
             on_candidate(number, len(candidates))
         evaluator.network.load_state_dict(candidate.state)
-        result = play(judge.seed_for("candidates"), judge.candidate_episodes)
+        result = play(protocol.seed_for("candidates"), protocol.candidate_episodes)
         scores.append(CandidateScore(candidate.frames, candidate.eval_return_mean, result.mean))
     best = max(range(len(scores)), key=lambda i: (scores[i].replay_return_mean, -i))
     evaluator.keep(candidates[best])

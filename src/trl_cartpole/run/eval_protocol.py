@@ -3,17 +3,17 @@
 One rule for the seeds: an evaluation for ``purpose`` of a run seeded ``seed`` plays its i-th
 episode on an env seeded ``seed + k * eval.seed_offset + i``, with k = 1 for the periodic
 evaluations, 2 for the final one (and ``evaluate.py``'s default) and 3 for the candidates
-played again (:mod:`trl_cartpole.run.kept_policy`): three sets of episodes that never meet
+played again (:mod:`trl_cartpole.run.best_policy`): three sets of episodes that never meet
 each other or the training envs (seeded ``seed`` onward).
 
-One memory rule for the envs: a pixel env is judged on Gymnasium's own frames
-(:meth:`~trl_cartpole.run.env_kind.EnvKind.judged`), and each Gymnasium renderer holds its own
-frames (about 30 MiB here), so no evaluation holds more than :data:`PIXEL_ENVS_AT_ONCE` pixel
-envs: the final evaluation and the candidates build them a turn at a time, the periodic
+One memory rule for the envs: a pixel env is evaluated on Gymnasium's own frames
+(:meth:`~trl_cartpole.run.env_kind.EnvKind.evaluation_env`), and each Gymnasium renderer holds
+its own frames (about 30 MiB here), so no evaluation holds more than :data:`PIXEL_ENVS_AT_ONCE`
+pixel envs: the final evaluation and the candidates build them a turn at a time, the periodic
 evaluations keep one env of at most that many for the run (:class:`PeriodicEvaluation`).
 
-The builder makes one :class:`Judge` from the config; the end of a run, the kept-policy choice
-and ``evaluate.py`` ask it, and read no config themselves.
+The builder makes one :class:`EvalProtocol` from the config; the end of a run, the choice of
+the best policy and ``evaluate.py`` ask it, and read no config themselves.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from trl_cartpole.run.evaluation import EvalResult, evaluate
 __all__ = [
     "PIXEL_ENVS_AT_ONCE",
     "PURPOSES",
-    "Judge",
+    "EvalProtocol",
     "PeriodicEvaluation",
     "cut_episodes_note",
     "evaluation_seed",
@@ -64,10 +64,10 @@ def cut_episodes_note(result: EvalResult, max_steps: int, what: str = "episodes"
 
 
 @dataclass(frozen=True)
-class Judge:
-    """How a run's policies are judged: the env, the seeds, the episodes, the step limit."""
+class EvalProtocol:
+    """How a run's policies are evaluated: the env, the seeds, the episodes, the step limit."""
 
-    env: EnvConfig  # the env judged on: a pixel env on Gymnasium's own frames
+    env: EnvConfig  # the env evaluated on: a pixel env on Gymnasium's own frames
     device: str
     seed: int  # the run's seed
     seed_offset: int  # eval.seed_offset
@@ -81,10 +81,10 @@ class Judge:
     @classmethod
     def from_config(
         cls, cfg: Config, observation_norm: Mapping[str, Sequence[float]] | None = None
-    ) -> Judge:
-        """The judge of ``cfg``'s run (``observation_norm``: the statistics it trained with)."""
+    ) -> EvalProtocol:
+        """The protocol of ``cfg``'s run (``observation_norm``: the statistics it trained with)."""
         return cls(
-            env=EnvKind(cfg.env).judged(),
+            env=EnvKind(cfg.env).evaluation_env(),
             device=cfg.device,
             seed=cfg.seed,
             seed_offset=cfg.eval.seed_offset,
@@ -104,7 +104,7 @@ class Judge:
         return EnvKind(self.env).envs_at_once(episodes, self.pixel_envs_at_once)
 
     def make_envs(self, seed: int, count: int) -> TransformedEnv:
-        """``count`` judging envs stepped together, seeded ``seed`` onward."""
+        """``count`` evaluation envs stepped together, seeded ``seed`` onward."""
         return make_env_from_config(
             self.env,
             seed,
@@ -154,24 +154,25 @@ class PeriodicEvaluation:
     """The periodic evaluations' env and player (``partial(periodic.play, actor)`` is the
     :class:`~trl_cartpole.run.evaluation.Evaluator`'s ``play``).
 
-    One judging env of :meth:`Judge.envs_at_once` envs, seeded ``judge.seed_for("periodic")``
-    onward, built once and kept for the run (its state is saved with a checkpoint, so a resumed
-    run plays the same episodes). Each :meth:`play` plays ``judge.periodic_episodes`` greedy
-    episodes on it, one per env and turn, each turn continuing the envs' seeded random
-    streams: every evaluation plays new episodes, and a pixel run's evaluations hold no more
-    renderers than the final one.
-    """
+    One evaluation env of :meth:`EvalProtocol.envs_at_once` envs, seeded
+    ``protocol.seed_for("periodic")`` onward, built once and kept for the run (its state is
+    saved with a checkpoint, so a resumed run plays the same episodes). Each :meth:`play` plays
+    ``protocol.periodic_episodes`` greedy episodes on it, one per env and turn, each turn
+    continuing the envs' seeded random streams: every evaluation plays new episodes, and a pixel
+    run's evaluations hold no more renderers than the final one."""
 
-    def __init__(self, judge: Judge) -> None:
-        self.judge = judge
-        self.episodes = judge.periodic_episodes
-        self.env = judge.make_envs(judge.seed_for("periodic"), judge.envs_at_once(self.episodes))
+    def __init__(self, protocol: EvalProtocol) -> None:
+        self.protocol = protocol
+        self.episodes = protocol.periodic_episodes
+        self.env = protocol.make_envs(
+            protocol.seed_for("periodic"), protocol.envs_at_once(self.episodes)
+        )
 
     def play(self, actor: TensorDictModuleBase) -> EvalResult:
         """One periodic evaluation of ``actor``."""
         result = EvalResult()
         while len(result.returns) < self.episodes:
-            turn = evaluate(actor, self.env, self.judge.max_steps)
+            turn = evaluate(actor, self.env, self.protocol.max_steps)
             result.extend(turn, limit=self.episodes - len(result.returns))
         return result
 
