@@ -139,3 +139,16 @@ def test_a_run_of_an_env_without_a_solve_threshold_is_read(tmp_path):
     summary = read_summary(path)
     assert summary["solve_threshold"] is None
     assert "| runs | 0/1 | not solved |" in markdown_table({"runs": [summary]}, label="config")
+
+
+def test_a_seed_run_twice_counts_once_in_its_group(tmp_path, capsys):
+    """A repeat of a run (the same config and seed) is one seed, not two: the newest directory
+    is kept and the other named on stderr."""
+    from trl_cartpole.tools.comparison import group_runs, load_runs
+
+    first = _fake_run(tmp_path, "CartPole-v1-dqn-seed0-20261201-000000", 0, 1e-3, 1000)
+    again = _fake_run(tmp_path, "CartPole-v1-dqn-seed0-20261202-000000", 0, 1e-3, 2000)
+    other = _fake_run(tmp_path, "CartPole-v1-dqn-seed1-20261201-000000", 1, 1e-3, 3000)
+    (runs,) = group_runs(load_runs([first, again, other])).values()
+    assert [run["run_dir"] for run in runs] == [again, other]
+    assert f"skipped {first}: seed 0" in capsys.readouterr().err

@@ -440,7 +440,12 @@ def _median_band(ax, name: str, seeds: list[tuple[Sequence[float], Sequence[floa
     held = np.stack([hold_last(x, y, grid) for x, y in seeds])  # [S, G]
     started = ~np.isnan(held).any(0)  # [G]
     low, median, high = np.percentile(held[:, started], [25, 50, 75], axis=0)
-    (line,) = ax.plot(grid[started], median, linewidth=2, label=f"{name} ({len(seeds)} seeds)")
+    (line,) = ax.plot(
+        grid[started],
+        median,
+        linewidth=2,
+        label=f"{name} ({len(seeds)} seed{'s' if len(seeds) != 1 else ''})",
+    )
     ax.fill_between(grid[started], low, high, alpha=0.2, color=line.get_color())
 
 

@@ -229,7 +229,9 @@ def group_runs(runs: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]
     """Group runs whose configs are equal but for the seed and run directory.
 
     A group is labelled by its env and ``algo.name``; when several groups share that label,
-    the fields that tell them apart are appended (``CartPole-v1 dqn optim.lr=0.0005``).
+    the fields that tell them apart are appended (``CartPole-v1 dqn optim.lr=0.0005``). A seed
+    counts once in its group: of two runs of one config and seed (a repeat), the one whose
+    directory sorts last (the newest) is kept, the other skipped with a line on stderr.
     """
     groups: dict[tuple, list[dict[str, Any]]] = {}
     flats: dict[tuple, dict[str, Any]] = {}
@@ -250,5 +252,19 @@ def group_runs(runs: Sequence[dict[str, Any]]) -> dict[str, list[dict[str, Any]]
                 if any(flats[other].get(field) != value for other in clashes)
             )
             label += " " + " ".join(f"{field}={flats[key][field]}" for field in differing)
-        labelled[label] = members
+        labelled[label] = _one_run_a_seed(label, members)
     return labelled
+
+
+def _one_run_a_seed(label: str, members: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    kept: dict[Any, dict[str, Any]] = {}
+    for run in sorted(members, key=lambda run: str(run["run_dir"])):
+        seed = flat_fields(run["config"])["seed"]
+        if seed in kept:
+            print(
+                f"skipped {kept[seed]['run_dir']}: seed {seed} of {label} again, counted once "
+                f"(as {run['run_dir']})",
+                file=sys.stderr,
+            )
+        kept[seed] = run
+    return sorted(kept.values(), key=lambda run: flat_fields(run["config"])["seed"])
