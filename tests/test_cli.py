@@ -285,3 +285,12 @@ def test_an_error_whose_causes_loop_is_still_one_line():
     first, second = ValueError("first"), KeyError("second")
     first.__cause__, second.__cause__ = second, first
     assert one_line(first) == "first: 'second'"
+
+
+def test_the_evaluate_command_an_ending_prints_plays_the_runs_own_episode_count():
+    """evaluate plays the run's final evaluation's count (a Breakout run's 30 whole games), and
+    the ending's comment says that count, not CartPole's 100."""
+    (line,) = [
+        line for line in ending(_summary(final_eval_episodes=30)).splitlines() if "evaluate" in line
+    ]
+    assert line.endswith("# 30 greedy episodes")

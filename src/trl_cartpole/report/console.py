@@ -239,9 +239,10 @@ def ending(
     if summary.get("solve_threshold") is not None and not summary["solved"]:
         lines += _what_to_try(summary, overrides, pixels)
     if summary.get("checkpoint"):
+        episodes = summary.get("final_eval_episodes", 100)  # what evaluate plays, as the run did
         lines += [
             "next:",
-            f"  {_run_with_env('evaluate')} checkpoint={run}   # 100 greedy episodes",
+            f"  {_run_with_env('evaluate')} checkpoint={run}   # {episodes} greedy episodes",
             f"  {_run_with_env('render')} checkpoint={run}     # a GIF of the agent",
             f"  {_run_with_env('export')} checkpoint={run} output=policy.pt2  # or .onnx",
         ]
