@@ -294,3 +294,11 @@ def test_the_evaluate_command_an_ending_prints_plays_the_runs_own_episode_count(
         line for line in ending(_summary(final_eval_episodes=30)).splitlines() if "evaluate" in line
     ]
     assert line.endswith("# 30 greedy episodes")
+
+
+def test_a_run_that_trained_on_after_solving_says_how_long_it_trained_in_all():
+    """Acrobot's preset trains its whole budget: "solved at ..., 33.5 s of training" alone read
+    as the run's training time after 5.3 minutes of it."""
+    line = verdict(_summary(seconds_to_solve=33.5, train_seconds=318.0))
+    assert "solved at 43008 frames, 33.5 s of training (of 5.3 min in all);" in line
+    assert "in all" not in verdict(_summary(seconds_to_solve=41.0, train_seconds=42.0))

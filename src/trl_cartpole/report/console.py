@@ -185,12 +185,22 @@ def _outcome(summary: dict[str, Any]) -> str:
             f"{summary['best_eval_return_mean']:.1f}); {final}"
         )
     when = f"{summary['frames_to_solve']} frames, {summary['seconds_to_solve']:.1f} s of training"
+    trained = summary.get("train_seconds", 0.0)
+    if trained > 1.2 * summary["seconds_to_solve"] + 5:  # trained on after solving (its budget)
+        when += f" (of {_duration(trained)} in all)"
     if summary["final_eval_return_mean"] >= threshold:
         return f"solved at {when}; {final} (>= {threshold:g})"
     return (
         f"reached {threshold:g} once at {when}, but {final}, below {threshold:g}: not reliably "
         "solved (try more frames or another seed)"
     )
+
+
+def _duration(seconds: float) -> str:
+    """``48 s``, ``5.3 min``, ``2.0 h``."""
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.1f} min" if seconds < 7200 else f"{seconds / 3600:.1f} h"
 
 
 def _what_to_try(summary: dict[str, Any], overrides: Sequence[str], pixels: bool) -> list[str]:
