@@ -165,6 +165,7 @@ def test_auto_autocast_is_bfloat16_only_where_the_cpu_computes_it(monkeypatch):
     assert optim.choose_autocast("none", "cpu") == ("none", None)
 
 
+@pytest.mark.slow  # a fresh interpreter importing torch (5 s)
 def test_an_avx2_only_cpu_is_given_float32(python):
     """``ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2`` stand in for a CPU without AVX-512:
     there oneDNN reports no bfloat16, and ``auto`` is float32 whatever this machine has."""
