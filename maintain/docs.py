@@ -13,8 +13,8 @@ wrote, never from a hand copy:
 - ``train-listing`` (docs/architecture.md): ``train()`` as the code has it;
 - ``folder-table``, ``module-table`` (docs/architecture.md): the package's folders in
   pyproject.toml's import layers and every module, each with its docstring's first paragraph;
-- ``readme-speed`` (README.md): the 20-seed comparison's interquartile means, from
-  ``docs/results/performance.json``;
+- ``readme-results`` (README.md): the results table, one row per comparison, from
+  ``docs/results/performance.json``, ``race_<env>.json`` and the Breakout records;
 - ``performance-tables`` (docs/performance.md): the headline tables against the peers, from
   ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
 - ``performance-phases`` (docs/performance.md): the phases of the default's training time, from
@@ -25,7 +25,7 @@ wrote, never from a hand copy:
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
 - ``lunarlander-in-budget`` (docs/performance.md): LunarLander's runs cut at 300 s of training,
   from ``docs/results/lunarlander_300s.json`` (``python -m benchmarks envs ... --record``);
-- ``atari-runs``, ``readme-atari`` (docs/atari.md, README.md): Breakout seed by seed, a table
+- ``atari-runs`` (docs/atari.md): Breakout seed by seed, a table
   per form of the recipe, from ``docs/results/atari_breakout*.json`` (``python -m benchmarks
   atari --checkpoint RUN_DIR ... --record``);
 - ``atari-taper-ablation`` (docs/atari.md): the fourth form trained on the fifth form's seeds for
@@ -170,16 +170,12 @@ def readme_next_steps() -> str:
         seconds = step.get("seconds")
         timing = "" if seconds is None else f" ({_duration(seconds)})"
         lines.append(f"{step['command']:<64} # {step['what']}{timing}")
-    apart = [
-        f" `{step['command'].split()[-1]}`: measured {step['measured']}."
-        for step in results["next_steps"]
-        if step.get("measured")
-    ]
+    machine = results["machine"]
     return (
         _fenced("\n".join(lines), "bash")
-        + "\n\nTimes: command to prompt, one command at a time (`python -m maintain readme`). "
-        + provenance_line(results)
-        + "".join(apart)
+        + f"\n\nTimes: command to prompt, one at a time, on an {machine['cpu']} with "
+        + f"{machine['cores']} cores ([docs/results/readme.json](docs/results/readme.json) has "
+        + "each step's date and machine)."
     )
 
 
@@ -275,32 +271,78 @@ def performance_phases() -> str:
     )
 
 
-def readme_speed() -> str:
-    """The README's sentence on the 20-seed table against Stable-Baselines3: per evaluation
-    protocol, the interquartile means of seconds to solve and their ratio, from
-    ``docs/results/performance.json`` (the headline of docs/performance.md)."""
+def readme_results() -> str:
+    """The README's results table: CartPole and the other env presets against
+    Stable-Baselines3 (interquartile means of seconds to solve, from
+    ``docs/results/performance.json`` and ``race_<env>.json``), and Breakout's scores (the
+    preset's seeds, :data:`ATARI_PRESET_FORM`, and the Atari-100k runs), one row each."""
     from trl_cartpole.tools.comparison import iqm_to_solve
 
-    record = json.loads(PERFORMANCE.read_text())
-    parts = []
-    for interval, results in record["protocols"].items():
-        ours = iqm_to_solve([run["seconds_to_solve"] for run in results["dqn"]]).value
-        theirs = iqm_to_solve([run["seconds_to_solve"] for run in results["sb3_dqn"]]).value
-        every = f"evaluated every {_spaced(int(interval))} frames"
-        if math.isfinite(ours) and math.isfinite(theirs):
-            parts.append(f"{every}, {ours:.1f} s against {theirs:.1f} s ({theirs / ours:.1f}x)")
-        else:  # more than a quarter of one side's seeds unsolved: no interquartile mean
-            parts.append(f"{every}, a side left more than a quarter of its seeds unsolved")
-    seeds = len(next(iter(record["protocols"].values()))["dqn"])
-    jobs = re.search(r"--jobs (\d+)", record["command"])
-    at_a_time = "one run" if jobs is None or jobs.group(1) == "1" else f"{jobs.group(1)} runs"
-    return (
-        f"On {seeds} seeds no preset was tuned on, {at_a_time} at a time on the "
-        f"{record['machine']['cpu']} of {record['date']}, the interquartile mean of seconds to "
-        f"solve against Stable-Baselines3's: {'; '.join(parts)} "
-        "([docs/performance.md](docs/performance.md#headline) has every seed and the 95 % "
-        "intervals)."
-    )
+    rows = [
+        "| result | trl_cartpole | peer | measured on |",
+        "| --- | --- | --- | --- |",
+    ]
+    sources = [("CartPole-v1", PERFORMANCE, "docs/performance.md#headline")]
+    sources += [
+        (_race_env_id(env), path, "docs/performance.md#the-other-envs-against-stable-baselines3")
+        for env, path in RACES.items()
+        if path.is_file()
+    ]
+    for env_id, path, link in sources:
+        record = json.loads(path.read_text())
+        for interval, results in record["protocols"].items():
+            algo = next(name for name in results if not name.endswith("_dqn"))
+            ours = iqm_to_solve([run["seconds_to_solve"] for run in results[algo]]).value
+            theirs = iqm_to_solve([run["seconds_to_solve"] for run in results["sb3_dqn"]]).value
+            rows.append(
+                f"| {env_id}: seconds of training to solve, interquartile mean of "
+                f"{len(results[algo])} seeds, evaluated every {_spaced(int(interval))} frames | "
+                f"{_seconds_cell(ours)} | Stable-Baselines3: {_seconds_cell(theirs)} | "
+                f"[{record['machine']['cpu']}, {record['date']}]({link}) |"
+            )
+    rows += _readme_atari_rows()
+    return "\n".join(rows)
+
+
+def _race_env_id(env: str) -> str:
+    import yaml
+
+    preset = yaml.safe_load((PACKAGE / "configs" / "env" / f"{env}.yaml").read_text())
+    return preset["env"]["id"]
+
+
+def _seconds_cell(seconds: float) -> str:
+    return f"{seconds:.1f} s" if math.isfinite(seconds) else "more than a quarter unsolved"
+
+
+def _readme_atari_rows() -> list[str]:
+    """Breakout's row (each seed of the preset's recipe, its best policy's 30 games) and one
+    row per Atari-100k game beside DrQ(epsilon)'s published mean."""
+    rows = []
+    if ATARI_PRESET_FORM.is_file():
+        record = json.loads(ATARI_PRESET_FORM.read_text())
+        runs = record["runs"]
+        scores = ", ".join(f"{run['final_eval_return_mean']:.1f}" for run in runs)
+        seeds = ", ".join(str(run["seed"]) for run in runs)
+        rows.append(
+            "| Breakout (`env=breakout`, 2 hours, bfloat16 on AVX-512 BF16): the best policy's "
+            f"mean over 30 whole games, "
+            f"seeds {seeds} | {scores} | the Practical RL DQN assignment's goal: "
+            f"{ATARI_TARGET['score']:g} | [{record['machine']['cpu']}, {record['date']}]"
+            "(docs/atari.md) |"
+        )
+    if ATARI_100K.is_file():
+        record = json.loads(ATARI_100K.read_text())
+        for run in _atari_100k_runs(record):
+            drq = ATARI_100K_PUBLISHED.get(run["env_id"], {}).get("DrQ(epsilon)")
+            rows.append(
+                f"| {_game_name(run['env_id'])}, Atari-100k (100 000 steps): the best policy's "
+                f"mean over {run['final_eval_episodes']} games, one seed | "
+                f"{run['final_eval_return_mean']:.1f} | "
+                + (f"DrQ(epsilon), published: {drq:.1f}" if drq is not None else "")
+                + f" | [{record['machine']['cpu']}, {record['date']}](docs/atari.md) |"
+            )
+    return rows
 
 
 def _spaced(number: float) -> str:
@@ -596,57 +638,6 @@ def atari_torchrl_settings() -> str:
     return _results_block(record, *_atari_table(record))
 
 
-def readme_atari() -> str:
-    """The README's Breakout sentence: each seed of the preset's form of the recipe
-    (:data:`ATARI_PRESET_FORM`), its best policy's 30 games and the same policy in Gymnasium's
-    loop."""
-    whose, runs = next(
-        (
-            (seeds, json.loads(path.read_text())["runs"])
-            for path, seeds, _ in ATARI_RECORDS
-            if path == ATARI_PRESET_FORM and path.is_file()
-        ),
-        ("the preset's seeds", []),
-    )
-    scores = "; ".join(
-        f"seed {run['seed']} keeps a policy that scores {run['final_eval_return_mean']:.1f} over "
-        f"30 whole games ({run['plain_loop']['mean']:.1f} exported, in Gymnasium's own loop)"
-        for run in runs
-    )
-    met = sum(_meets_atari_target(run) for run in runs)
-    loop_seeds = json.loads(ATARI_LOOP_SEEDS.read_text())
-    kinder = _loop_first_games_gaps(loop_seeds)
-    measured = [run["seed"] for run in loop_seeds["runs"]]
-    return (
-        f"Breakout, {whose} named before they ran: {scores or 'none run yet'}. "
-        f"{met} of the {ATARI_TARGET['seeds']} seeds the target needs reach the Practical RL "
-        f"DQN assignment's {ATARI_TARGET['score']:g} within its time and memory"
-        f"{' so far' if len(runs) < ATARI_TARGET['seeds'] else ''}. Gymnasium's loop plays the "
-        f"same {ATARI_LOOP_FIRST_GAMES} games for every seed; for the best policies of seeds "
-        f"{min(measured)} to {max(measured)} they score about {statistics.median(kinder):.1f} "
-        "points above other games."
-        f"{_readme_atari_100k()}"
-    )
-
-
-def _readme_atari_100k() -> str:
-    """The README's sentence on the Atari-100k runs (:data:`ATARI_100K`), empty before any."""
-    if not ATARI_100K.is_file():
-        return ""
-    games = []
-    for run in _atari_100k_runs(json.loads(ATARI_100K.read_text())):
-        drq = ATARI_100K_PUBLISHED.get(run["env_id"], {}).get("DrQ(epsilon)")
-        games.append(
-            f"{run['final_eval_return_mean']:.1f} over {run['final_eval_episodes']} whole games "
-            f"of {_game_name(run['env_id'])}"
-            + (f" (DrQ(epsilon)'s published mean: {drq:.1f})" if drq is not None else "")
-        )
-    return (
-        " On the Atari-100k protocol (100 000 steps, no sticky actions), one seed a game, the "
-        f"best policy (chosen among the run's evaluations) scores {' and '.join(games)}."
-    )
-
-
 def _meets_atari_target(run: dict) -> bool:
     """Whether one run's best policy meets :data:`ATARI_TARGET`'s score, time and memory."""
     return (
@@ -860,8 +851,7 @@ def factory_defaults() -> str:
 BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "readme-ending": ("README.md", readme_ending),
     "readme-next-steps": ("README.md", readme_next_steps),
-    "readme-atari": ("README.md", readme_atari),
-    "readme-speed": ("README.md", readme_speed),
+    "readme-results": ("README.md", readme_results),
     "config-fields": ("docs/reference/config.md", config_fields),
     "algo-presets": ("docs/guide.md", algo_presets),
     "train-listing": ("docs/architecture.md", train_listing),

@@ -163,7 +163,7 @@ def test_the_loop_gap_sentence_counts_every_form_of_the_recipe(tmp_path, monkeyp
 
 
 def test_the_readme_reports_the_preset_form_not_the_newest(tmp_path, monkeypatch):
-    """The README's Breakout sentence reports the seeds of the form the preset sets
+    """The README's Breakout row reports the seeds of the form the preset sets
     (:data:`ATARI_PRESET_FORM`), not those of a newer form still training its seeds."""
 
     def run(seed: int, score: float) -> dict:
@@ -175,20 +175,40 @@ def test_the_readme_reports_the_preset_form_not_the_newest(tmp_path, monkeypatch
             "peak_rss_mb": 1_500,
         }
 
+    machine = {"cpu": "Some CPU", "cores": 2}
     preset, newer = tmp_path / "preset.json", tmp_path / "newer.json"
-    preset.write_text(json.dumps({"runs": [run(1, 16.0), run(2, 14.0), run(3, 15.0)]}))
-    newer.write_text(json.dumps({"runs": [run(4, 30.0)]}))
+    preset.write_text(
+        json.dumps(
+            {
+                "date": "2026-01-02",
+                "machine": machine,
+                "runs": [run(1, 16.0), run(2, 14.0), run(3, 15.0)],
+            }
+        )
+    )
+    newer.write_text(json.dumps({"date": "2026-01-03", "machine": machine, "runs": [run(4, 30.0)]}))
     records = [(preset, "the preset form's seeds", ""), (newer, "the newer form's seeds", "")]
     monkeypatch.setattr(docs, "ATARI_RECORDS", tuple(records))
     monkeypatch.setattr(docs, "ATARI_PRESET_FORM", preset)
-    sentence = docs.readme_atari()
-    assert sentence.startswith(
-        "Breakout, the preset form's seeds named before they ran: seed 1 keeps a policy that "
-        "scores 16.0 over 30 whole games (17.0 exported, in Gymnasium's own loop); seed 2"
-    )
-    assert "seed 4" not in sentence
-    # 16.0 and 15.0 reach 15; 14.0 does not
-    assert "2 of the 3 seeds the target needs reach" in sentence
+    monkeypatch.setattr(docs, "ATARI_100K", tmp_path / "absent.json")
+    (row,) = docs._readme_atari_rows()
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    assert cells[0].endswith("seeds 1, 2, 3")
+    assert cells[1] == "16.0, 14.0, 15.0"
+    assert cells[3] == "[Some CPU, 2026-01-02](docs/atari.md)"
+    assert "30.0" not in row
+
+
+def test_the_readme_results_table_has_one_row_per_protocol_and_env():
+    """One row per evaluation protocol of each comparison file, each with a figure on both
+    sides, then the Atari rows: the table is the README's one results block."""
+    table = docs.readme_results().splitlines()
+    assert table[0] == "| result | trl_cartpole | peer | measured on |"
+    cartpole = [row for row in table if row.startswith("| CartPole-v1")]
+    protocols = json.loads(docs.PERFORMANCE.read_text())["protocols"]
+    assert len(cartpole) == len(protocols)
+    for row in cartpole:
+        assert re.search(r"\| [0-9.]+ s \| Stable-Baselines3: [0-9.]+ s \|", row), row
 
 
 def test_the_taper_ablation_sets_each_seed_beside_its_tapered_run(tmp_path, monkeypatch):

@@ -101,3 +101,8 @@ def test_the_tutorials_python_runs_on_its_own(capsys):
     (code,) = _blocks(tutorial, "python")
     exec(compile(code, "docs/tutorial.md", "exec"), {})
     assert capsys.readouterr().out.strip() in ("tensor([1, 0])", "tensor([0, 1])")
+
+
+def test_the_readme_is_short_enough_to_read_in_five_minutes():
+    """The README is the front door: at most 150 lines, the rest lives in docs/."""
+    assert len(README.splitlines()) <= 150
