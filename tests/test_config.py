@@ -88,6 +88,7 @@ def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
         (["network.v_min=5", "network.v_max=5"], "must be < network.v_max"),
         (["exploration.schedule=greedy"], "choose one of"),
         (["env.num_envs=0"], "env.num_envs=0 must be >= 1"),
+        (["num_threads=-1"], "num_threads=-1 must be >= 1, or 0 for every core"),
         # accepted before, then a NaN TD loss (lr) or a nonsense support (v_min) mid-run
         (["optim.lr=inf"], r"optim.lr=inf must be a finite number"),
         (["network.v_min=-inf"], r"network.v_min=-inf must be a finite number"),
@@ -176,3 +177,23 @@ def test_the_config_a_checkpoint_stores_is_omegaconfs_tree_of_it(overrides, tmp_
     # the manifest is written with sorted keys: same keys, values and their types
     assert json.dumps(stored, sort_keys=True) == json.dumps(expected, sort_keys=True)
     assert to_config(stored) == cfg
+
+
+def test_num_threads_zero_is_every_core_this_process_may_use(monkeypatch):
+    """0 reads the process's CPU affinity (what ``taskset`` narrows), not the machine's count;
+    a positive count is taken as given."""
+    from trl_cartpole.run import build
+
+    monkeypatch.setattr(build.os, "sched_getaffinity", lambda pid: {0, 3, 5}, raising=False)
+    monkeypatch.setattr(build.os, "cpu_count", lambda: 8)
+    assert build.choose_num_threads(0) == 3
+    assert build.choose_num_threads(2) == 2
+    monkeypatch.delattr(build.os, "sched_getaffinity")
+    assert build.choose_num_threads(0) == 8
+
+
+def test_the_breakout_preset_uses_every_core(compose):
+    """One Atari run takes the whole machine by default (issue: a CNN's update gains from a
+    second thread); CartPole's default stays on one thread."""
+    assert to_config(compose("env=breakout")).num_threads == 0
+    assert to_config(compose()).num_threads == 1

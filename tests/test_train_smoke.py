@@ -19,6 +19,7 @@ from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 
 SUMMARY_KEYS = {
     "autocast",
+    "num_threads",
     "env_id",
     "seed",
     "algo",

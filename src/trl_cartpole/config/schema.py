@@ -285,7 +285,9 @@ class Config:
     # (run_env: the env id, and "-pixels" for a pixel run: runs/CartPole-v1-pixels-dqn-seed0-...)
     run_dir: str = "runs/${run_env:}-${algo.name}-seed${seed}-${now:%Y%m%d-%H%M%S}"
     device: str = "cpu"  # cpu | cuda | cuda:N (networks, losses and the replay buffer)
-    num_threads: int = 1  # torch intra-op threads; 1 is fastest for small MLPs
+    # torch intra-op threads; 1 is fastest for small MLPs; 0: every core this process may use
+    # (a CNN's update; `taskset -c 0` gives a run one core, so two runs share a 2-core machine)
+    num_threads: int = 1
     # TorchRL's DQNLoss, SoftUpdate and MultiStepTransform rewritten on plain tensors, the same
     # arithmetic in less time (trl_cartpole.fast; docs/performance.md); false: TorchRL's own
     fast: bool = False

@@ -415,7 +415,10 @@ def _run_rules(cfg: Config) -> list[tuple[bool, str]]:
     return [
         (cfg.checkpoint.interval_frames >= 0, "checkpoint.interval_frames must be >= 0"),
         (cfg.checkpoint.keep_last >= 1, "checkpoint.keep_last must be >= 1"),
-        (cfg.num_threads >= 1, f"num_threads={cfg.num_threads} must be >= 1"),
+        (
+            cfg.num_threads >= 0,
+            f"num_threads={cfg.num_threads} must be >= 1, or 0 for every core this process may use",
+        ),
         (
             cfg.num_threads <= (os.cpu_count() or 1),
             f"num_threads={cfg.num_threads} is more than this machine's {os.cpu_count()} cores",

@@ -16,6 +16,7 @@ only the run's own sections (checkpoint, logger, eval) and joins the parts.
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from contextlib import ExitStack
@@ -109,6 +110,9 @@ class RunSettings:
     max_grad_norm: float | None  # the dashboard's clip line (None: no norm clipping)
     best_checkpoint: Path | None  # checkpoints/best, when the run saves it
     autocast: str  # the update's number type as chosen for this machine: bfloat16 | none
+    num_threads: (
+        int  # torch's intra-op threads as chosen for this process (:func:`choose_num_threads`)
+    )
 
     @classmethod
     def of(cls, cfg: Config, run_dir: Path) -> RunSettings:
@@ -128,6 +132,7 @@ class RunSettings:
             max_grad_norm=cfg.optim.max_grad if cfg.optim.grad_clip == "norm" else None,
             best_checkpoint=run_dir / "checkpoints" / "best" if cfg.checkpoint.save_best else None,
             autocast=choose_autocast(cfg.optim.autocast, cfg.device)[0],
+            num_threads=choose_num_threads(cfg.num_threads),
         )
 
 
@@ -206,7 +211,10 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
     wall_start = time.perf_counter()
     warn_if_no_update(cfg)
     say_autocast(cfg.optim.autocast, cfg.device)
-    torch.set_num_threads(cfg.num_threads)
+    threads = choose_num_threads(cfg.num_threads)
+    torch.set_num_threads(threads)
+    if cfg.num_threads == 0:
+        print(f"num_threads=0: torch uses the {threads} cores this process may use", flush=True)
     seed_everything(cfg.seed)
     # Observation statistics are estimated once per run (a resumed run reads them back) and
     # shared by the training and evaluation envs.
@@ -255,6 +263,16 @@ def build_components(cfg: Config, resume: str | Path | None = None) -> Component
         on_error.pop_all()
     components.progress_bar.open(components.progress.frames)
     return components
+
+
+def choose_num_threads(requested: int) -> int:
+    """``requested`` torch threads, or for 0 every core this process may use: its CPU affinity
+    (``taskset`` and container limits narrow it), else the machine's cores."""
+    if requested > 0:
+        return requested
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def say_autocast(requested: str, device: str) -> None:

@@ -76,6 +76,7 @@ def finish(run: Components) -> dict[str, Any]:
         phase_seconds={name: round(seconds, 3) for name, seconds in phases.items()},
         checkpoint=None if settings.best_checkpoint is None else str(settings.best_checkpoint),
         autocast=settings.autocast,
+        num_threads=settings.num_threads,
         kept_policy_frames=None if kept is None else kept.frames,
         **({"candidates": [asdict(score) for score in scores]} if scores else {}),
         **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
