@@ -14,10 +14,10 @@ steps after a reset and after a lost life, is a few lines of the loop. The stack
 little from the project's for three steps after each FIRE: here the frames of the lost life and
 of each FIRE step are pushed onto the stack, where the project's stack gets only the last FIRE
 step's frame (four times after a reset), a difference that does not show in the scores
-(docs/atari.md, the games seeded 0 to 99). Prints the mean score over the games beside
+(docs/results/breakout.md, the games seeded 0 to 99). Prints the mean score over the games beside
 the run's own final evaluation (``summary.json``); ``--record`` writes each run's summary with
 its plain-loop scores (each game's, and the first game's seed), and where and when they were
-measured, to a results file (docs/atari.md is generated from it).
+measured, to a results file (docs/results/breakout.md is generated from it).
 
 ``--env-speed``: agent steps per second of random play (4 game frames each) through this
 project's TorchRL env (one game; a ``SerialEnv`` of 4), Gymnasium's preprocessing wrappers,

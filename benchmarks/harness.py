@@ -57,7 +57,7 @@ ENV_TARGETS = {
 ENV_MEDIAN_TARGETS = {"lunarlander": 240.0, "cartpole_pixels": 475.0}
 # and the pixel preset's budget: training seconds and peak memory of every seed
 PIXEL_BUDGET = {"train_seconds": 1800.0, "peak_rss_mb": 4096.0}
-# LunarLander's best policy at its target within this much training (docs/performance.md)
+# LunarLander's best policy at its target within this much training (docs/results/peers.md)
 LUNARLANDER_BUDGET_SECONDS = 300.0
 
 

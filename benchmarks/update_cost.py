@@ -334,7 +334,7 @@ def main(args: argparse.Namespace) -> None:
 
 def _record(args: argparse.Namespace, record: dict) -> None:
     """Add the measurement to ``args.record`` with its command, machine and date; one with the
-    same overrides is replaced (docs/performance.md is generated from the file)."""
+    same overrides is replaced (docs/results/speed.md is generated from the file)."""
     from benchmarks.harness import provenance
 
     command = " ".join(

@@ -19,25 +19,26 @@ wrote, never from a hand copy:
   ``docs/results/performance.json`` (``python -m benchmarks run ... --record`` writes it);
 - ``performance-phases`` (docs/performance.md): the phases of the default's training time, from
   the same file's summaries;
-- ``race-<env>`` (docs/performance.md): each other env preset against Stable-Baselines3, from
+- ``race-<env>`` (docs/results/peers.md): each other env preset against Stable-Baselines3, from
   ``docs/results/race_<env>.json`` (``python -m benchmarks run --env <env> ... --record``);
 - ``pixel-seeds`` (docs/environments-measured.md): ``env=cartpole_pixels`` seed by seed, from
   ``docs/results/cartpole_pixels.json`` (``python -m benchmarks envs ... --record``);
-- ``lunarlander-in-budget`` (docs/performance.md): LunarLander's runs cut at 300 s of training,
+- ``lunarlander-in-budget`` (docs/results/peers.md): LunarLander's runs cut at 300 s of training,
   from ``docs/results/lunarlander_300s.json`` (``python -m benchmarks envs ... --record``);
-- ``atari-runs`` (docs/atari.md): Breakout seed by seed, a table
+- ``atari-runs`` (docs/results/breakout.md): Breakout seed by seed, a table
   per form of the recipe, from ``docs/results/atari_breakout*.json`` (``python -m benchmarks
   atari --checkpoint RUN_DIR ... --record``);
-- ``atari-taper-ablation`` (docs/atari.md): the fourth form trained on the fifth form's seeds for
-  as many steps, from ``docs/results/atari_breakout_no_taper.json`` (the same command), each
-  seed beside its tapered run;
-- ``atari-loop-gap`` (docs/atari.md): the best policies in Gymnasium's loop against their runs'
-  own final evaluations, over the tables of ``atari-runs``;
-- ``atari-loop-seeds``, ``atari-100k``, ``atari-torchrl-settings`` (docs/atari.md): kept
-  policies over 100 games of Gymnasium's loop, the Atari-100k runs beside published means, and
-  TorchRL's example's settings, from ``docs/results/atari_loop_seeds.json``,
-  ``atari_100k.json`` and ``atari_torchrl_settings.json`` (the same command);
-- ``checkpoint-cost`` (docs/reliability.md), ``update-cost`` (docs/performance.md): from
+- ``atari-taper-ablation`` (docs/results/breakout.md): the fourth form trained on the fifth
+  form's seeds for as many steps, from ``docs/results/atari_breakout_no_taper.json`` (the
+  same command), each seed beside its tapered run;
+- ``atari-loop-gap`` (docs/results/breakout.md): the best policies in Gymnasium's loop against
+  their runs' own final evaluations, over the tables of ``atari-runs``;
+- ``atari-loop-seeds``, ``atari-100k``, ``atari-torchrl-settings``
+  (docs/results/breakout.md): kept policies over 100 games of Gymnasium's loop, the Atari-100k
+  runs beside published means, and TorchRL's example's settings, from
+  ``docs/results/atari_loop_seeds.json``, ``atari_100k.json`` and
+  ``atari_torchrl_settings.json`` (the same command);
+- ``checkpoint-cost`` (docs/reliability.md), ``update-cost`` (docs/results/speed.md): from
   ``docs/results/checkpoint_cost.json`` and ``update_cost.json``;
 - ``factory-defaults`` (docs/reference/factories.md): each factory's defaults beside TorchRL's
   and the class it returns, from the signatures (``maintain/reference.py``).
@@ -78,7 +79,7 @@ ATARI_TAPERED = ROOT / "docs" / "results" / "atari_breakout_taper.json"
 ATARI_WHOLE_2H = ROOT / "docs" / "results" / "atari_breakout_whole_2h.json"
 ATARI_PRESET_FORM = ATARI_WHOLE_2H
 # Breakout's results files, each a form of the recipe, with the words that name its seeds in the
-# README and the line that names it in docs/atari.md
+# README and the line that names it in docs/results/breakout.md
 ATARI_RECORDS = (
     (
         ROOT / "docs" / "results" / "atari_breakout.json",
@@ -284,7 +285,7 @@ def readme_results() -> str:
     ]
     sources = [("CartPole-v1", PERFORMANCE, "docs/performance.md#headline")]
     sources += [
-        (_race_env_id(env), path, "docs/performance.md#the-other-envs-against-stable-baselines3")
+        (_race_env_id(env), path, "docs/results/peers.md#the-other-envs-against-stable-baselines3")
         for env, path in RACES.items()
         if path.is_file()
     ]
@@ -329,7 +330,7 @@ def _readme_atari_rows() -> list[str]:
             f"mean over 30 whole games, "
             f"seeds {seeds} | {scores} | the Practical RL DQN assignment's goal: "
             f"{ATARI_TARGET['score']:g} | [{record['machine']['cpu']}, {record['date']}]"
-            "(docs/atari.md) |"
+            "(docs/results/breakout.md) |"
         )
     if ATARI_100K.is_file():
         record = json.loads(ATARI_100K.read_text())
@@ -340,7 +341,7 @@ def _readme_atari_rows() -> list[str]:
                 f"mean over {run['final_eval_episodes']} games, one seed | "
                 f"{run['final_eval_return_mean']:.1f} | "
                 + (f"DrQ(epsilon), published: {drq:.1f}" if drq is not None else "")
-                + f" | [{record['machine']['cpu']}, {record['date']}](docs/atari.md) |"
+                + f" | [{record['machine']['cpu']}, {record['date']}](docs/results/breakout.md) |"
             )
     return rows
 
@@ -465,7 +466,7 @@ ATARI_TIME_SLACK_SECONDS = 10.0
 
 
 def atari_runs() -> str:
-    """docs/atari.md's tables of Breakout runs, one per form of the recipe
+    """docs/results/breakout.md's tables of Breakout runs, one per form of the recipe
     (:data:`ATARI_RECORDS`, written by ``python -m benchmarks atari --checkpoint RUN_DIR ...
     --record``), each with the Practical RL DQN assignment's target's verdict."""
     blocks = [
@@ -486,8 +487,8 @@ def _recorded_atari_forms() -> list[tuple[str, str, dict]]:
 
 
 def atari_taper_ablation() -> str:
-    """docs/atari.md's table of the fourth form (no taper) trained on the fifth form's seeds
-    (:data:`ATARI_NO_TAPER`), and a sentence setting each seed's best policy beside its
+    """docs/results/breakout.md's table of the fourth form (no taper) trained on the fifth
+    form's seeds (:data:`ATARI_NO_TAPER`), and a sentence setting each seed's best policy beside its
     tapered run's (:data:`ATARI_TAPERED`): the same seed, the same steps, the taper alone."""
     if not ATARI_NO_TAPER.is_file():
         return "Not measured yet."
@@ -509,9 +510,9 @@ def atari_taper_ablation() -> str:
 
 
 def atari_100k() -> str:
-    """docs/atari.md's table of the Atari-100k runs (:data:`ATARI_100K`, written by ``python -m
-    benchmarks atari --checkpoint RUN_DIR ... --record``) beside the published means of
-    :data:`ATARI_100K_PUBLISHED`."""
+    """docs/results/breakout.md's table of the Atari-100k runs (:data:`ATARI_100K`, written
+    by ``python -m benchmarks atari --checkpoint RUN_DIR ... --record``) beside the published
+    means of :data:`ATARI_100K_PUBLISHED`."""
     if not ATARI_100K.is_file():
         return "Not measured yet."
     record = json.loads(ATARI_100K.read_text())
@@ -555,7 +556,7 @@ def _atari_100k_runs(record: dict) -> list[dict]:
 
 
 def atari_loop_seeds() -> str:
-    """docs/atari.md's table of best policies over many games of Gymnasium's loop
+    """docs/results/breakout.md's table of best policies over many games of Gymnasium's loop
     (:data:`ATARI_LOOP_SEEDS`): its first :data:`ATARI_LOOP_FIRST_GAMES` games, the games of the
     recipe's tables, against the games after them, and the run's own final evaluation on its own
     games; each difference with its standard error (from the games' spreads)."""
@@ -595,8 +596,8 @@ def atari_loop_seeds() -> str:
 
 
 def atari_loop_gap() -> str:
-    """docs/atari.md's sentence on the recipe's tables (:data:`ATARI_RECORDS`): on how many
-    seeds the best policy scores higher in Gymnasium's loop than in the run's own final
+    """docs/results/breakout.md's sentence on the recipe's tables (:data:`ATARI_RECORDS`): on
+    how many seeds the best policy scores higher in Gymnasium's loop than in the run's own final
     evaluation, by how much (the median and range), and the seeds that score lower."""
     runs = [run for _, _, record in _recorded_atari_forms() for run in record["runs"]]
     gaps = [run["plain_loop"]["mean"] - run["final_eval_return_mean"] for run in runs]
@@ -630,7 +631,7 @@ def _loop_first_games_gaps(record: dict) -> list[float]:
 
 
 def atari_torchrl_settings() -> str:
-    """docs/atari.md's table of the run of TorchRL's DQN Atari example's settings
+    """docs/results/breakout.md's table of the run of TorchRL's DQN Atari example's settings
     (:data:`ATARI_TORCHRL_SETTINGS`), with the target's verdict as the recipe's tables."""
     if not ATARI_TORCHRL_SETTINGS.is_file():
         return "Not measured yet."
@@ -860,17 +861,17 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "performance-tables": ("docs/performance.md", performance_tables),
     "performance-phases": ("docs/performance.md", performance_phases),
     "pixel-seeds": ("docs/environments-measured.md", pixel_seeds),
-    "lunarlander-in-budget": ("docs/performance.md", lunarlander_in_budget),
-    "atari-runs": ("docs/atari.md", atari_runs),
-    "atari-100k": ("docs/atari.md", atari_100k),
-    "atari-loop-gap": ("docs/atari.md", atari_loop_gap),
-    "atari-taper-ablation": ("docs/atari.md", atari_taper_ablation),
-    "atari-loop-seeds": ("docs/atari.md", atari_loop_seeds),
-    "atari-torchrl-settings": ("docs/atari.md", atari_torchrl_settings),
+    "lunarlander-in-budget": ("docs/results/peers.md", lunarlander_in_budget),
+    "atari-runs": ("docs/results/breakout.md", atari_runs),
+    "atari-100k": ("docs/results/breakout.md", atari_100k),
+    "atari-loop-gap": ("docs/results/breakout.md", atari_loop_gap),
+    "atari-taper-ablation": ("docs/results/breakout.md", atari_taper_ablation),
+    "atari-loop-seeds": ("docs/results/breakout.md", atari_loop_seeds),
+    "atari-torchrl-settings": ("docs/results/breakout.md", atari_torchrl_settings),
     "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),
-    "update-cost": ("docs/performance.md", update_cost),
+    "update-cost": ("docs/results/speed.md", update_cost),
     **{
-        f"race-{env}": ("docs/performance.md", partial(performance_tables, path))
+        f"race-{env}": ("docs/results/peers.md", partial(performance_tables, path))
         for env, path in RACES.items()
     },
     "factory-defaults": ("docs/reference/factories.md", factory_defaults),

@@ -195,7 +195,7 @@ def test_the_readme_reports_the_preset_form_not_the_newest(tmp_path, monkeypatch
     cells = [cell.strip() for cell in row.strip("|").split("|")]
     assert cells[0].endswith("seeds 1, 2, 3")
     assert cells[1] == "16.0, 14.0, 15.0"
-    assert cells[3] == "[Some CPU, 2026-01-02](docs/atari.md)"
+    assert cells[3] == "[Some CPU, 2026-01-02](docs/results/breakout.md)"
     assert "30.0" not in row
 
 
@@ -251,3 +251,11 @@ def test_the_taper_ablation_sets_each_seed_beside_its_tapered_run(tmp_path, monk
         "The best policies over 30 whole games: seed 7, 12.3 without the taper after 198 392 "
         "updates and 18.0 with it after 198 392."
     )
+
+
+@pytest.mark.parametrize("page", ["docs/atari.md", "docs/performance.md"])
+def test_the_guide_pages_stay_guides(page):
+    """How to use a thing stays short; studies live on the results pages they link to."""
+    text = (ROOT / page).read_text()
+    assert len(text.splitlines()) <= 250
+    assert "results/" in text

@@ -197,7 +197,7 @@ def exit_process(status: int) -> NoReturn:
     (after the hooks that tell pools to stop), runs the ``atexit`` functions (Ray's shutdown,
     multiprocessing's children, logging's flush) and flushes stdout and stderr. Then it frees
     every module and object one by one: about 1.4 s once torch and TorchRL are imported, for
-    nothing anyone reads (docs/performance.md). This does the first part, with the same
+    nothing anyone reads (docs/results/speed.md). This does the first part, with the same
     private hooks the interpreter calls (``compat.run_exit_steps``), and ends with ``os._exit``;
     a command that never imported torch exits as usual (its teardown is quick). For a
     command's end only: in a process that goes on (a test, a notebook) call the command's

@@ -3,7 +3,7 @@
 TorchRL's ``DQNLoss`` clones the sampled TensorDict, swaps the online and the target parameters
 into its value network (``to_module``) for each pass, and writes actions and values into
 TensorDicts on the way; on CartPole's small MLP that bookkeeping costs about as much as the
-arithmetic (2.06 ms of an update against 1.60 ms fused, docs/performance.md).
+arithmetic (2.06 ms of an update against 1.60 ms fused, docs/results/speed.md).
 :class:`FusedDQNLoss` computes the same expression directly on the sample's
 tensors, with two copies of the Q-network whose parameters *are* the loss's online and target
 parameters (the same tensors: the optimizer's steps and the target updater's copies reach

@@ -1,6 +1,6 @@
 """``MultiStepTransform``'s n-step windows computed on a batch's tensors, not its TensorDicts.
 
-Measured gain (docs/performance.md): the store phase of a default CartPole run in about 0.6 of
+Measured gain (docs/results/speed.md): the store phase of a default CartPole run in about 0.6 of
 the stock transform's time.
 
 TorchRL's ``MultiStepTransform`` (through :class:`~trl_cartpole.parts.replay.NStepTransform`)

@@ -1,6 +1,6 @@
 """TorchRL's ``SoftUpdate`` in one fused call.
 
-Measured gain (docs/performance.md): 0.2-0.3 ms -> about 0.06 ms a step for the default
+Measured gain (docs/results/speed.md): 0.2-0.3 ms -> about 0.06 ms a step for the default
 128-128 network.
 """
 

@@ -371,7 +371,7 @@ def sample_minibatches(buffer: TensorDictReplayBuffer, count: int) -> Iterator[T
 
     A uniform buffer (sampling with replacement) draws all ``count * batch_size`` indices in
     one call and splits them: the same distribution as ``count`` calls, for the overhead of one
-    (about 0.3 ms saved per extra update, docs/performance.md). A prioritized buffer samples
+    (about 0.3 ms saved per extra update, docs/results/speed.md). A prioritized buffer samples
     one minibatch at a time, since each update rewrites the priorities the next draw uses.
     """
     if count == 1 or is_prioritized(buffer):
