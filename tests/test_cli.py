@@ -21,7 +21,13 @@ from tests.conftest import ROOT, SCRIPTS, SMOKE_OVERRIDES, run_script
 from trl_cartpole.config.compose import compose_run_config
 from trl_cartpole.config.help import field_help
 from trl_cartpole.config.schema import Config
-from trl_cartpole.report.console import DYNAMO_PROFILER_LOGGER, ending, quiet_libraries, verdict
+from trl_cartpole.report.console import (
+    DYNAMO_PROFILER_LOGGER,
+    ending,
+    quiet_libraries,
+    solve_status,
+    verdict,
+)
 from trl_cartpole.report.progress_bar import BAR_FORMAT
 from trl_cartpole.run.history import History
 from trl_cartpole.run.run_dir import prepare_run_dir
@@ -120,7 +126,7 @@ def _summary(**changes) -> dict:
 def test_the_ending_never_says_solved_when_the_final_check_missed():
     missed = verdict(_summary(final_eval_return_mean=422.1, final_eval_return_std=129.7))
     assert "reached 475 once at 43008 frames" in missed
-    assert "422.1 +/- 129.7 over 100 new episodes, below 475: not reliably solved" in missed
+    assert "422.1 +/- 129.7 over 100 new episodes, below 475: not held" in missed
     assert "solved at" not in missed
     met = verdict(_summary())
     assert "solved at 43008 frames, 41.0 s of training" in met and "(>= 475)" in met
@@ -302,3 +308,21 @@ def test_a_run_that_trained_on_after_solving_says_how_long_it_trained_in_all():
     line = verdict(_summary(seconds_to_solve=33.5, train_seconds=318.0))
     assert "solved at 43008 frames, 33.5 s of training (of 5.3 min in all);" in line
     assert "in all" not in verdict(_summary(seconds_to_solve=41.0, train_seconds=42.0))
+
+
+@pytest.mark.parametrize(
+    ("changes", "status"),
+    [
+        ({}, "solved"),
+        ({"final_eval_return_mean": 474.9}, "not held"),  # reached once, not by the best policy
+        ({"solved": False, "frames_to_solve": None}, "not solved"),
+        ({"solve_threshold": None}, "no threshold"),
+    ],
+)
+def test_one_verdict_in_the_ending_and_the_summary(changes, status):
+    """The ending's words follow ``solve_status``, the value summary.json records."""
+    summary = _summary(**changes)
+    assert solve_status(summary) == status
+    line = verdict(summary)
+    said = {"solved": "solved at", "not held": ": not held", "not solved": "not solved in"}
+    assert status == "no threshold" or said[status] in line

@@ -122,7 +122,7 @@ def _fake_run(root, name, seed, lr, frames_to_solve):
 
 def test_the_solved_column_says_how_many_solved_runs_did_not_hold_it():
     held = summary_of(1000, 2.0, 500.0) | {"solve_threshold": 475.0}
-    dropped = summary_of(2000, 4.0, 460.2) | {"solve_threshold": 475.0}  # "not reliably solved"
+    dropped = summary_of(2000, 4.0, 460.2) | {"solve_threshold": 475.0}  # "not held"
     never = summary_of(None, None, 20.0) | {"solve_threshold": 475.0}
     table = markdown_table({"a": [held, dropped, never], "b": [held]}, label="config")
     assert "| a | 2/3 (1 not held) |" in table and "| b | 1/1 |" in table

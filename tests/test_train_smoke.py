@@ -20,6 +20,7 @@ from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 SUMMARY_KEYS = {
     "autocast",
     "num_threads",
+    "solve_status",
     "env_id",
     "seed",
     "algo",

@@ -162,6 +162,19 @@ def verdict(summary: dict[str, Any]) -> str:
     return f"{summary['env_id']} [{label}, seed {summary['seed']}]: {_outcome(summary)}"
 
 
+def solve_status(summary: dict[str, Any]) -> str:
+    """A run's one verdict on its env's threshold, the same in the ending, ``summary.json``'s
+    ``solve_status`` and the comparison tables: ``solved`` (an evaluation reached the threshold
+    and the best policy's final episodes hold it), ``not held`` (reached once, the final
+    episodes fall below), ``not solved``, or ``no threshold`` (the env has none)."""
+    threshold = summary.get("solve_threshold")
+    if threshold is None:
+        return "no threshold"
+    if not summary["solved"]:
+        return "not solved"
+    return "solved" if summary["final_eval_return_mean"] >= threshold else "not held"
+
+
 def _outcome(summary: dict[str, Any]) -> str:
     threshold = summary.get("solve_threshold")
     evaluations = len(summary["eval_curve"]["frames"])
@@ -177,9 +190,10 @@ def _outcome(summary: dict[str, Any]) -> str:
         f"{summary['final_eval_return_mean']:.1f} +/- {summary['final_eval_return_std']:.1f} "
         f"over {summary['final_eval_episodes']} new episodes"
     )
-    if threshold is None:
+    status = solve_status(summary)
+    if status == "no threshold":
         return f"{summary['frames']} frames, no solve threshold for this env; {final}"
-    if not summary["solved"]:
+    if status == "not solved":
         return (
             f"not solved in {summary['frames']} frames (threshold {threshold:g}, best evaluation "
             f"{summary['best_eval_return_mean']:.1f}); {final}"
@@ -188,11 +202,11 @@ def _outcome(summary: dict[str, Any]) -> str:
     trained = summary.get("train_seconds", 0.0)
     if trained > 1.2 * summary["seconds_to_solve"] + 5:  # trained on after solving (its budget)
         when += f" (of {_duration(trained)} in all)"
-    if summary["final_eval_return_mean"] >= threshold:
+    if status == "solved":
         return f"solved at {when}; {final} (>= {threshold:g})"
     return (
-        f"reached {threshold:g} once at {when}, but {final}, below {threshold:g}: not reliably "
-        "solved (try more frames or another seed)"
+        f"reached {threshold:g} once at {when}, but {final}, below {threshold:g}: not held "
+        "(try more frames or another seed)"
     )
 
 

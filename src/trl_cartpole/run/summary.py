@@ -24,6 +24,7 @@ import torch
 import torchrl
 
 from trl_cartpole.errors import TrainingFailed
+from trl_cartpole.report.console import solve_status
 from trl_cartpole.report.plotting import (
     DashboardData,
     FinalEvaluation,
@@ -87,6 +88,7 @@ def finish(run: Components) -> dict[str, Any]:
             "gymnasium": gym.__version__,
         },
     )
+    summary["solve_status"] = solve_status(summary)  # the ending's and the plots' verdict
     write_json_atomic(run.run_dir / "summary.json", summary)
     run.progress_bar.clear()
     return summary

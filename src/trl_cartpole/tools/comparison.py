@@ -19,6 +19,7 @@ from omegaconf import OmegaConf
 
 from trl_cartpole.config.schema import flat_fields
 from trl_cartpole.errors import ConfigError
+from trl_cartpole.report.console import solve_status
 from trl_cartpole.report.interval_estimates import Estimate, interval_estimate
 
 __all__ = [
@@ -109,14 +110,9 @@ def markdown_table(results: dict[str, list[dict[str, Any]]], label: str = "prese
 
 def _solved_cell(runs: list[dict[str, Any]]) -> str:
     """``solved/runs``, and how many of the solved did not hold it: a final evaluation below the
-    threshold (the run's own verdict: "not reliably solved")."""
+    threshold (the run's own verdict, :func:`~trl_cartpole.report.console.solve_status`)."""
     solved = [r for r in runs if r["solved"]]
-    not_held = [
-        r
-        for r in solved
-        if r.get("solve_threshold") is not None
-        and r["final_eval_return_mean"] < r["solve_threshold"]
-    ]
+    not_held = [r for r in solved if solve_status(r) == "not held"]
     cell = f"{len(solved)}/{len(runs)}"
     return f"{cell} ({len(not_held)} not held)" if not_held else cell
 
