@@ -141,3 +141,18 @@ def test_the_duration_plot_names_its_axis_by_the_env_and_keeps_its_legend_off_th
     ax = Figure().subplots()
     draw_durations(ax, cartpole)
     assert ax.get_ylabel() == "Episode return (its length)"
+
+
+def test_the_profiles_axes_are_labelled_in_words(tmp_path, monkeypatch):
+    """The profiles' axes say what they show: no symbol a reader cannot know (was "tau")."""
+    from trl_cartpole.report import plotting
+
+    saved = []
+    monkeypatch.setattr(plotting, "_atomic_savefig", lambda fig, path: saved.append(fig))
+    plotting.plot_profiles({"a": [1000, None]}, {"a": [500.0, 120.0]}, tmp_path / "p.png")
+    labels = [(ax.get_xlabel(), ax.get_ylabel()) for ax in saved[0].axes]
+    assert labels[1] == (
+        "Final greedy return (the best policy's mean)",
+        "Fraction of runs scoring above it",
+    )
+    assert not any("tau" in text for pair in labels for text in pair)

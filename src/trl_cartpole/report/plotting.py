@@ -486,7 +486,7 @@ def plot_profiles(
     """Performance profiles (Agarwal et al. 2021) of each config over its runs, two panels.
 
     Left: the fraction of runs solved within F frames, for every F (unsolved runs never count).
-    Right: the fraction of runs whose final greedy return exceeds tau, for every tau
+    Right: the fraction of runs whose final greedy return exceeds x, for every return x
     (:func:`trl_cartpole.report.interval_estimates.performance_profile`).
     """
     from trl_cartpole.report.interval_estimates import performance_profile
@@ -510,7 +510,11 @@ def plot_profiles(
     taus = np.linspace(min(returns) - margin, max(returns), 300)  # [G]
     for name, runs in final_returns.items():
         right.step(taus, performance_profile(runs, taus), where="post", label=name)
-    right.set(xlabel="Final greedy return tau", ylabel="Fraction of runs > tau", ylim=(-0.02, 1.02))
+    right.set(
+        xlabel="Final greedy return (the best policy's mean)",
+        ylabel="Fraction of runs scoring above it",
+        ylim=(-0.02, 1.02),
+    )
     for ax in (left, right):
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize="small")
