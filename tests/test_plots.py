@@ -156,3 +156,17 @@ def test_the_profiles_axes_are_labelled_in_words(tmp_path, monkeypatch):
         "Fraction of runs scoring above it",
     )
     assert not any("tau" in text for pair in labels for text in pair)
+
+
+def test_runs_of_two_envs_draw_each_envs_threshold(tmp_path, monkeypatch):
+    """Mixed envs: one dashed line per env, each labelled, not the first run's alone."""
+    from trl_cartpole.report import plotting
+
+    saved = []
+    monkeypatch.setattr(plotting, "_atomic_savefig", lambda fig, path: saved.append(fig))
+    panels = {"Frames": {"a": [([0, 1000], [10.0, 500.0])], "b": [([0, 1000], [-500.0, -90.0])]}}
+    thresholds = {"CartPole-v1": 475.0, "Acrobot-v1": -100.0}
+    plotting.plot_comparison(panels, tmp_path / "c.png", thresholds)
+    (ax,) = saved[0].axes
+    drawn = {line.get_label(): line.get_ydata()[0] for line in ax.get_lines()}
+    assert drawn["CartPole-v1 threshold"] == 475.0 and drawn["Acrobot-v1 threshold"] == -100.0

@@ -452,23 +452,29 @@ def _median_band(ax, name: str, seeds: list[tuple[Sequence[float], Sequence[floa
 def plot_comparison(
     panels: dict[str, dict[str, list[tuple[Sequence[float], Sequence[float]]]]],
     path: str | Path,
-    threshold: float | None = None,
+    threshold: float | dict[str, float] | None = None,
     ylabel: str = "Mean greedy return (eval)",
 ) -> Path:
     """Several configs on shared axes, one panel per x-axis (e.g. ``Frames``, ``Seconds``).
 
     ``panels`` maps an x-axis label to ``{config label: [(x, y) per seed]}``; each config is
     drawn as its median over seeds with an interquartile band (curves held as in
-    :func:`hold_last`).
+    :func:`hold_last`). ``threshold``: one dashed line, or ``{env id: threshold}`` for runs of
+    several envs, each line labelled with its env.
     """
+    lines = {} if threshold is None else threshold
+    if not isinstance(lines, dict):
+        lines = {"": lines}
     path = Path(path)
     fig = Figure(figsize=(6 * len(panels), 4.2))
     axes = fig.subplots(1, len(panels), squeeze=False)
     for ax, (xlabel, groups) in zip(axes.flat, panels.items(), strict=True):
         for name, seeds in groups.items():
             _median_band(ax, name, seeds)
-        if threshold is not None:
-            ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8)
+        for index, (env_id, value) in enumerate(lines.items()):
+            label = f"{env_id} threshold" if len(lines) > 1 else None
+            style = ("--", ":", "-.")[index % 3]
+            ax.axhline(value, color="black", linestyle=style, linewidth=0.8, label=label)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)

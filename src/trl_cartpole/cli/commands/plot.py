@@ -58,10 +58,15 @@ def main(argv: list[str]) -> None:
             curves["Training seconds"][label] = [(e["seconds"], e["returns"]) for e in evals]
     if not curves["Training seconds"]:
         del curves["Training seconds"]
-    threshold = next(iter(groups.values()))[0]["summary"]["solve_threshold"]
+    thresholds = {  # each env's own: runs of several envs draw each, labelled
+        run["summary"].get("env_id", ""): run["summary"]["solve_threshold"]
+        for runs in groups.values()
+        for run in runs
+        if run["summary"].get("solve_threshold") is not None
+    }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    image = plot_comparison(curves, out.with_suffix(".png"), threshold)
+    image = plot_comparison(curves, out.with_suffix(".png"), thresholds)
     summaries = {label: [run["summary"] for run in runs] for label, runs in groups.items()}
     profiles = plot_profiles(
         {label: [s["frames_to_solve"] for s in runs] for label, runs in summaries.items()},
