@@ -176,7 +176,7 @@ def readme_next_steps() -> str:
         _fenced("\n".join(lines), "bash")
         + f"\n\nTimes: command to prompt, one at a time, on an {machine['cpu']} with "
         + f"{machine['cores']} cores ([docs/results/readme.json](docs/results/readme.json) has "
-        + "each step's date and machine)."
+        + "the date, commit and machine of each)."
     )
 
 

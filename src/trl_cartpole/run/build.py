@@ -110,9 +110,8 @@ class RunSettings:
     max_grad_norm: float | None  # the dashboard's clip line (None: no norm clipping)
     best_checkpoint: Path | None  # checkpoints/best, when the run saves it
     autocast: str  # the update's number type as chosen for this machine: bfloat16 | none
-    num_threads: (
-        int  # torch's intra-op threads as chosen for this process (:func:`choose_num_threads`)
-    )
+    # torch's intra-op threads as chosen for this process (:func:`choose_num_threads`)
+    num_threads: int
 
     @classmethod
     def of(cls, cfg: Config, run_dir: Path) -> RunSettings:
