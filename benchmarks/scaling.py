@@ -43,6 +43,7 @@ from trl_cartpole.parts.collectors import (
     needs_weight_sync,
     shutdown_collector,
 )
+from trl_cartpole.run.build import choose_num_threads
 from trl_cartpole.run.envs import worker_env_constructors
 from trl_cartpole.run.from_config import build_actor, build_env, build_exploration
 from trl_cartpole.tools.comparison import markdown_table
@@ -101,7 +102,7 @@ def collection_fps(cfg: Config, frames: int, parallel_env: bool = False) -> floa
     Gymnasium ``SyncVectorEnv`` of one worker by TorchRL's ``ParallelEnv`` (one process per
     env). The first ``WARMUP_BATCHES`` batches are not timed.
     """
-    torch.set_num_threads(cfg.num_threads)
+    torch.set_num_threads(choose_num_threads(cfg.num_threads))
     env = build_env(cfg, cfg.seed)
     actor = build_actor(cfg, env)
     exploration = build_exploration(cfg, env)

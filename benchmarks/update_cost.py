@@ -44,6 +44,7 @@ from trl_cartpole.config.schema import to_config
 from trl_cartpole.config.validation import validate
 from trl_cartpole.parts.optim import make_optimizer
 from trl_cartpole.parts.replay import extend_with_batch, sample_minibatches
+from trl_cartpole.run.build import choose_num_threads
 from trl_cartpole.run.from_config import (
     build_actor,
     build_env,
@@ -148,7 +149,7 @@ def _built(algo: str, seed: int, overrides: list[str]):
     cfg = validate(
         to_config(compose_config(CONFIG_DIR, [f"algo={algo}", f"seed={seed}", *overrides]))
     )
-    torch.set_num_threads(cfg.num_threads)
+    torch.set_num_threads(choose_num_threads(cfg.num_threads))
     seed_everything(seed)
     env = build_env(cfg, seed)
     actor = build_actor(cfg, env)
@@ -320,6 +321,7 @@ def main(args: argparse.Namespace) -> None:
                 {"name": FLOOR, "update_ms": floor, "total_ms": floor},
             ]
         record = {
+            "num_threads": torch.get_num_threads(),  # as the last run set it (num_threads)
             "rows": [row for row in rows if row["name"] in ("dqn", COMPILED, RAW, FLOOR)],
             "compile_seconds": others["compile_s"][0],  # the first seed's: a run's compile
         }
@@ -334,7 +336,8 @@ def main(args: argparse.Namespace) -> None:
 
 def _record(args: argparse.Namespace, record: dict) -> None:
     """Add the measurement to ``args.record`` with its command, machine and date; one with the
-    same overrides is replaced (docs/results/speed.md is generated from the file)."""
+    same overrides on the same kind of processor (its vector units) is replaced
+    (docs/results/speed.md is generated from the file)."""
     from benchmarks.harness import provenance
 
     command = " ".join(
@@ -349,5 +352,10 @@ def _record(args: argparse.Namespace, record: dict) -> None:
     if args.note:
         measurement["note"] = args.note
     existing = json.loads(args.record.read_text()) if args.record.exists() else {"runs": []}
-    runs = [run for run in existing["runs"] if run["overrides"] != args.overrides]
+    runs = [
+        run
+        for run in existing["runs"]
+        if (run["overrides"], run["machine"]["vector_units"])
+        != (args.overrides, measurement["machine"]["vector_units"])
+    ]
     args.record.write_text(json.dumps({"runs": [*runs, measurement]}, indent=2) + "\n")

@@ -754,6 +754,30 @@ def update_cost() -> str:
     return "\n".join([*parts, verdict])
 
 
+def atari_update_cost() -> str:
+    """docs/atari.md's table of one Breakout update on each kind of processor measured: from
+    the ``env=breakout`` runs of ``docs/results/update_cost.json``."""
+    from benchmarks.update_cost import COMPILED
+
+    rows = [
+        "| processor | number type | threads | ms per update, eager | compiled |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    runs = json.loads(UPDATE_COST.read_text())["runs"]
+    for run in (run for run in runs if "env=breakout" in run["overrides"]):
+        units = run["machine"]["vector_units"]
+        native = "avx512_bf16" in units or "amx_bf16" in units
+        processor = "AVX-512 BF16" if native else "AVX-512" if "avx512f" in units else "AVX2"
+        bfloat16 = "optim.autocast=bfloat16" in run["overrides"]
+        kind = ("bfloat16" + ("" if native else " (emulated)")) if bfloat16 else "float32"
+        total = {row["name"]: row["total_ms"] for row in run["rows"]}
+        rows.append(
+            f"| {run['machine']['cpu']}, {processor} | {kind} | {run['num_threads']} "
+            f"| {total['dqn']:.1f} | {total[COMPILED]:.1f} |"
+        )
+    return "\n".join(rows)
+
+
 def _against_float32(run: dict, runs: list[dict]) -> str:
     """For a run with ``optim.autocast=bfloat16``: its updates over the same run's in float32
     (the measurement with the same overrides less that one, or with ``optim.autocast=none`` in
@@ -769,6 +793,7 @@ def _against_float32(run: dict, runs: list[dict]) -> str:
             other
             for other in runs
             if [override for override in other["overrides"] if override != none] == plain
+            and other["machine"]["vector_units"] == run["machine"]["vector_units"]
         ),
         None,
     )
@@ -870,6 +895,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "atari-torchrl-settings": ("docs/results/breakout.md", atari_torchrl_settings),
     "checkpoint-cost": ("docs/reliability.md", checkpoint_cost),
     "update-cost": ("docs/results/speed.md", update_cost),
+    "atari-update-cost": ("docs/atari.md", atari_update_cost),
     **{
         f"race-{env}": ("docs/results/peers.md", partial(performance_tables, path))
         for env, path in RACES.items()

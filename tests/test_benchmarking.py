@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import threading
 import time
@@ -190,6 +191,7 @@ def test_update_cost_prints_a_row_per_preset_and_records_the_compiled_and_raw_ro
         str(tmp_path),
         "--record",
         str(record),
+        "num_threads=0",  # every core this process may use, as training reads it
         timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
@@ -203,7 +205,8 @@ def test_update_cost_prints_a_row_per_preset_and_records_the_compiled_and_raw_ro
     assert "framework tax (dqn / raw): " in proc.stdout
     (run,) = json.loads(record.read_text())["runs"]
     assert [row["name"] for row in run["rows"]] == ["dqn", COMPILED, RAW, FLOOR]
-    assert run["compile_seconds"] > 0 and run["overrides"] == []
+    assert run["compile_seconds"] > 0 and run["overrides"] == ["num_threads=0"]
+    assert run["num_threads"] == len(os.sched_getaffinity(0))
 
 
 @pytest.mark.parametrize("double", [False, True])

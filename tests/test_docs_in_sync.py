@@ -259,3 +259,24 @@ def test_the_guide_pages_stay_guides(page):
     text = (ROOT / page).read_text()
     assert len(text.splitlines()) <= 250
     assert "results/" in text
+
+
+def test_the_atari_update_table_names_the_processor_and_an_emulated_bfloat16(tmp_path, monkeypatch):
+    from benchmarks.update_cost import COMPILED
+
+    def run(units: list[str], autocast: str, threads: int, eager: float) -> dict:
+        rows = [{"name": "dqn", "total_ms": eager}, {"name": COMPILED, "total_ms": eager / 2}]
+        overrides = ["env=breakout", f"optim.autocast={autocast}", f"num_threads={threads}"]
+        machine = {"cpu": "test CPU", "cores": 2, "vector_units": units}
+        return {"machine": machine, "overrides": overrides, "num_threads": threads, "rows": rows}
+
+    native, avx2 = ["avx2", "avx512f", "avx512_bf16"], ["avx2", "fma"]
+    cartpole = {**run(avx2, "none", 1, 1.0), "overrides": []}  # not Breakout: left out
+    runs = [run(native, "bfloat16", 1, 30.0), run(avx2, "bfloat16", 2, 600.0), cartpole]
+    path = tmp_path / "update_cost.json"
+    path.write_text(json.dumps({"runs": runs}))
+    monkeypatch.setattr(docs, "UPDATE_COST", path)
+    assert docs.atari_update_cost().splitlines()[2:] == [
+        "| test CPU, AVX-512 BF16 | bfloat16 | 1 | 30.0 | 15.0 |",
+        "| test CPU, AVX2 | bfloat16 (emulated) | 2 | 600.0 | 300.0 |",
+    ]
