@@ -25,6 +25,7 @@ from trl_cartpole.report.console import (
     DYNAMO_PROFILER_LOGGER,
     ending,
     quiet_libraries,
+    shown_path,
     solve_status,
     verdict,
 )
@@ -142,6 +143,13 @@ def test_the_ending_of_an_unsolved_run_and_of_an_env_without_threshold():
     one = verdict(_summary(solve_threshold=None, eval_curve={"frames": [5000]}))
     assert "no solve threshold" in one and "the best policy of 1 evaluation returned" in one
     assert "next:" in ending(_summary()) and "next:" not in ending(_summary(checkpoint=None))
+
+
+def test_the_endings_export_command_writes_into_the_run_directory_not_the_clone():
+    summary = _summary()
+    (export,) = [line for line in ending(summary).splitlines() if "export" in line]
+    output = export.split("output=")[1].split()[0]
+    assert output == f"{shown_path(summary['run_dir'])}/policy.pt2"
 
 
 def test_episodes_are_recorded_in_the_order_they_ended_with_their_frame():

@@ -349,9 +349,13 @@ def test_signal_checkpoints_and_the_resumed_run_equals_the_uninterrupted_one(
     proc.send_signal(signum)
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == code, stderr[-2000:]
-    last_line = stderr.strip().splitlines()[-1]
+    lines = stderr.strip().splitlines()
     # the command names the interpreter that ran (here .venv/bin/python or python)
-    assert re.search(rf"resume with: \S*python\S* scripts/train.py resume={run_dir}$", last_line)
+    assert re.search(rf"resume with: \S*python\S* scripts/train.py resume={run_dir}$", lines[-4])
+    assert lines[-3] == "next:"  # the policy so far, evaluated and rendered
+    for line, script in zip(lines[-2:], ("evaluate.py", "render.py"), strict=True):
+        assert f"scripts/{script} checkpoint=" in line
+        assert Path(line.split("checkpoint=")[1].split()[0]).is_dir()
     assert "Traceback" not in stderr
     assert not (run_dir / "summary.json").exists()  # the run is not over
 
@@ -1092,3 +1096,23 @@ def test_the_run_lock_names_its_process_while_held_and_nothing_once_released(tmp
     lock.release()
     assert (tmp_path / ".lock").read_text() == ""  # a finished run's lock reads as free
     RunLock(tmp_path).release()  # and is taken again at once
+
+
+def test_a_stopped_run_names_its_best_policy_or_before_any_its_newest_training_state(tmp_path):
+    from trl_cartpole.run.checkpointer import play_commands
+    from trl_cartpole.store.checkpoint import INTEGRITY
+
+    older, newer = (tmp_path / "checkpoints" / "periodic" / name for name in ("0100", "0200"))
+    for state in (older, newer):
+        state.mkdir(parents=True)
+        (state / INTEGRITY).write_text("{}")
+    lines = play_commands(tmp_path).splitlines()
+    assert lines[0] == "next:"
+    assert [line.split("checkpoint=")[1].split()[0] for line in lines[1:]] == [str(newer)] * 2
+    assert "evaluate" in lines[1] and "render" in lines[2]
+
+    best = tmp_path / "checkpoints" / "best"
+    best.mkdir()
+    (best / "manifest.json").write_text("{}")  # an evaluation ran: its best policy is played
+    lines = play_commands(tmp_path).splitlines()
+    assert [line.split("checkpoint=")[1].split()[0] for line in lines[1:]] == [str(tmp_path)] * 2

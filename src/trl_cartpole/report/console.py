@@ -268,7 +268,7 @@ def ending(
             "next:",
             f"  {_run_with_env('evaluate')} checkpoint={run}   # {episodes} greedy episodes",
             f"  {_run_with_env('render')} checkpoint={run}     # a GIF of the agent",
-            f"  {_run_with_env('export')} checkpoint={run} output=policy.pt2  # or .onnx",
+            f"  {_run_with_env('export')} checkpoint={run} output={run}/policy.pt2  # or .onnx",
         ]
     return "\n".join(lines)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import errno
 import math
+import shlex
 import signal
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -46,6 +47,21 @@ def _saved_bytes(name: str, component: Any) -> int:
         return size
     capacity = max(component.storage.max_size, 1)
     return size * min(len(component), capacity) // capacity
+
+
+def play_commands(run_dir: Path) -> str:
+    """The ``next:`` lines of a stopped run: evaluate and render its best policy, or before its
+    first evaluation the policy of its newest training state."""
+    best = run_dir / "checkpoints" / "best" / "manifest.json"
+    target = run_dir if best.is_file() else find_complete_checkpoints(run_dir)[-1]
+    where = shlex.quote(shown_path(target))
+    return "\n".join(
+        [
+            "next:",
+            f"  {command('evaluate')} checkpoint={where}   # greedy episodes of the policy so far",
+            f"  {command('render')} checkpoint={where}     # a GIF of it",
+        ]
+    )
 
 
 class Checkpointer:
@@ -175,7 +191,8 @@ class Checkpointer:
         if stop.requested:
             raise TrainingInterrupted(
                 f"stopped by {signal.Signals(stop.signum).name} at frame {progress.frames}; "
-                f"checkpoint written; resume with: {self.resume_command()}",
+                f"checkpoint written; resume with: {self.resume_command()}\n"
+                f"{play_commands(self.run_dir)}",
                 stop.signum,
             )
         progress.clock.start()
