@@ -476,3 +476,13 @@ def test_a_restored_game_repeats_the_saved_games_last_action_on_a_sticky_frame()
             theirs, ours = step_mdp(a), step_mdp(b)
         assert restore_env_snapshot(saved, snapshot)  # back, and on from there
         state = carried
+
+
+def test_make_env_answers_an_atari_id_with_the_factory_that_preprocesses_it():
+    from trl_cartpole.parts.env import make_env
+
+    with pytest.raises(ConfigError, match=r"Atari game: make_atari_env\('ALE/Breakout-v5'\)"):
+        make_env(BREAKOUT)
+    env = make_atari_env(BREAKOUT, seed=0)  # the factory it names builds it
+    assert env.reset()["pixels"].shape == (4, 84, 84)
+    env.close()
