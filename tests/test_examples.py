@@ -87,3 +87,23 @@ def test_your_own_network_trains_under_the_factories_parts():
     assert 0 < len(out["losses"]) < 2 * 50
     assert torch.isfinite(torch.tensor(out["losses"])).all()
     assert 1.0 <= out["greedy_return"] <= 500.0
+
+
+def test_an_atari_game_trains_in_your_own_loop_with_the_frame_storage_and_learner_view():
+    pytest.importorskip("ale_py")
+    from trl_cartpole.envs.atari import EOL_KEY, LearnerView
+    from trl_cartpole.storage.frames import FrameStackStorage
+
+    out = _main("atari_breakout.py")(["--steps", "200"])
+    assert out["actor"].in_keys == ["pixels"]  # found in the spec, not passed
+    buffer = out["buffer"]
+    assert isinstance(buffer.storage, FrameStackStorage)
+    assert any(isinstance(t, LearnerView) for t in buffer.transform)
+    # 50 batches of 4 steps; updates from the batch where 100 transitions are stored
+    assert 24 <= len(out["losses"]) <= 26 and torch.isfinite(torch.tensor(out["losses"])).all()
+    sample = buffer.sample()  # [32]
+    assert sample["pixels"].shape == (32, 4, 84, 84) and sample["pixels"].dtype == torch.uint8
+    # each step's reward clipped to its sign before the 3-step sum (a brick scores up to 7)
+    assert sample["next", "reward"].abs().max() <= 1 + 0.99 + 0.99**2 + 1e-6
+    lost = sample["next", EOL_KEY]
+    assert sample["next", "terminated"][lost].all()  # a lost life ends the learner's episode
