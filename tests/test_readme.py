@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 
 import pytest
 from torchrl.modules import DistributionalQValueActor, NoisyLinear, QValueActor
@@ -20,10 +22,14 @@ def _blocks(text: str, language: str) -> list[str]:
 
 
 @pytest.mark.slow  # a run in a fresh interpreter
-def test_readme_python_example_runs_on_its_own(capsys):
+def test_readme_python_example_runs_on_its_own_and_prints_only_its_own_line():
     (code,) = _blocks(README, "python")
-    exec(compile(code, "README.md", "exec"), {})  # a fresh namespace: nothing defined before
-    assert "last TD loss" in capsys.readouterr().out
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=False
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert re.fullmatch(r"last TD loss \d+\.\d{3}\n", proc.stdout)
+    assert proc.stderr == ""  # no library's log line, warning or progress
 
 
 def test_guide_variant_heads_example_runs_on_its_own():
