@@ -89,6 +89,7 @@ def test_your_own_network_trains_under_the_factories_parts():
     assert 1.0 <= out["greedy_return"] <= 500.0
 
 
+@pytest.mark.slow  # 200 Breakout steps and 25 CNN updates
 def test_an_atari_game_trains_in_your_own_loop_with_the_frame_storage_and_learner_view():
     pytest.importorskip("ale_py")
     from trl_cartpole.envs.atari import EOL_KEY, LearnerView
