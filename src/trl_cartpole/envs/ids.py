@@ -200,7 +200,7 @@ def check_env_fits(
             "DQN here needs a vector observation (a Gymnasium Box of rank 1)"
         )
     shape = tuple(observation_space.shape or ())
-    if len(shape) == 3 and str(env_id).startswith("ALE/"):
+    if len(shape) == 3 and is_atari_id(env_id):
         raise ConfigError(
             f"env {env_id!r} is an Atari game: make_atari_env({str(env_id)!r}) from "
             "trl_cartpole.envs.atari builds it with the standard preprocessing (84x84 gray, "
