@@ -702,30 +702,13 @@ def test_resume_refuses_an_incompatible_config(finished_run, args, message):
 
 
 @pytest.mark.parametrize("script", ["evaluate.py", "render.py", "export.py"])
-def test_a_directory_without_a_best_policy_is_one_line_naming_what_to_pass(
-    tmp_path, finished_run, script
-):
-    no_best = tmp_path / "run"
-    shutil.copytree(finished_run, no_best)
-    shutil.rmtree(no_best / "checkpoints" / "best")
-    last = no_best / "checkpoints" / "last"
-    # a short run stopped before its first evaluation holds a periodic training state only
-    periodic_only = tmp_path / "short"
-    shutil.copytree(no_best, periodic_only)
-    periodic = periodic_only / "checkpoints" / "periodic" / "frames-000300"
-    periodic.parent.mkdir(exist_ok=True)
-    shutil.move(periodic_only / "checkpoints" / "last", periodic)
-    cases = [
-        (no_best, f"has no best policy yet (no evaluation ran); pass checkpoint={last} for"),
-        (periodic_only, f"pass checkpoint={periodic} for the policy of its newest training state"),
-        (tmp_path, "is neither a checkpoint nor a run directory"),
-    ]
+def test_a_directory_without_checkpoints_is_one_line_naming_what_to_pass(tmp_path, script):
     output = tmp_path / ("policy.pt2" if script == "export.py" else "out.gif")
-    for path, message in cases:
-        proc = run_script_in_process(script, f"checkpoint={path}", f"output={output}")
-        lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
-        assert proc.returncode == 2 and len(lines) == 1 and message in lines[0], proc.stderr
-        assert "Traceback" not in proc.stderr
+    proc = run_script_in_process(script, f"checkpoint={tmp_path}", f"output={output}")
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+    assert "is neither a checkpoint nor a run directory" in lines[0]
+    assert "Traceback" not in proc.stderr and not output.exists()
 
 
 def test_policy_checkpoint_cannot_be_resumed_and_a_foreign_one_cannot_be_evaluated(
@@ -1098,21 +1081,33 @@ def test_the_run_lock_names_its_process_while_held_and_nothing_once_released(tmp
     RunLock(tmp_path).release()  # and is taken again at once
 
 
-def test_a_stopped_run_names_its_best_policy_or_before_any_its_newest_training_state(tmp_path):
+def test_a_run_directory_offers_its_best_policy_or_before_any_its_newest_training_state(
+    tmp_path,
+):
+    from trl_cartpole.policy.load import policy_checkpoint
     from trl_cartpole.run.checkpointer import play_commands
     from trl_cartpole.store.checkpoint import INTEGRITY
 
+    with pytest.raises(ConfigError, match="is neither a checkpoint nor a run directory"):
+        policy_checkpoint(tmp_path)  # nothing saved yet
     older, newer = (tmp_path / "checkpoints" / "periodic" / name for name in ("0100", "0200"))
     for state in (older, newer):
         state.mkdir(parents=True)
+        (state / "manifest.json").write_text("{}")
         (state / INTEGRITY).write_text("{}")
-    lines = play_commands(tmp_path).splitlines()
-    assert lines[0] == "next:"
-    assert [line.split("checkpoint=")[1].split()[0] for line in lines[1:]] == [str(newer)] * 2
-    assert "evaluate" in lines[1] and "render" in lines[2]
-
+    (tmp_path / "checkpoints" / "periodic" / ".0300.stage-x").mkdir()  # a write cut short
+    assert policy_checkpoint(tmp_path) == newer
+    last = tmp_path / "checkpoints" / "last"
+    last.mkdir()
+    (last / INTEGRITY).write_text("{}")  # the end-of-run state is the newest
+    assert policy_checkpoint(tmp_path) == last
     best = tmp_path / "checkpoints" / "best"
     best.mkdir()
     (best / "manifest.json").write_text("{}")  # an evaluation ran: its best policy is played
+    assert policy_checkpoint(tmp_path) == best
+    assert policy_checkpoint(newer) == newer  # a checkpoint is itself
+
     lines = play_commands(tmp_path).splitlines()
+    assert lines[0] == "next:"
     assert [line.split("checkpoint=")[1].split()[0] for line in lines[1:]] == [str(tmp_path)] * 2
+    assert "evaluate" in lines[1] and "render" in lines[2]

@@ -24,8 +24,8 @@ from trl_cartpole.run.eval_protocol import EvalProtocol
 from trl_cartpole.run.evaluation import EvalResult
 from trl_cartpole.run.from_config import build_actor, build_env
 from trl_cartpole.store.checkpoint import (
-    find_complete_checkpoints,
     load_policy,
+    newest_policy,
     read_checkpoint_config,
     read_observation_norm,
     verify_checkpoint,
@@ -45,26 +45,21 @@ class TrainedPolicy:
 
 
 def policy_checkpoint(path: str | Path) -> Path:
-    """``path`` if it is a checkpoint; for a run directory, its best policy.
+    """``path`` if it is a checkpoint; for a run directory, its best policy, or before its
+    first evaluation the policy of its newest training state (:func:`newest_policy`).
 
     Raises a one-line ``ConfigError`` for a directory that is neither.
     """
     path = Path(path)
-    checkpoints = path / "checkpoints"
     if not path.is_dir() or (path / "manifest.json").is_file():
         return path  # a checkpoint, or a path whose reading says what is wrong with it
-    if (checkpoints / "best" / "manifest.json").is_file():
-        return checkpoints / "best"
-    states = find_complete_checkpoints(path)  # periodic and end-of-run training states
-    if states:
+    policy = newest_policy(path)
+    if policy is None:
         raise ConfigError(
-            f"checkpoint={str(path)!r} has no best policy yet (no evaluation ran); pass "
-            f"checkpoint={states[-1]} for the policy of its newest training state"
+            f"checkpoint={str(path)!r} is neither a checkpoint nor a run directory with "
+            "checkpoints; pass the directory training printed"
         )
-    raise ConfigError(
-        f"checkpoint={str(path)!r} is neither a checkpoint nor a run directory with "
-        "checkpoints/best; pass the directory training printed"
-    )
+    return policy
 
 
 def load_trained_policy(

@@ -50,11 +50,9 @@ def _saved_bytes(name: str, component: Any) -> int:
 
 
 def play_commands(run_dir: Path) -> str:
-    """The ``next:`` lines of a stopped run: evaluate and render its best policy, or before its
-    first evaluation the policy of its newest training state."""
-    best = run_dir / "checkpoints" / "best" / "manifest.json"
-    target = run_dir if best.is_file() else find_complete_checkpoints(run_dir)[-1]
-    where = shlex.quote(shown_path(target))
+    """The ``next:`` lines of a stopped run: evaluate and render the policy its directory offers
+    (its best, or before its first evaluation its newest training state's)."""
+    where = shlex.quote(shown_path(run_dir))
     return "\n".join(
         [
             "next:",

@@ -40,6 +40,7 @@ __all__ = [
     "find_resume_checkpoint",
     "load_policy",
     "load_training_state",
+    "newest_policy",
     "read_checkpoint_config",
     "read_observation_norm",
     "resume_config",
@@ -202,6 +203,16 @@ def find_resume_checkpoint(path: str | Path) -> Path:
     return max(
         reversed(candidates), key=lambda c: _read_manifest(c)["metadata"]["counters"]["frames"]
     )
+
+
+def newest_policy(run_dir: str | Path) -> Path | None:
+    """The policy a run directory offers: its best policy (``checkpoints/best``), or before its
+    first evaluation the one in its newest complete training state; None if it has neither."""
+    best = Path(run_dir) / "checkpoints" / "best"
+    if (best / "manifest.json").is_file():
+        return best
+    states = find_complete_checkpoints(run_dir)
+    return states[-1] if states else None
 
 
 def find_complete_checkpoints(run_dir: str | Path) -> list[Path]:

@@ -2,7 +2,8 @@
 
 usage: trl-cartpole evaluate [checkpoint=]RUN_DIR [episodes=N] [seed=N] [epsilon=0.0]
 
-RUN_DIR is the directory training printed (its best policy is evaluated) or one checkpoint
+RUN_DIR is the directory training printed (its best policy is evaluated; before its first
+evaluation, its newest training state's) or one checkpoint
 in it (runs/.../checkpoints/last). It plays as many episodes as the run's final evaluation
 did (eval.final_episodes: 100 on CartPole, 30 whole games on Breakout) unless told. Prints
 mean, std, min and max of the episode returns and writes them all as JSON beside the
@@ -48,7 +49,7 @@ def main(argv: list[str]) -> None:
     from trl_cartpole.store.checkpoint import read_checkpoint_config
     from trl_cartpole.store.files import write_json_atomic
 
-    checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its best policy
+    checkpoint = policy_checkpoint(args.checkpoint)  # a run directory: its policy
     episodes = args.episodes or read_checkpoint_config(checkpoint).eval.final_episodes
     playing = f"playing {episodes} episodes of {checkpoint}"
 

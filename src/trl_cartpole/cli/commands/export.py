@@ -2,8 +2,9 @@
 
 usage: trl-cartpole export [checkpoint=]RUN_DIR output=policy.onnx
 
-RUN_DIR is the directory training printed (its best policy is exported) or one checkpoint in
-it. The suffix of output picks the format: .onnx (needs the export extra) or .pt2.
+RUN_DIR is the directory training printed (its best policy is exported; before its first
+evaluation, its newest training state's) or one checkpoint in it. The suffix of output picks
+the format: .onnx (needs the export extra) or .pt2.
 The model maps observations [batch, obs_dim] to action values [batch, num_actions] with the
 run's observation normalisation folded in; the greedy action is their arg-max (docs/export.md).
 """

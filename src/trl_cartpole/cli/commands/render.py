@@ -2,7 +2,8 @@
 
 usage: trl-cartpole render [checkpoint=]RUN_DIR [episodes=3] [output=agent.gif] [human=true]
 
-RUN_DIR is the directory training printed (its best policy plays) or one checkpoint in it.
+RUN_DIR is the directory training printed (its best policy plays; before its first
+evaluation, its newest training state's) or one checkpoint in it.
 Every frame is captioned with the episode, step and return so far and written to ``output``
 (default: checkpoints/video.gif in the run). ``human=true`` opens Gymnasium's window instead.
 """
