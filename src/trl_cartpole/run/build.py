@@ -110,11 +110,10 @@ class RunSettings:
     max_grad_norm: float | None  # the dashboard's clip line (None: no norm clipping)
     best_checkpoint: Path | None  # checkpoints/best, when the run saves it
     autocast: str  # the update's number type as chosen for this machine: bfloat16 | none
-    # torch's intra-op threads as chosen for this process (:func:`choose_num_threads`)
-    num_threads: int
+    num_threads: int  # torch's intra-op threads as set for this process (choose_num_threads)
 
     @classmethod
-    def of(cls, cfg: Config, run_dir: Path) -> RunSettings:
+    def of(cls, cfg: Config, run_dir: Path, learner: Learner) -> RunSettings:
         return cls(
             env_id=cfg.env.id,
             seed=cfg.seed,
@@ -130,8 +129,8 @@ class RunSettings:
             time_limit=time_limit(cfg.env.id, cfg.env.max_episode_steps),
             max_grad_norm=cfg.optim.max_grad if cfg.optim.grad_clip == "norm" else None,
             best_checkpoint=run_dir / "checkpoints" / "best" if cfg.checkpoint.save_best else None,
-            autocast=choose_autocast(cfg.optim.autocast, cfg.device)[0],
-            num_threads=choose_num_threads(cfg.num_threads),
+            autocast=learner.autocast,
+            num_threads=torch.get_num_threads(),
         )
 
 
@@ -360,7 +359,7 @@ def _assemble(
         wall_start=wall_start,
         protocol=protocol,
         worker_log_dir=worker_log_dir(cfg, run_dir),
-        settings=RunSettings.of(cfg, run_dir),
+        settings=RunSettings.of(cfg, run_dir, learner),
     )
 
 

@@ -230,7 +230,7 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         eps=cfg.optim.eps,
     )
     fused = fuse_dqn_loss(loss) if cfg.fast else None  # None: C51, noisy layers
-    chosen, _ = choose_autocast(cfg.optim.autocast, cfg.device)  # the run says it once
+    chosen, _ = choose_autocast(cfg.optim.autocast, cfg.device)  # said by the run
     autocast_dtype = None if chosen == "none" else getattr(torch, chosen)
     update = make_update(
         loss if fused is None else fused,
@@ -258,7 +258,7 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
                 "holds fixed: pass compile=false, or optim.lr_end=null"
             )
         update = torch.compile(update) if lean is None else lean
-    return Learner(buffer, loss, target_updater, optimizer, update)
+    return Learner(buffer, loss, target_updater, optimizer, update, autocast=chosen)
 
 
 def build_collector(

@@ -51,8 +51,10 @@ class Learner:
         target_updater: TargetNetUpdater,
         optimizer: torch.optim.Optimizer,
         update: Callable[[TensorDictBase], TensorDict],
+        autocast: str = "none",
     ) -> None:
         self.buffer, self.loss, self.target_updater = buffer, loss, target_updater
+        self.autocast = autocast  # the update's number type: "bfloat16" or "none" (float32)
         self.optimizer = optimizer  # (stepped inside ``update``; saved with the training state)
         self.update = update  # make_update(...): one gradient step, possibly torch.compile'd
         self.prioritized = is_prioritized(buffer)
