@@ -14,14 +14,52 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
+from matplotlib.figure import Figure
+
 from benchmarks.harness import VARIANT_PRESETS, provenance, provenance_line, run_presets
-from trl_cartpole.report.plotting import plot_seed_groups
+from trl_cartpole.report.plotting import draw_median_band, savefig_atomic
 from trl_cartpole.tools.comparison import markdown_table
 
 SEEDS, OUT = [0, 1, 2, 3, 4], "runs/ablations"
 BEGIN, END = "<!-- ablation:begin -->", "<!-- ablation:end -->"
+
+
+def plot_seed_groups(
+    curves: dict[str, list[tuple[Sequence[int], Sequence[float]]]],
+    path: str | Path,
+    threshold: float | None = None,
+    ylabel: str = "Mean greedy return (eval)",
+) -> Path:
+    """One panel per group: each seed's curve, their median and interquartile band.
+
+    ``curves`` maps a group name (a preset) to one ``(frames, values)`` per seed; every seed
+    is held at its last value up to the longest run of the group (see :func:`hold_last`).
+    """
+    path = Path(path)
+    columns = min(4, len(curves))
+    rows = -(-len(curves) // columns)
+    fig = Figure(figsize=(4 * columns, 3.2 * rows))
+    axes = fig.subplots(rows, columns, squeeze=False, sharey=True)
+    for ax, (name, seeds) in zip(axes.flat, curves.items(), strict=False):
+        for frames, values in seeds:
+            ax.step(frames, values, where="post", color="grey", alpha=0.35, linewidth=0.8)
+        draw_median_band(ax, "median, interquartile band", seeds)
+        if threshold is not None:
+            ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8)
+        ax.set_title(name)
+        ax.set_xlabel("Frames")
+        ax.grid(alpha=0.3)
+    for ax in axes[:, 0]:
+        ax.set_ylabel(ylabel)
+    for ax in list(axes.flat)[len(curves) :]:
+        ax.set_visible(False)
+    axes.flat[0].legend(loc="lower right", fontsize="small")
+    fig.tight_layout()
+    savefig_atomic(fig, path)
+    return path
 
 
 def write_between_markers(doc: Path, block: str) -> None:

@@ -14,8 +14,9 @@ be 1.
 With ``dqn`` among the presets three more rows come from the same batches, interleaved with
 the ``dqn`` updates batch by batch so that the machine's drift slows all alike:
 
-- ``dqn, compile=true``: the same preset with its update compiled whole
-  (:mod:`trl_cartpole.fast.compiled_update`), its compilation timed apart;
+- ``dqn, compile=true``: the same preset with its update compiled whole (``torch.compile``
+  of the gradient step, the learning rate held, as ``compile=true`` trains), its compilation
+  timed apart;
 - raw PyTorch (``raw_update``: the same MLP, batch, n-step TD target, Huber loss,
   gradient-norm clipping, fused AdamW and hard target copy, on plain tensors sampled with one
   ``randint``), eager;
@@ -196,7 +197,7 @@ def time_learner(
     cfg, learner, env = _built(algo, seed, overrides)
     contenders = {}
     if others is not None:
-        _, compiled, _ = _built(algo, seed, [*overrides, "compile=true"])
+        _, compiled, _ = _built(algo, seed, [*overrides, "compile=true", "optim.lr_end=null"])
         start = time.perf_counter()
         _learner_batch(compiled, 1)  # the first call compiles
         others.setdefault("compile_s", []).append(time.perf_counter() - start)

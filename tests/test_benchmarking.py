@@ -12,7 +12,7 @@ import time
 import pytest
 
 from benchmarks import harness
-from benchmarks.ablate import BEGIN, write_between_markers
+from benchmarks.ablate import BEGIN, plot_seed_groups, write_between_markers
 from benchmarks.envs import table as env_table
 from benchmarks.harness import speed_ratios
 from benchmarks.profile import phase_table
@@ -20,7 +20,6 @@ from benchmarks.run import iqm_ratio_lines, ratio_lines
 from benchmarks.update_cost import COMPILED, FLOOR, RAW, update_flops
 from benchmarks.wall import wall_table
 from trl_cartpole.config.schema import to_config
-from trl_cartpole.report.plotting import plot_seed_groups
 
 from .conftest import ROOT, summary_of
 

@@ -80,16 +80,16 @@ def _steps(envs: int, steps: int) -> TensorDict:
 
 def test_n_step_window_is_what_the_multistep_transform_holds_back():
     uniform = make_replay_buffer(max_size=100, batch_size=4, n_steps=1)
-    assert compat.replay_transform(uniform) is None and compat.n_step_window(uniform) is None
+    assert compat.n_step_transform(uniform) is None
     buffer = make_replay_buffer(max_size=100, batch_size=4, n_steps=3, gamma=0.9)
     extend_with_batch(buffer, _steps(envs=2, steps=5))
     assert len(buffer) == 2 * (5 - 3)  # windows complete for the first 2 steps of each env
-    window = compat.n_step_window(buffer)
+    transform = compat.n_step_transform(buffer)
+    window = compat.held_steps(transform)
     assert window is not None and window.batch_size[0] == 2  # one row per env
     held = window.clone()
-    compat.set_n_step_window(buffer, held)
-    assert compat.n_step_window(buffer) is held
-    assert compat.held_steps(compat.replay_transform(buffer)[0]) is held
+    compat.set_held_steps(transform, held)
+    assert compat.held_steps(compat.n_step_transform(buffer)) is held
 
 
 def test_n_step_returns_are_torchrls_window_sums():
@@ -180,19 +180,6 @@ def test_segment_tree_stand_ins_answer_queries(tree):
         assert values.scan_lower_bound(torch.tensor([4.5, 7.5])).tolist() == [1, 3]
     else:
         assert values.query(0, 4) == 1.0 and values.query(1, 3) == 2.0
-
-
-def test_soft_update_pairs_are_the_online_and_target_parameters_in_order():
-    from trl_cartpole.parts.losses import make_dqn_loss, make_target_updater
-
-    env = make_env("CartPole-v1", seed=0)
-    loss = make_dqn_loss(make_q_actor(env.observation_spec, env.action_spec))
-    updater = make_target_updater(loss, tau=0.5)
-    sources, targets = compat.soft_update_pairs(updater)
-    online = [p.data for p in loss.value_network_params.values(True, True)]
-    assert len(sources) == len(targets) == len(online) > 0
-    assert all(s.shape == t.shape for s, t in zip(sources, targets, strict=True))
-    assert {s.data_ptr() for s in sources} == {p.data_ptr() for p in online}
 
 
 def test_a_partial_step_leaves_the_unmarked_envs_and_the_next_input_is_rollouts():

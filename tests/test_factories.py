@@ -15,7 +15,6 @@ from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
 
 from trl_cartpole.envs.ids import solve_threshold
-from trl_cartpole.fast.soft_update import FusedSoftUpdate, fuse_soft_update
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
 from trl_cartpole.parts.exploration import ExponentialEGreedyModule, make_exploration
@@ -148,40 +147,6 @@ def test_soft_update_moves_target_by_tau(env):
     updater.step()
     values = torch.cat([t.flatten() for t in target.values(True, True)])
     assert torch.allclose(values, torch.full_like(values, 0.5))  # 0.25 * 2 + 0.75 * 0
-
-
-def test_fused_soft_update_moves_the_target_exactly_as_torchrl_soft_update(env):
-    def loss_and_updater(make_updater):  # the same online and target weights each time
-        torch.manual_seed(0)
-        loss = make_dqn_loss(
-            make_q_actor(env.observation_spec, env.action_spec, num_cells=[16, 16])
-        )
-        updater = make_updater(loss)  # (its init_ copies the online weights to the target)
-        loss.target_value_network_params.apply(lambda t: t.data.normal_())
-        return loss, updater
-
-    fused_loss, fused = loss_and_updater(
-        lambda loss: fuse_soft_update(make_target_updater(loss, tau=0.05))
-    )
-    torchrl_loss, reference = loss_and_updater(lambda loss: SoftUpdate(loss, tau=0.05))
-    assert isinstance(fused, FusedSoftUpdate)
-    before = [t.clone() for t in fused_loss.target_value_network_params.values(True, True)]
-    for _ in range(3):
-        fused.step()
-        reference.step()
-    for moved, expected in zip(
-        fused_loss.target_value_network_params.values(True, True),
-        torchrl_loss.target_value_network_params.values(True, True),
-        strict=True,
-    ):
-        assert torch.equal(moved, expected)
-    after = fused_loss.target_value_network_params.values(True, True)
-    assert not any(torch.equal(b, a) for b, a in zip(before, after, strict=True))
-    online = torch.cat([p.flatten() for p in fused_loss.value_network_params.values(True, True)])
-    target = torch.cat(
-        [p.flatten() for p in fused_loss.target_value_network_params.values(True, True)]
-    )
-    assert not torch.equal(online, target)  # moved towards the online weights, not onto them
 
 
 def test_hard_update_copies_every_interval(env):

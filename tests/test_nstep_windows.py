@@ -15,7 +15,7 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.trainers.algorithms import DQNTrainer
 
-from trl_cartpole.compat import n_step_transform, n_step_window
+from trl_cartpole.compat import held_steps, n_step_transform
 from trl_cartpole.fast.n_step import WindowedNStepTransform, use_windowed_n_steps
 from trl_cartpole.parts.collectors import make_collector
 from trl_cartpole.parts.env import make_env
@@ -276,7 +276,7 @@ def test_the_windows_built_on_tensors_store_bitwise_what_torchrls_transform_stor
     for key in want.keys(True, True):
         assert got[key].dtype == want[key].dtype, key
         assert torch.equal(got[key], want[key]), key
-    held, held_stock = n_step_window(ours), n_step_window(stock)
+    held, held_stock = (held_steps(n_step_transform(b)) for b in (ours, stock))
     assert held.batch_size == held_stock.batch_size
     assert set(held.keys(True, True)) == set(held_stock.keys(True, True))
     for key in held_stock.keys(True, True):

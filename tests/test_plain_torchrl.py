@@ -259,8 +259,8 @@ def test_a_trained_policy_loads_into_an_actor_built_with_torchrl_alone(smoke_che
 
 
 def test_a_subclass_the_factories_return_is_accepted_where_its_base_is(env):
-    """FusedSoftUpdate is a SoftUpdate and ExponentialEGreedyModule an EGreedyModule: TorchRL's
-    own composition takes them."""
+    """ExponentialEGreedyModule is an EGreedyModule: TorchRL's own composition takes it, and the
+    SoftUpdate the factory builds moves the target."""
     actor = make_q_actor(env.observation_spec, env.action_spec)
     exploration = make_exploration(env.action_spec, schedule="exponential")
     policy = TensorDictSequential(actor, exploration)

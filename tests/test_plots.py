@@ -148,7 +148,7 @@ def test_the_profiles_axes_are_labelled_in_words(tmp_path, monkeypatch):
     from trl_cartpole.report import plotting
 
     saved = []
-    monkeypatch.setattr(plotting, "_atomic_savefig", lambda fig, path: saved.append(fig))
+    monkeypatch.setattr(plotting, "savefig_atomic", lambda fig, path: saved.append(fig))
     plotting.plot_profiles({"a": [1000, None]}, {"a": [500.0, 120.0]}, tmp_path / "p.png")
     labels = [(ax.get_xlabel(), ax.get_ylabel()) for ax in saved[0].axes]
     assert labels[1] == (
@@ -163,7 +163,7 @@ def test_runs_of_two_envs_draw_each_envs_threshold(tmp_path, monkeypatch):
     from trl_cartpole.report import plotting
 
     saved = []
-    monkeypatch.setattr(plotting, "_atomic_savefig", lambda fig, path: saved.append(fig))
+    monkeypatch.setattr(plotting, "savefig_atomic", lambda fig, path: saved.append(fig))
     panels = {"Frames": {"a": [([0, 1000], [10.0, 500.0])], "b": [([0, 1000], [-500.0, -90.0])]}}
     thresholds = {"CartPole-v1": 475.0, "Acrobot-v1": -100.0}
     plotting.plot_comparison(panels, tmp_path / "c.png", thresholds)

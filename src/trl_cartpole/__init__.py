@@ -31,7 +31,6 @@ _EXPORTS = {
     "make_target_updater": "trl_cartpole.parts.losses",
     "make_optimizer": "trl_cartpole.parts.optim",
     "make_update": "trl_cartpole.parts.optim",
-    "make_lean_update": "trl_cartpole.fast.compiled_update",
     "make_collector": "trl_cartpole.parts.collectors",
     "evaluate": "trl_cartpole.run.evaluation",
     "build_components": "trl_cartpole.run.build",

@@ -25,7 +25,6 @@ Private names read (each through one function below), TorchRL's first:
 - ``BaseCollector._weight_sync_schemes``: the shared-memory weight-sync schemes a multi-process
   collector's ``shutdown()`` leaves open (the process hung at exit);
 - ``QValueModule.action_func_mapping``: the rule that turns action values into a one-hot action;
-- ``SoftUpdate._sources`` / ``_targets``: the parameters a soft update lerps, for the fused step.
 - ``EnvBase._step`` / ``_reset`` of a transform's parent: the game stepped inside one of its
   transforms (NOOP starts, frame skip, FIRE), as TorchRL's own ``FrameSkipTransform`` does;
   ``torchrl.envs.transforms.utils._set_missing_tolerance``, which lets such a transform see
@@ -70,7 +69,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torch import nn
 from torchrl.collectors import BaseCollector
 from torchrl.data import ReplayBuffer
@@ -99,12 +98,10 @@ __all__ = [
     "loss_mask_keys",
     "n_step_returns",
     "n_step_transform",
-    "n_step_window",
     "parent_reset",
     "parent_step",
     "ray_actor_id",
     "reload_ray_settings",
-    "replay_transform",
     "restore_last_written_row",
     "run_exit_steps",
     "serial_envs",
@@ -112,10 +109,8 @@ __all__ = [
     "set_gym_env",
     "set_held_steps",
     "set_missing_tolerance",
-    "set_n_step_window",
     "set_storage_length",
     "set_worker_carriers",
-    "soft_update_pairs",
     "storage_tensors",
     "tensor_version",
     "use_first_greedy_action",
@@ -216,19 +211,11 @@ def set_autoreset_state(env: EnvBase, memo: Any) -> bool:
 # --- the replay buffer's transform and the n-step window -------------------------------------
 
 
-def replay_transform(buffer: ReplayBuffer) -> Any | None:
-    """The buffer's transform (a ``Compose``, or the one transform given), or None."""
-    transform = buffer._transform
-    if transform is None:
-        return None
-    parts = list(transform) if isinstance(transform, Compose) else [transform]
-    return parts or None
-
-
 def n_step_transform(buffer: ReplayBuffer) -> MultiStepTransform | None:
-    """The ``MultiStepTransform`` of ``buffer`` (None for a one-step buffer)."""
-    transform = replay_transform(buffer)
-    steps = [t for t in transform or [] if isinstance(t, MultiStepTransform)]
+    """The ``MultiStepTransform`` of ``buffer``'s transform (None for a one-step buffer)."""
+    transform = buffer._transform
+    parts = list(transform) if isinstance(transform, Compose) else [transform]
+    steps = [t for t in parts if isinstance(t, MultiStepTransform)]
     return steps[0] if steps else None
 
 
@@ -240,17 +227,6 @@ def held_steps(transform: MultiStepTransform) -> TensorDictBase | None:
 def set_held_steps(transform: MultiStepTransform, steps: TensorDictBase) -> None:
     """Give ``transform`` the steps it holds back for the next ``extend``."""
     transform._buffer = steps
-
-
-def n_step_window(buffer: ReplayBuffer) -> TensorDictBase | None:
-    """The steps an n-step buffer's ``MultiStepTransform`` holds back (None: nothing held)."""
-    transform = n_step_transform(buffer)
-    return None if transform is None else transform._buffer
-
-
-def set_n_step_window(buffer: ReplayBuffer, window: TensorDict) -> None:
-    """Give the buffer's ``MultiStepTransform`` the held-back steps ``window``."""
-    n_step_transform(buffer)._buffer = window
 
 
 def n_step_returns(
@@ -280,18 +256,6 @@ def close_weight_sync_schemes(collector: BaseCollector) -> None:
 
 
 # --- the soft target update's parameters ----------------------------------------------------
-
-
-def soft_update_pairs(updater: Any) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
-    """The online and target tensors a ``SoftUpdate`` lerps, in its order (after ``init_``)."""
-    sources = [p.data for p in updater._sources.values(True, True)]
-    targets = [p.data for p in updater._targets.values(True, True)]
-    return sources, targets
-
-
-def foreach_lerp(targets: list[torch.Tensor], sources: list[torch.Tensor], weight: float) -> None:
-    """``torch._foreach_lerp_``: ``target.lerp_(source, weight)`` for every pair, one call."""
-    torch._foreach_lerp_(targets, sources, weight)
 
 
 # --- what DQNLoss reads: its loss masks, the greedy value rule -------------------------------

@@ -167,10 +167,9 @@ def _learning_rules(cfg: Config) -> list[tuple[bool, str]]:
             "collector.total_frames)",
         ),
         (
-            cfg.optim.lr_end is None or not cfg.compile or uses_fused_loss(cfg),
-            "optim.lr_end tapers the learning rate, which the compiled update holds fixed "
-            "unless fast=true (not with noisy networks or C51): pass fast=true, compile=false, "
-            "or optim.lr_end=null",
+            cfg.optim.lr_end is None or not cfg.compile,
+            "optim.lr_end tapers the learning rate, which the compiled update holds fixed: "
+            "pass compile=false, or optim.lr_end=null",
         ),
     ]
 
@@ -525,9 +524,8 @@ def check_device(device: str) -> None:
 
 def uses_fused_loss(cfg: Config) -> bool:
     """Whether the update computes TorchRL's DQN loss on plain tensors
-    (``fast=true``, :mod:`trl_cartpole.fast.loss`): what ``compile=true`` compiles whole
-    (:mod:`trl_cartpole.fast.compiled_update`, the learning rate an input) and what
-    ``optim.autocast`` runs under ``torch.autocast``."""
+    (``fast=true``, :mod:`trl_cartpole.fast.loss`): what ``optim.autocast`` runs under
+    ``torch.autocast``."""
     return cfg.fast and not cfg.network.noisy and not cfg.network.distributional
 
 

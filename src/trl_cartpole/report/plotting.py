@@ -28,13 +28,14 @@ __all__ = [
     "LiveDurationPlot",
     "discounted_return_reference",
     "draw_durations",
+    "draw_median_band",
     "hold_last",
     "live_plot_target",
     "moving_average",
     "plot_comparison",
     "plot_dashboard",
     "plot_durations",
-    "plot_seed_groups",
+    "savefig_atomic",
 ]
 
 
@@ -53,7 +54,7 @@ def moving_average(values: Sequence[float], window: int) -> np.ndarray:
 DURATIONS_MARGINS = {"left": 0.09, "right": 0.97, "top": 0.93, "bottom": 0.3}
 
 
-def _atomic_savefig(fig: Figure, path: Path) -> None:
+def savefig_atomic(fig: Figure, path: Path) -> None:
     write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
 
 
@@ -153,7 +154,7 @@ def plot_durations(curves: LearningCurves, path: str | Path, title: str = "") ->
     path = Path(path)
     fig = _durations_figure()
     draw_durations(fig.subplots(), curves, title)
-    _atomic_savefig(fig, path)
+    savefig_atomic(fig, path)
     return path
 
 
@@ -369,7 +370,7 @@ def plot_dashboard(
     # the margins tight_layout() finds for this grid, with room for a 2-line title and an
     # offset label ("1e-4") over a panel; fixed, they cost nothing (tight_layout: about 0.2 s)
     fig.subplots_adjust(**DASHBOARD_MARGINS)
-    _atomic_savefig(fig, path)
+    savefig_atomic(fig, path)
     return path
 
 
@@ -398,42 +399,7 @@ def hold_last(frames: Sequence[int], values: Sequence[float], grid: np.ndarray) 
     return np.where(position >= 0, held, np.nan)
 
 
-def plot_seed_groups(
-    curves: dict[str, list[tuple[Sequence[int], Sequence[float]]]],
-    path: str | Path,
-    threshold: float | None = None,
-    ylabel: str = "Mean greedy return (eval)",
-) -> Path:
-    """One panel per group: each seed's curve, their median and interquartile band.
-
-    ``curves`` maps a group name (a preset) to one ``(frames, values)`` per seed; every seed
-    is held at its last value up to the longest run of the group (see :func:`hold_last`).
-    """
-    path = Path(path)
-    columns = min(4, len(curves))
-    rows = -(-len(curves) // columns)
-    fig = Figure(figsize=(4 * columns, 3.2 * rows))
-    axes = fig.subplots(rows, columns, squeeze=False, sharey=True)
-    for ax, (name, seeds) in zip(axes.flat, curves.items(), strict=False):
-        for frames, values in seeds:
-            ax.step(frames, values, where="post", color="grey", alpha=0.35, linewidth=0.8)
-        _median_band(ax, "median, interquartile band", seeds)
-        if threshold is not None:
-            ax.axhline(threshold, color="black", linestyle="--", linewidth=0.8)
-        ax.set_title(name)
-        ax.set_xlabel("Frames")
-        ax.grid(alpha=0.3)
-    for ax in axes[:, 0]:
-        ax.set_ylabel(ylabel)
-    for ax in list(axes.flat)[len(curves) :]:
-        ax.set_visible(False)
-    axes.flat[0].legend(loc="lower right", fontsize="small")
-    fig.tight_layout()
-    _atomic_savefig(fig, path)
-    return path
-
-
-def _median_band(ax, name: str, seeds: list[tuple[Sequence[float], Sequence[float]]]) -> None:
+def draw_median_band(ax, name: str, seeds: list[tuple[Sequence[float], Sequence[float]]]) -> None:
     """Draw the median over seeds of held curves and their interquartile band on ``ax``."""
     end = max(max(x) for x, _ in seeds if len(x))
     grid = np.linspace(0, end, 200)  # [G]
@@ -470,7 +436,7 @@ def plot_comparison(
     axes = fig.subplots(1, len(panels), squeeze=False)
     for ax, (xlabel, groups) in zip(axes.flat, panels.items(), strict=True):
         for name, seeds in groups.items():
-            _median_band(ax, name, seeds)
+            draw_median_band(ax, name, seeds)
         for index, (env_id, value) in enumerate(lines.items()):
             label = f"{env_id} threshold" if len(lines) > 1 else None
             style = ("--", ":", "-.")[index % 3]
@@ -480,7 +446,7 @@ def plot_comparison(
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize="small")
     fig.tight_layout()
-    _atomic_savefig(fig, path)
+    savefig_atomic(fig, path)
     return path
 
 
@@ -525,5 +491,5 @@ def plot_profiles(
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize="small")
     fig.tight_layout()
-    _atomic_savefig(fig, path)
+    savefig_atomic(fig, path)
     return path

@@ -433,7 +433,7 @@ class Evaluator:
         self.last_eval_frame = state["last_eval_frame"]
         for name, values in state["curve"].items():
             getattr(self.curve, name)[:] = values
-        kept = state.get("candidates") or {"frames": [], "returns": [], "states": []}
+        kept = state["candidates"]
         self.candidates = [
             Candidate(frames, mean, weights)
             for frames, mean, weights in zip(

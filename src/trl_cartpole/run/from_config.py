@@ -20,11 +20,8 @@ from torchrl.modules import DistributionalQValueActor, EGreedyModule, QValueActo
 from trl_cartpole.config.schema import Config
 from trl_cartpole.envs.atari import EOL_KEY, LearnerView
 from trl_cartpole.envs.pixels import PIXELS_KEY, RandomShift
-from trl_cartpole.errors import ConfigError
-from trl_cartpole.fast.compiled_update import make_lean_update
 from trl_cartpole.fast.loss import fuse_dqn_loss
 from trl_cartpole.fast.n_step import use_windowed_n_steps
-from trl_cartpole.fast.soft_update import fuse_soft_update
 from trl_cartpole.parts.collectors import (
     RAY_ACTOR_OPTIONS,
     is_distributed,
@@ -220,8 +217,6 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
             replay_buffer=buffer,
         )
     target_updater = make_target_updater(loss, **asdict(cfg.target_updater))
-    if cfg.fast:
-        target_updater = fuse_soft_update(target_updater)
     optimizer = make_optimizer(
         actor.parameters(),
         lr=cfg.optim.lr,
@@ -240,24 +235,8 @@ def build_learner(cfg: Config, actor: torch.nn.Module, buffer: TensorDictReplayB
         noisy_network=actor if cfg.network.noisy else None,
         autocast_dtype=autocast_dtype,
     )
-    if cfg.compile:
-        lean = (
-            None
-            if not cfg.fast
-            else make_lean_update(
-                loss,
-                optimizer,
-                cfg.optim.grad_clip,
-                cfg.optim.max_grad,
-                autocast_dtype=autocast_dtype,
-            )
-        )
-        if lean is None and cfg.optim.lr_end is not None:  # validate's rule, for any other case
-            raise ConfigError(
-                "optim.lr_end tapers the learning rate, which torch.compile of this update "
-                "holds fixed: pass compile=false, or optim.lr_end=null"
-            )
-        update = torch.compile(update) if lean is None else lean
+    if cfg.compile:  # validate refuses optim.lr_end here: the compiled step holds lr fixed
+        update = torch.compile(update)
     return Learner(buffer, loss, target_updater, optimizer, update, autocast=chosen)
 
 

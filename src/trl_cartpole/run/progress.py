@@ -129,4 +129,4 @@ class Progress:
         self.clock.elapsed = state["train_seconds"]
         self.phase_seconds.clear()
         self.phase_seconds.update(state["phase_seconds"])
-        self.ended_under = state.get("ended_under")  # absent: saved by an earlier version
+        self.ended_under = state["ended_under"]

@@ -25,7 +25,7 @@ from typing import Any
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
-from trl_cartpole.compat import carrier_of, n_step_window, set_n_step_window
+from trl_cartpole.compat import carrier_of, held_steps, n_step_transform, set_held_steps
 from trl_cartpole.store.env_state import (
     autoreset_snapshot,
     env_snapshot,
@@ -59,7 +59,8 @@ class EnvState:
         self.workers_answer = False
 
     def state_dict(self) -> dict[str, Any]:
-        window = n_step_window(self.buffer)
+        n_step = n_step_transform(self.buffer)
+        window = None if n_step is None else held_steps(n_step)
         in_process = self.env is not None  # else the training envs live in the workers
         return {
             "workers": None
@@ -100,7 +101,7 @@ class EnvState:
                 carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size))
             if state["n_step_window"] is not None:
                 window = TensorDict(state["n_step_window"], batch_size=state["n_step_window_size"])
-                set_n_step_window(self.buffer, window)
+                set_held_steps(n_step_transform(self.buffer), window)
 
     @staticmethod
     def _workers_not_restored(state: dict[str, Any]) -> str:

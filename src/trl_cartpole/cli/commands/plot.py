@@ -54,10 +54,7 @@ def main(argv: list[str]) -> None:
     for label, runs in groups.items():
         evals = [run["summary"]["eval_curve"] for run in runs]
         curves["Frames"][label] = [(e["frames"], e["returns"]) for e in evals]
-        if all("seconds" in e for e in evals):  # summaries written before it lack it
-            curves["Training seconds"][label] = [(e["seconds"], e["returns"]) for e in evals]
-    if not curves["Training seconds"]:
-        del curves["Training seconds"]
+        curves["Training seconds"][label] = [(e["seconds"], e["returns"]) for e in evals]
     thresholds = {  # each env's own: runs of several envs draw each, labelled
         run["summary"].get("env_id", ""): run["summary"]["solve_threshold"]
         for runs in groups.values()
