@@ -80,7 +80,7 @@ def test_misspelt_keys_and_wrong_types_fail_composition(compose, override):
         (["env.id=CartPoles-v1"], "is not a registered Gymnasium env"),
         (["exploration.eps_init=0.01"], "eps_end <= eps_init"),
         (["loss.loss_function=l3"], "choose one of"),
-        (["network.head=fancy"], "is not a known head"),
+        (["network.head=fancy"], "network.head='fancy' is not a known option"),
         (["collector.total_frames=0"], "must be >= collector.frames_per_batch"),
         (["buffer.n_steps=0"], "buffer.n_steps=0 must be >= 1"),
         (["buffer.beta=1.5"], r"buffer.beta=1.5 must lie in \[0, 1\]"),

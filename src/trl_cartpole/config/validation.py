@@ -33,7 +33,6 @@ __all__ = [
     "check_envs_at_once",
     "check_integer_size",
     "check_logger_installed",
-    "check_network_choices",
     "check_seed",
     "validate",
 ]
@@ -49,6 +48,8 @@ _CHOICES = {
     "collector.backend": choices.COLLECTOR_BACKENDS,
     "buffer.storage": ("memory", "memmap", "frames"),
     "network.torso": ("mlp", "cnn"),
+    "network.head": choices.HEADS,
+    "network.activation_class": choices.ACTIVATIONS,
     "env.pixels_renderer": ("gymnasium", "drawn"),
 }
 
@@ -121,7 +122,6 @@ def validate(cfg: Config) -> Config:
         check_compiler(cfg.device)
     _check_combination(cfg)
     check_logger_installed(cfg.logger.backend)
-    check_network_choices(cfg.network.head, cfg.network.activation_class)
     check_builtin_env_fits(resolve_env_id(cfg.env.id, cfg.env.imports), cfg.env.from_pixels)
     return cfg
 
@@ -475,19 +475,6 @@ def check_envs_at_once(key: str, value: int) -> None:
     if value > MAX_ENVS_AT_ONCE:
         raise ConfigError(
             f"{key}={value} would build that many envs at once; at most {MAX_ENVS_AT_ONCE}"
-        )
-
-
-def check_network_choices(head: str, activation: str | None) -> None:
-    """Raise :class:`ConfigError` unless ``head`` and ``activation`` (if given) are known names."""
-    if head not in choices.HEADS:
-        raise ConfigError(
-            f"network.head={head!r} is not a known head; choose one of {sorted(choices.HEADS)}"
-        )
-    if activation is not None and activation not in choices.ACTIVATIONS:
-        raise ConfigError(
-            f"network.activation_class={activation!r} is unknown; choose one of "
-            f"{sorted(choices.ACTIVATIONS)}"
         )
 
 
