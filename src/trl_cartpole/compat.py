@@ -255,9 +255,6 @@ def close_weight_sync_schemes(collector: BaseCollector) -> None:
         scheme.shutdown()
 
 
-# --- the soft target update's parameters ----------------------------------------------------
-
-
 # --- what DQNLoss reads: its loss masks, the greedy value rule -------------------------------
 
 
