@@ -131,6 +131,15 @@ ATARI_RECORDS = (
         "before any ran, each on one core; 115 and 116 side by side at commit `b6a96a5`, 117 at "
         "`1d46af7` (the same code) beside the taper's ablation run of seed 113 (below)",
     ),
+    (
+        ROOT / "docs" / "results" / "atari_breakout_avx2.json",
+        "the AVX2 seeds",
+        "The sixth form (the preset) on a processor without AVX-512: an AMD EPYC with AVX2 and "
+        "FMA only, where `optim.autocast=auto` chose float32 and `num_threads=0` both cores; "
+        "seeds 311, 312 and 313 named for it before any ran (commit `d1a2d84`), each on the "
+        "whole 2-core machine; 311 at `d1a2d84`, beside this project's tests and two read-only "
+        "code reviews for about 25 of its minutes",
+    ),
 )
 # The taper's ablation: the fourth form (no taper) on the fifth form's seeds, trained to the same
 # 200 000 steps
