@@ -106,7 +106,10 @@ def _drawn(shot: _Shot, scale: float, palette: Image.Image | None = None) -> Ima
     instead of the finished frame's 511 000."""
     ink, paper = _colour(_BLACK, palette), _colour(_WHITE, palette)
     scene = _resized(Image.fromarray(shot.scene), scale, palette)
-    ImageDraw.Draw(scene).text((6, 6), shot.caption, fill=ink, font=_font())
+    draw = ImageDraw.Draw(scene)  # black on a white label: legible on a dark game screen too
+    left, top, right, bottom = draw.textbbox((6, 6), shot.caption, font=_font())
+    draw.rectangle((left - 2, top - 2, right + 2, bottom + 2), fill=paper)
+    draw.text((6, 6), shot.caption, fill=ink, font=_font())
     if shot.patch is None:
         return scene
     height, width = shot.patch.shape
