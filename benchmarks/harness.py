@@ -65,11 +65,23 @@ PEERS = {  # name -> module run as ``python -m`` (see benchmarks.peers)
     "tutorial_loop": "benchmarks.peers.tutorial_loop",
     "sb3_dqn": "benchmarks.peers.sb3_dqn",
     "tianshou_dqn": "benchmarks.peers.tianshou_dqn",
+    "sbx_dqn": "benchmarks.peers.sbx_dqn",
 }
 # Peers whose packages cannot sit beside the project's (Tianshou 2.0.1 pins pandas<3 and needs
-# numba) run from a virtual environment of their own, made on first use: this project, the
-# same torch build and these packages.
-PEER_VENVS = {"tianshou_dqn": ["tianshou==2.0.1"]}
+# numba; SBX needs JAX) run from a virtual environment of their own, made on first use: this
+# project, the same torch build and these packages.
+PEER_VENVS = {
+    "tianshou_dqn": ["tianshou==2.0.1"],
+    "sbx_dqn": [  # as resolved on 2026-12-03, pinned so the peer is the same one each time
+        "sbx-rl==0.28.0",
+        "stable-baselines3==2.9.2",
+        "jax==0.10.2",
+        "jaxlib==0.10.2",
+        "flax==0.12.8",
+        "optax==0.2.8",
+        "tfp-nightly==0.26.0.dev20261027",
+    ],
+}
 PEER_VENV_ROOT = Path("runs") / "peer-venvs"
 _PEER_VENV_LOCK = threading.Lock()  # --jobs 2 starts two runs of a peer at once: make it once
 
@@ -162,16 +174,22 @@ def _run_once(command: list[str], run_dir: Path) -> dict[str, Any]:
 
 
 def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
-    """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary."""
+    """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary.
+
+    ``algo`` is a preset, or a preset with overrides of its own after colons
+    (``dqn:fast=true``: the dqn preset on the fast path), applied after ``overrides``.
+    """
+    preset, *own = algo.split(":")
     run_dir = (out / f"{algo}-seed{seed}").resolve()  # the process runs in the repository root
     command = [
         sys.executable,
         str(TRAIN_SCRIPT),
-        f"algo={algo}",
+        f"algo={preset}",
         f"seed={seed}",
         f"run_dir={run_dir}",
         "logger.progress_bar=false",
         *overrides,
+        *own,
     ]
     return _run_once(command, run_dir)
 

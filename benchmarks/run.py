@@ -1,13 +1,16 @@
 """Median frames and seconds to solve over seeds, per preset, optionally against peer DQNs.
 
     python -m benchmarks run --algos dqn tutorial --seeds 0 1 2 3 4
-        [--peers tutorial_loop sb3_dqn tianshou_dqn] [--eval-interval 1000 [2500]]
+        [--peers tutorial_loop sb3_dqn sbx_dqn tianshou_dqn] [--eval-interval 1000 [2500]]
         [--jobs 1] [--out runs/benchmark] [key=value ...]
 
+An ``--algos`` entry is a preset, or a preset with overrides of its own after colons:
+``dqn:fast=true`` is the dqn preset on the fast path, beside ``dqn`` in the same table.
 docs/performance.md's 20-seed table, both protocols, on seeds no preset was tuned on:
 
-    python -m benchmarks run --algos dqn --peers sb3_dqn --eval-interval 1000 2500
-        --seeds $(seq 100 119) --out runs/perf20 --record docs/results/performance.json
+    python -m benchmarks run --algos dqn dqn:fast=true --peers sb3_dqn sbx_dqn
+        --eval-interval 1000 2500 --seeds $(seq 100 119) --out runs/perf20
+        --record docs/results/performance.json
 
 The other env presets against Stable-Baselines3 with rl-zoo3's settings for that env
 (``--env``: our side trains ``env=<preset>`` and stops once solved, the peer plays
@@ -22,8 +25,8 @@ Each (preset, seed) is one ``scripts/train.py`` run, each (peer, seed) one
 1, the default, keeps the machine's noise the same for all). Every run evaluates greedily over
 ``--eval-episodes`` episodes every ``--eval-interval`` frames with the training clock stopped
 (``benchmarks.peers.protocol``); several ``--eval-interval`` values run every (preset, seed)
-once per protocol, in ``OUT/every-N``, with a table each. ``tianshou_dqn`` runs from its own
-virtual environment, ``runs/peer-venvs/tianshou_dqn``, made on its first use
+once per protocol, in ``OUT/every-N``, with a table each. ``tianshou_dqn`` and ``sbx_dqn`` run
+from virtual environments of their own, ``runs/peer-venvs/<peer>``, made on first use
 (``benchmarks.harness.peer_python``). The table (solve rate, frames and seconds to solve,
 collection frames/s, updates/s, peak RSS) is printed and written to ``OUT/results.md`` and
 ``OUT/results.json``, followed by the ratios: each peer's median seconds_to_solve over the
@@ -53,10 +56,11 @@ RACE_ENVS = {
 
 
 def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
-    """The ratios the table's medians give, one line each."""
-    ours = algos[0]
+    """The ratios the table's medians give, one line each: every other preset and peer against
+    the first preset."""
+    ours, others = algos[0], [*algos[1:], *peers]
     lines = []
-    for peer, ratio in speed_ratios(results, ours, peers).items():
+    for peer, ratio in speed_ratios(results, ours, others).items():
         if ratio is None:
             lines.append(f"- {peer} and {ours}: neither solved most seeds")
         elif math.isinf(ratio):
@@ -66,7 +70,7 @@ def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
             )
         else:
             lines.append(f"- {peer} needs {ratio:.1f}x the seconds to solve of {ours} (medians)")
-    lines += iqm_ratio_lines(results, algos[0], peers)
+    lines += iqm_ratio_lines(results, ours, others)
     if "tutorial" in results and "tutorial_loop" in results:
         ours, theirs = (
             seconds_per_frame(results["tutorial"]),

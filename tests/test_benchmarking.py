@@ -275,6 +275,19 @@ def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkey
     assert harness.peer_python("sb3_dqn") == harness.sys.executable  # no venv of its own
 
 
+def test_a_preset_with_overrides_of_its_own_runs_them_after_the_shared_ones(tmp_path, monkeypatch):
+    commands = {}
+    monkeypatch.setattr(
+        harness, "_run_once", lambda command, run_dir: commands.setdefault(run_dir, command)
+    )
+    results = harness.run_presets(["dqn", "dqn:fast=true"], [7], tmp_path, ["buffer.batch_size=64"])
+    assert list(results) == ["dqn", "dqn:fast=true"]
+    plain, fast = (commands[(tmp_path / f"{name}-seed7").resolve()] for name in results)
+    assert plain[2:4] == fast[2:4] == ["algo=dqn", "seed=7"]
+    assert plain[-1] == "buffer.batch_size=64"
+    assert fast[-2:] == ["buffer.batch_size=64", "fast=true"]  # its own last: it wins
+
+
 def test_the_memory_row_subtracts_what_the_buffer_filled(tmp_path):
     from benchmarks.memory import memory_row
 

@@ -42,8 +42,13 @@ def test_later_evaluations_play_new_episodes():
 
 @pytest.mark.parametrize(
     "peer",
-    # tianshou_dqn makes its own virtual environment on first use: minutes, so -m slow
-    ["tutorial_loop", "sb3_dqn", pytest.param("tianshou_dqn", marks=pytest.mark.slow)],
+    # tianshou_dqn and sbx_dqn make their own virtual environments on first use: minutes
+    [
+        "tutorial_loop",
+        "sb3_dqn",
+        pytest.param("tianshou_dqn", marks=pytest.mark.slow),
+        pytest.param("sbx_dqn", marks=pytest.mark.slow),
+    ],
 )
 @pytest.mark.slow  # a peer's run in a subprocess
 def test_peer_runs_under_the_protocol_and_writes_a_summary(tmp_path, peer):

@@ -17,29 +17,30 @@ the run once solved.
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Callable
+from typing import Any
+
 import torch
 
 from benchmarks.peers.protocol import PeerRun, parse_peer_args
 from benchmarks.peers.zoo_settings import zoo_dqn_settings
 
 
-def main() -> None:
-    args = parse_peer_args(__doc__.splitlines()[0])
-    try:
-        from stable_baselines3 import DQN
-        from stable_baselines3.common.callbacks import BaseCallback
-    except ImportError:
-        raise SystemExit(
-            "error: stable-baselines3 is not installed; pip install -e '.[bench]'"
-        ) from None
-    torch.set_num_threads(1)
-    run = PeerRun("sb3_dqn", args)
+def train_with_zoo_settings(
+    name: str, dqn_class: type, args: argparse.Namespace, watch: Callable[[PeerRun, Any], None]
+) -> dict:
+    """Train ``dqn_class`` (Stable-Baselines3's ``DQN``, or one that takes its arguments) with
+    rl-zoo3's settings for ``args.env_id`` under the protocol; ``watch(run, model)`` shows the
+    run the model's Q-network. Returns the run's summary."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    run = PeerRun(name, args)
     settings, timesteps = zoo_dqn_settings(args.env_id)
     fraction = settings.get("exploration_fraction", 0.1)  # SB3's default where zoo sets none
     settings["exploration_fraction"] = fraction * timesteps / args.total_frames  # zoo's, in steps
-    model = DQN("MlpPolicy", args.env_id, seed=args.seed, device="cpu", verbose=0, **settings)
-
-    run.watch(model.q_net)
+    model = dqn_class("MlpPolicy", args.env_id, seed=args.seed, device="cpu", verbose=0, **settings)
+    watch(run, model)
 
     class ProtocolCallback(BaseCallback):
         def _on_step(self) -> bool:
@@ -48,7 +49,19 @@ def main() -> None:
             return not run.evaluate(self.num_timesteps)
 
     model.learn(total_timesteps=args.total_frames, callback=ProtocolCallback())
-    run.finish(model.num_timesteps, model._n_updates)
+    return run.finish(model.num_timesteps, model._n_updates)
+
+
+def main() -> None:
+    args = parse_peer_args(__doc__.splitlines()[0])
+    try:
+        from stable_baselines3 import DQN
+    except ImportError:
+        raise SystemExit(
+            "error: stable-baselines3 is not installed; pip install -e '.[bench]'"
+        ) from None
+    torch.set_num_threads(1)
+    train_with_zoo_settings("sb3_dqn", DQN, args, lambda run, model: run.watch(model.q_net))
 
 
 if __name__ == "__main__":
