@@ -86,6 +86,11 @@ PEER_VENV_ROOT = Path("runs") / "peer-venvs"
 _PEER_VENV_LOCK = threading.Lock()  # --jobs 2 starts two runs of a peer at once: make it once
 
 
+# environment variables that hold torch's and oneDNN's kernels below what the processor has
+# (``ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2``: a processor without AVX-512, on one with)
+ISA_LIMITS = ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY")
+
+
 def provenance() -> dict[str, Any]:
     """When, at which commit and on which machine a result was measured (for results files)."""
     import datetime
@@ -105,10 +110,20 @@ def provenance() -> dict[str, Any]:
     commit = subprocess.run(
         ["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True, check=False
     ).stdout.strip()
+    machine = {"cpu": cpu, "cores": os.cpu_count(), "vector_units": vector_units}
+    limits = {name: os.environ[name] for name in ISA_LIMITS if os.environ.get(name)}
+    if limits:  # the processor's flags, but kernels held below them: what torch then runs
+        import torch
+
+        from trl_cartpole.compat import cpu_computes_bfloat16
+
+        machine["isa_limits"] = limits
+        machine["torch_cpu_capability"] = torch.backends.cpu.get_cpu_capability()
+        machine["computes_bfloat16"] = cpu_computes_bfloat16()
     return {
         "date": datetime.date.today().isoformat(),
         "commit": commit or "unknown",
-        "machine": {"cpu": cpu, "cores": os.cpu_count(), "vector_units": vector_units},
+        "machine": machine,
     }
 
 

@@ -774,9 +774,19 @@ def atari_update_cost() -> str:
     ]
     runs = json.loads(UPDATE_COST.read_text())["runs"]
     for run in (run for run in runs if "env=breakout" in run["overrides"]):
-        units = run["machine"]["vector_units"]
-        native = "avx512_bf16" in units or "amx_bf16" in units
-        processor = "AVX-512 BF16" if native else "AVX-512" if "avx512f" in units else "AVX2"
+        units, limits = run["machine"]["vector_units"], run["machine"].get("isa_limits")
+        native = run["machine"].get(
+            "computes_bfloat16", "avx512_bf16" in units or "amx_bf16" in units
+        )
+        processor = (
+            "AVX-512 BF16"
+            if "avx512_bf16" in units
+            else "AVX-512"
+            if "avx512f" in units
+            else "AVX2"
+        )
+        if limits:  # kernels held to AVX2 on a processor with more
+            processor += f" held to {run['machine']['torch_cpu_capability']}"
         bfloat16 = "optim.autocast=bfloat16" in run["overrides"]
         kind = ("bfloat16" + ("" if native else " (emulated)")) if bfloat16 else "float32"
         total = {row["name"]: row["total_ms"] for row in run["rows"]}
