@@ -191,12 +191,34 @@ def test_the_readme_reports_the_preset_form_not_the_newest(tmp_path, monkeypatch
     monkeypatch.setattr(docs, "ATARI_RECORDS", tuple(records))
     monkeypatch.setattr(docs, "ATARI_PRESET_FORM", preset)
     monkeypatch.setattr(docs, "ATARI_100K", tmp_path / "absent.json")
+    monkeypatch.setattr(docs, "ATARI_AVX2", tmp_path / "absent.json")
     (row,) = docs._readme_atari_rows()
     cells = [cell.strip() for cell in row.strip("|").split("|")]
     assert cells[0].endswith("seeds 1, 2, 3")
     assert cells[1] == "16.0, 14.0, 15.0"
     assert cells[3] == "[Some CPU, 2026-01-02](docs/results/breakout.md)"
     assert "30.0" not in row
+
+
+def test_the_readme_names_each_avx2_seeds_machine_and_one_held_to_avx2(tmp_path, monkeypatch):
+    def run(seed: int, score: float, machine: dict, date: str) -> dict:
+        measured = {"date": date, "machine": machine}
+        return {"seed": seed, "final_eval_return_mean": score, "measured": measured}
+
+    real = {"cpu": "AMD EPYC", "vector_units": ["avx2", "fma"]}
+    held = {"cpu": "Intel Xeon", "isa_limits": {"ATEN_CPU_CAPABILITY": "avx2"}}
+    held["torch_cpu_capability"] = "AVX2"
+    runs = [run(311, 16.04, real, "2026-12-02"), run(312, 15.46, held, "2026-12-03")]
+    record = tmp_path / "avx2.json"
+    record.write_text(json.dumps({"runs": runs}))
+    monkeypatch.setattr(docs, "ATARI_PRESET_FORM", tmp_path / "absent.json")
+    monkeypatch.setattr(docs, "ATARI_100K", tmp_path / "absent.json")
+    monkeypatch.setattr(docs, "ATARI_AVX2", record)
+    (row,) = docs._readme_atari_rows()
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    assert "float32 on AVX2" in cells[0] and cells[0].endswith("seeds 311, 312")
+    assert cells[1] == "16.0, 15.5"
+    assert cells[3] == "[AMD EPYC, Intel Xeon held to AVX2, 2026-12-03](docs/results/breakout.md)"
 
 
 def test_the_readme_results_table_has_one_row_per_protocol_and_env():
