@@ -4,11 +4,20 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import pytest
 from PIL import Image
 
 from trl_cartpole.errors import ConfigError
-from trl_cartpole.policy.video import write_video
+from trl_cartpole.policy.video import (
+    VIEW_CAPTION_HEIGHT,
+    _drawn,
+    _gif_palette,
+    _in_palette,
+    _Shot,
+    _write_shots,
+    write_video,
+)
 
 from .conftest import run_script
 
@@ -59,3 +68,25 @@ def test_unknown_video_format_is_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"choose a \.gif or \.mp4"):
         write_video([], tmp_path / "x.avi")
     assert not list(tmp_path.iterdir())
+
+
+def test_a_gif_of_a_dark_game_has_a_frame_per_step_drawn_as_in_rgb(tmp_path):
+    """On a black game screen the step's caption still tells the frames apart (drawn black on
+    black, they looked alike and Pillow merged them), and a frame drawn in the GIF's palette
+    is the RGB frame mapped to it, the scene and the agent's view enlarged by whole pixels."""
+    scene = np.zeros((210, 160, 3), np.uint8)  # [H, W, 3]: a dark screen, one brick
+    scene[100:104, 70:90] = (200, 72, 72)
+    patch = np.full((84, 84), 40, np.uint8)  # [h, w]: the agent's gray view
+    shots = [_Shot(scene, patch, f"episode 1  step {step}  return 0") for step in range(5)]
+    path = _write_shots(shots, tmp_path / "dark.gif", fps=50, scale=3.0)
+    # the view is enlarged x5 (480 // 84) under the scene and its caption band
+    with Image.open(path) as gif:
+        assert gif.n_frames == 5 and gif.size == (480, 630 + VIEW_CAPTION_HEIGHT + 84 * 5)
+    in_rgb = _drawn(shots[4], 3.0)
+    palette = _gif_palette([np.asarray(in_rgb)])
+    mapped = np.asarray(_in_palette(in_rgb, palette))  # [1064, 480] palette indices
+    drawn = np.asarray(_drawn(shots[4], 3.0, palette))
+    assert drawn.shape == mapped.shape == (1064, 480)
+    assert (drawn == mapped).mean() > 0.99  # only the text's soft edges differ
+    brick, view = drawn[300:312, 210:270], drawn[-420:, :420]  # x3 and x5
+    assert (brick == mapped[301, 211]).all() and (view == mapped[-1, 0]).all()
