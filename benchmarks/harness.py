@@ -12,6 +12,7 @@ import argparse
 import json
 import math
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -86,11 +87,6 @@ PEER_VENV_ROOT = Path("runs") / "peer-venvs"
 _PEER_VENV_LOCK = threading.Lock()  # --jobs 2 starts two runs of a peer at once: make it once
 
 
-# environment variables that hold torch's and oneDNN's kernels below what the processor has
-# (``ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2``: a processor without AVX-512, on one with)
-ISA_LIMITS = ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY")
-
-
 def provenance() -> dict[str, Any]:
     """When, at which commit and on which machine a result was measured (for results files)."""
     import datetime
@@ -110,16 +106,10 @@ def provenance() -> dict[str, Any]:
     commit = subprocess.run(
         ["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True, check=False
     ).stdout.strip()
+    from trl_cartpole.run.summary import cpu_kernels
+
     machine = {"cpu": cpu, "cores": os.cpu_count(), "vector_units": vector_units}
-    limits = {name: os.environ[name] for name in ISA_LIMITS if os.environ.get(name)}
-    if limits:  # the processor's flags, but kernels held below them: what torch then runs
-        import torch
-
-        from trl_cartpole.compat import cpu_computes_bfloat16
-
-        machine["isa_limits"] = limits
-        machine["torch_cpu_capability"] = torch.backends.cpu.get_cpu_capability()
-        machine["computes_bfloat16"] = cpu_computes_bfloat16()
+    machine["kernels"] = cpu_kernels()  # what torch runs of those flags, if held below them
     return {
         "date": datetime.date.today().isoformat(),
         "commit": commit or "unknown",
@@ -191,11 +181,14 @@ def _run_once(command: list[str], run_dir: Path) -> dict[str, Any]:
 def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
     """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary.
 
-    ``algo`` is a preset, or a preset with overrides of its own after colons
-    (``dqn:fast=true``: the dqn preset on the fast path), applied after ``overrides``.
+    ``algo`` is a preset, or a preset with overrides of its own joined by ``+``
+    (``dqn+fast=true``: the dqn preset on the fast path), given after ``overrides``; its
+    directory names it with every other character than letters, digits, ``.`` and ``-`` as
+    ``_`` (``dqn_fast_true-seed0``), a value the config's parser takes.
     """
-    preset, *own = algo.split(":")
-    run_dir = (out / f"{algo}-seed{seed}").resolve()  # the process runs in the repository root
+    preset, *own = algo.split("+")
+    folder = re.sub(r"[^A-Za-z0-9.-]", "_", algo)
+    run_dir = (out / f"{folder}-seed{seed}").resolve()  # the process runs in the repository root
     command = [
         sys.executable,
         str(TRAIN_SCRIPT),

@@ -4,11 +4,16 @@
         [--peers tutorial_loop sb3_dqn sbx_dqn tianshou_dqn] [--eval-interval 1000 [2500]]
         [--jobs 1] [--out runs/benchmark] [key=value ...]
 
-An ``--algos`` entry is a preset, or a preset with overrides of its own after colons:
-``dqn:fast=true`` is the dqn preset on the fast path, beside ``dqn`` in the same table.
 docs/performance.md's 20-seed table, both protocols, on seeds no preset was tuned on:
 
-    python -m benchmarks run --algos dqn dqn:fast=true --peers sb3_dqn sbx_dqn
+    python -m benchmarks run --algos dqn --peers sb3_dqn --eval-interval 1000 2500
+        --seeds $(seq 100 119) --out runs/perf20 --record docs/results/performance.json
+
+An ``--algos`` entry is a preset, or a preset with overrides of its own joined by ``+``:
+``dqn+fast=true`` is the dqn preset on the fast path. The same table with the fast path beside
+the default and SBX beside Stable-Baselines3 (not yet recorded):
+
+    python -m benchmarks run --algos dqn dqn+fast=true --peers sb3_dqn sbx_dqn
         --eval-interval 1000 2500 --seeds $(seq 100 119) --out runs/perf20
         --record docs/results/performance.json
 
@@ -60,16 +65,16 @@ def ratio_lines(results: dict, algos: list[str], peers: list[str]) -> list[str]:
     the first preset."""
     ours, others = algos[0], [*algos[1:], *peers]
     lines = []
-    for peer, ratio in speed_ratios(results, ours, others).items():
+    for other, ratio in speed_ratios(results, ours, others).items():
         if ratio is None:
-            lines.append(f"- {peer} and {ours}: neither solved most seeds")
+            lines.append(f"- {other} and {ours}: neither solved most seeds")
         elif math.isinf(ratio):
-            solved = sum(bool(run["solved"]) for run in results[peer])
+            solved = sum(bool(run["solved"]) for run in results[other])
             lines.append(
-                f"- {peer} solved {solved} of {len(results[peer])} seeds: no median to compare"
+                f"- {other} solved {solved} of {len(results[other])} seeds: no median to compare"
             )
         else:
-            lines.append(f"- {peer} needs {ratio:.1f}x the seconds to solve of {ours} (medians)")
+            lines.append(f"- {other} needs {ratio:.1f}x the seconds to solve of {ours} (medians)")
     lines += iqm_ratio_lines(results, ours, others)
     if "tutorial" in results and "tutorial_loop" in results:
         ours, theirs = (

@@ -328,34 +328,20 @@ def _seconds_cell(seconds: float) -> str:
 
 
 def _readme_atari_rows() -> list[str]:
-    """Breakout's row (each seed of the preset's recipe, its best policy's 30 games) and one
-    row per Atari-100k game beside DrQ(epsilon)'s published mean."""
+    """Breakout's rows (the preset's seeds with bfloat16 on AVX-512 BF16, then on processors
+    without AVX-512; each seed's best policy over 30 whole games) and one row per Atari-100k
+    game beside DrQ(epsilon)'s published mean."""
     rows = []
     if ATARI_PRESET_FORM.is_file():
         record = json.loads(ATARI_PRESET_FORM.read_text())
-        runs = record["runs"]
-        scores = ", ".join(f"{run['final_eval_return_mean']:.1f}" for run in runs)
-        seeds = ", ".join(str(run["seed"]) for run in runs)
-        rows.append(
-            "| Breakout (`env=breakout`, 2 hours, bfloat16 on AVX-512 BF16): the best policy's "
-            f"mean over 30 whole games, "
-            f"seeds {seeds} | {scores} | the Practical RL DQN assignment's goal: "
-            f"{ATARI_TARGET['score']:g} | [{record['machine']['cpu']}, {record['date']}]"
-            "(docs/results/breakout.md) |"
-        )
+        where = f"{record['machine']['cpu']}, {record['date']}"
+        rows.append(_breakout_row(record["runs"], "2 hours, bfloat16 on AVX-512 BF16", where))
     if ATARI_AVX2.is_file():
         runs = json.loads(ATARI_AVX2.read_text())["runs"]
-        scores = ", ".join(f"{run['final_eval_return_mean']:.1f}" for run in runs)
-        seeds = ", ".join(str(run["seed"]) for run in runs)
-        machines = ", ".join(
-            dict.fromkeys(_machine_name(run["measured"]["machine"]) for run in runs)
-        )
-        date = max(run["measured"]["date"] for run in runs)
-        rows.append(
-            "| Breakout (`env=breakout`, 2 hours, float32 on AVX2): the best policy's mean over "
-            f"30 whole games, seeds {seeds} | {scores} | the Practical RL DQN assignment's goal: "
-            f"{ATARI_TARGET['score']:g} | [{machines}, {date}](docs/results/breakout.md) |"
-        )
+        kinds = ", ".join(dict.fromkeys(NUMBER_TYPES[run["autocast"]] for run in runs))
+        machines = ", ".join(dict.fromkeys(_trained_on(run) for run in runs))
+        where = f"{machines}, {max(run['measured']['date'] for run in runs)}"
+        rows.append(_breakout_row(runs, f"2 hours, {kinds} on AVX2", where))
     if ATARI_100K.is_file():
         record = json.loads(ATARI_100K.read_text())
         for run in _atari_100k_runs(record):
@@ -370,12 +356,37 @@ def _readme_atari_rows() -> list[str]:
     return rows
 
 
-def _machine_name(machine: dict) -> str:
-    """``AMD EPYC``, or ``Intel(R) Xeon(R) Processor held to AVX2`` where a record's kernels were
-    held below the processor's flags (``benchmarks.harness.ISA_LIMITS``)."""
-    if "isa_limits" not in machine:
-        return machine["cpu"]
-    return f"{machine['cpu']} held to {machine['torch_cpu_capability']}"
+# summary.json's autocast: the update's number type
+NUMBER_TYPES = {"none": "float32", "bfloat16": "bfloat16"}
+
+
+def _breakout_row(runs: list[dict], conditions: str, where: str) -> str:
+    """A README row of Breakout seeds trained under ``conditions``, measured ``where``."""
+    scores = ", ".join(f"{run['final_eval_return_mean']:.1f}" for run in runs)
+    seeds = ", ".join(str(run["seed"]) for run in runs)
+    return (
+        f"| Breakout (`env=breakout`, {conditions}): the best policy's mean over 30 whole games, "
+        f"seed{'s' * (len(runs) > 1)} {seeds} | {scores} | the Practical RL DQN assignment's "
+        f"goal: {ATARI_TARGET['score']:g} | [{where}](docs/results/breakout.md) |"
+    )
+
+
+def _trained_on(run: dict) -> str:
+    """The processor a recorded Atari run trained on, with its kernels' limits: the run's own
+    ``cpu_kernels`` where its summary has them, else the record's measurement's."""
+    machine = run["measured"]["machine"]
+    return machine["cpu"] + _held(run.get("cpu_kernels") or machine.get("kernels", {}))
+
+
+def _held(kernels: dict) -> str:
+    """`` (oneDNN, ATen held to AVX2)`` for kernels held below the processor's instructions
+    (``trl_cartpole.run.summary.ISA_LIMITS``), naming the libraries held; else ``""``."""
+    from trl_cartpole.run.summary import ISA_LIMITS
+
+    if not kernels.get("limits"):
+        return ""
+    held = ", ".join(ISA_LIMITS[name] for name in kernels["limits"])
+    return f" ({held} held to {kernels['torch']})"
 
 
 def _spaced(number: float) -> str:
@@ -797,10 +808,8 @@ def atari_update_cost() -> str:
     ]
     runs = json.loads(UPDATE_COST.read_text())["runs"]
     for run in (run for run in runs if "env=breakout" in run["overrides"]):
-        units, limits = run["machine"]["vector_units"], run["machine"].get("isa_limits")
-        native = run["machine"].get(
-            "computes_bfloat16", "avx512_bf16" in units or "amx_bf16" in units
-        )
+        units, kernels = run["machine"]["vector_units"], run["machine"].get("kernels", {})
+        native = kernels.get("computes_bfloat16", "avx512_bf16" in units or "amx_bf16" in units)
         processor = (
             "AVX-512 BF16"
             if "avx512_bf16" in units
@@ -808,8 +817,7 @@ def atari_update_cost() -> str:
             if "avx512f" in units
             else "AVX2"
         )
-        if limits:  # kernels held to AVX2 on a processor with more
-            processor += f" held to {run['machine']['torch_cpu_capability']}"
+        processor += _held(kernels)
         bfloat16 = "optim.autocast=bfloat16" in run["overrides"]
         kind = ("bfloat16" + ("" if native else " (emulated)")) if bfloat16 else "float32"
         total = {row["name"]: row["total_ms"] for row in run["rows"]}

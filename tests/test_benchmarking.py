@@ -276,16 +276,21 @@ def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkey
 
 
 def test_a_preset_with_overrides_of_its_own_runs_them_after_the_shared_ones(tmp_path, monkeypatch):
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
     commands = {}
     monkeypatch.setattr(
-        harness, "_run_once", lambda command, run_dir: commands.setdefault(run_dir, command)
+        harness, "_run_once", lambda command, run_dir: commands.setdefault(run_dir.name, command)
     )
-    results = harness.run_presets(["dqn", "dqn:fast=true"], [7], tmp_path, ["buffer.batch_size=64"])
-    assert list(results) == ["dqn", "dqn:fast=true"]
-    plain, fast = (commands[(tmp_path / f"{name}-seed7").resolve()] for name in results)
-    assert plain[2:4] == fast[2:4] == ["algo=dqn", "seed=7"]
+    algos = ["dqn", "dqn+fast=true+env.id=my_module:MyEnv"]
+    results = harness.run_presets(algos, [7], tmp_path, ["buffer.batch_size=64"])
+    assert list(results) == algos
+    plain, own = commands["dqn-seed7"], commands["dqn_fast_true_env.id_my_module_MyEnv-seed7"]
+    assert plain[2:4] == own[2:4] == ["algo=dqn", "seed=7"]
     assert plain[-1] == "buffer.batch_size=64"
-    assert fast[-2:] == ["buffer.batch_size=64", "fast=true"]  # its own last: it wins
+    assert own[-3:] == ["buffer.batch_size=64", "fast=true", "env.id=my_module:MyEnv"]
+    parsed = OverridesParser.create().parse_overrides(own[2:])  # as scripts/train.py reads them
+    assert {o.key_or_group: o.value() for o in parsed}["fast"] is True
 
 
 def test_the_memory_row_subtracts_what_the_buffer_filled(tmp_path):
@@ -359,3 +364,17 @@ def test_an_atari_record_keeps_the_seeds_measured_before_and_replaces_one_measur
         (101, "ALE/Breakout-v5"),
         (102, None),
     ]
+
+
+def test_provenance_says_which_kernels_torch_runs_and_the_limits_set(monkeypatch):
+    import torch
+
+    for name in ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY", "MKL_ENABLE_INSTRUCTIONS"):
+        monkeypatch.delenv(name, raising=False)
+    kernels = harness.provenance()["machine"]["kernels"]
+    assert kernels["torch"] == torch.backends.cpu.get_cpu_capability()
+    assert isinstance(kernels["computes_bfloat16"], bool) and "limits" not in kernels
+    monkeypatch.setenv("MKL_ENABLE_INSTRUCTIONS", "AVX2")
+    assert harness.provenance()["machine"]["kernels"]["limits"] == {
+        "MKL_ENABLE_INSTRUCTIONS": "AVX2"
+    }

@@ -201,14 +201,20 @@ def test_the_readme_reports_the_preset_form_not_the_newest(tmp_path, monkeypatch
 
 
 def test_the_readme_names_each_avx2_seeds_machine_and_one_held_to_avx2(tmp_path, monkeypatch):
-    def run(seed: int, score: float, machine: dict, date: str) -> dict:
+    def run(seed: int, score: float, machine: dict, date: str, **summary) -> dict:
         measured = {"date": date, "machine": machine}
-        return {"seed": seed, "final_eval_return_mean": score, "measured": measured}
+        return {"seed": seed, "final_eval_return_mean": score, "measured": measured, **summary}
 
     real = {"cpu": "AMD EPYC", "vector_units": ["avx2", "fma"]}
-    held = {"cpu": "Intel Xeon", "isa_limits": {"ATEN_CPU_CAPABILITY": "avx2"}}
-    held["torch_cpu_capability"] = "AVX2"
-    runs = [run(311, 16.04, real, "2026-12-02"), run(312, 15.46, held, "2026-12-03")]
+    evaluated = {"cpu": "Intel Xeon", "kernels": {"torch": "AVX2", "limits": {"X": "AVX2"}}}
+    held = {
+        "torch": "AVX2",
+        "limits": {"ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2"},
+    }
+    runs = [
+        run(311, 16.04, real, "2026-12-02", autocast="none"),
+        run(312, 15.46, evaluated, "2026-12-03", autocast="none", cpu_kernels=held),
+    ]
     record = tmp_path / "avx2.json"
     record.write_text(json.dumps({"runs": runs}))
     monkeypatch.setattr(docs, "ATARI_PRESET_FORM", tmp_path / "absent.json")
@@ -216,9 +222,14 @@ def test_the_readme_names_each_avx2_seeds_machine_and_one_held_to_avx2(tmp_path,
     monkeypatch.setattr(docs, "ATARI_AVX2", record)
     (row,) = docs._readme_atari_rows()
     cells = [cell.strip() for cell in row.strip("|").split("|")]
-    assert "float32 on AVX2" in cells[0] and cells[0].endswith("seeds 311, 312")
+    assert "2 hours, float32 on AVX2" in cells[0] and cells[0].endswith("seeds 311, 312")
     assert cells[1] == "16.0, 15.5"
-    assert cells[3] == "[AMD EPYC, Intel Xeon held to AVX2, 2026-12-03](docs/results/breakout.md)"
+    # the training's own limits, not the evaluation's
+    trained_on = "AMD EPYC, Intel Xeon (oneDNN, ATen held to AVX2)"
+    assert cells[3] == f"[{trained_on}, 2026-12-03](docs/results/breakout.md)"
+    record.write_text(json.dumps({"runs": runs[:1]}))
+    (row,) = docs._readme_atari_rows()
+    assert "seed 311 |" in row  # one seed: singular
 
 
 def test_the_readme_results_table_has_one_row_per_protocol_and_env():

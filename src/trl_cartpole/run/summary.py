@@ -10,6 +10,7 @@ other tools rely on (docs/architecture.md). It reads the run's values (``run.set
 
 from __future__ import annotations
 
+import os
 import resource
 import shutil
 import time
@@ -23,6 +24,7 @@ import tensordict
 import torch
 import torchrl
 
+from trl_cartpole.compat import cpu_computes_bfloat16
 from trl_cartpole.errors import TrainingFailed
 from trl_cartpole.report.console import solve_status
 from trl_cartpole.report.plotting import (
@@ -38,7 +40,26 @@ from trl_cartpole.run.eval_protocol import cut_episodes_note
 from trl_cartpole.run.evaluation import Candidate, EvalResult, Evaluator
 from trl_cartpole.store.files import write_json_atomic
 
-__all__ = ["finish", "peak_rss_mb", "record_failure", "run_summary"]
+__all__ = ["ISA_LIMITS", "cpu_kernels", "finish", "peak_rss_mb", "record_failure", "run_summary"]
+
+# environment variables that hold a library's CPU kernels below the processor's instructions
+# (all three at AVX2 make a processor with AVX-512 compute as one without it)
+ISA_LIMITS = {
+    "ONEDNN_MAX_CPU_ISA": "oneDNN",
+    "ATEN_CPU_CAPABILITY": "ATen",
+    "MKL_ENABLE_INSTRUCTIONS": "MKL",
+}
+
+
+def cpu_kernels() -> dict[str, Any]:
+    """The vector instructions torch's CPU kernels use (``AVX512``, ``AVX2``...), whether oneDNN
+    computes bfloat16 here, and the :data:`ISA_LIMITS` set (name: value), if any."""
+    limits = {name: os.environ[name] for name in ISA_LIMITS if os.environ.get(name)}
+    kernels = {
+        "torch": torch.backends.cpu.get_cpu_capability(),
+        "computes_bfloat16": cpu_computes_bfloat16(),
+    }
+    return {**kernels, "limits": limits} if limits else kernels
 
 
 def peak_rss_mb() -> float:
@@ -78,6 +99,7 @@ def finish(run: Components) -> dict[str, Any]:
         checkpoint=None if settings.best_checkpoint is None else str(settings.best_checkpoint),
         autocast=settings.autocast,
         num_threads=settings.num_threads,
+        cpu_kernels=cpu_kernels(),
         kept_policy_frames=None if kept is None else kept.frames,
         **({"candidates": [asdict(score) for score in scores]} if scores else {}),
         **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
