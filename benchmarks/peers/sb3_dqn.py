@@ -17,39 +17,10 @@ the run once solved.
 
 from __future__ import annotations
 
-import argparse
-from collections.abc import Callable
-from typing import Any
-
 import torch
 
-from benchmarks.peers.protocol import PeerRun, parse_peer_args
-from benchmarks.peers.zoo_settings import zoo_dqn_settings
-
-
-def train_with_zoo_settings(
-    name: str, dqn_class: type, args: argparse.Namespace, watch: Callable[[PeerRun, Any], None]
-) -> dict:
-    """Train ``dqn_class`` (Stable-Baselines3's ``DQN``, or one that takes its arguments) with
-    rl-zoo3's settings for ``args.env_id`` under the protocol; ``watch(run, model)`` shows the
-    run the model's Q-network. Returns the run's summary."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    run = PeerRun(name, args)
-    settings, timesteps = zoo_dqn_settings(args.env_id)
-    fraction = settings.get("exploration_fraction", 0.1)  # SB3's default where zoo sets none
-    settings["exploration_fraction"] = fraction * timesteps / args.total_frames  # zoo's, in steps
-    model = dqn_class("MlpPolicy", args.env_id, seed=args.seed, device="cpu", verbose=0, **settings)
-    watch(run, model)
-
-    class ProtocolCallback(BaseCallback):
-        def _on_step(self) -> bool:
-            if self.num_timesteps % args.eval_interval:
-                return True
-            return not run.evaluate(self.num_timesteps)
-
-    model.learn(total_timesteps=args.total_frames, callback=ProtocolCallback())
-    return run.finish(model.num_timesteps, model._n_updates)
+from benchmarks.peers.protocol import parse_peer_args
+from benchmarks.peers.zoo_settings import train_with_zoo_settings
 
 
 def main() -> None:

@@ -5,21 +5,26 @@ rl-zoo3 cannot be installed beside this project's lock (``constraints.txt``: its
 wheel is downloaded once, without dependencies, into ``runs/peer-venvs/rl_zoo3-<version>``
 (``pip download rl_zoo3==<version> --no-deps``) and the file read from it: the settings are the
 package's own, never a hand copy. ``policy_kwargs`` (a Python expression in the file, such as
-``"dict(net_arch=[256, 256])"``) is read as literals only.
+``"dict(net_arch=[256, 256])"``) is read as literals only. :func:`train_with_zoo_settings`
+trains a Stable-Baselines3-style ``DQN`` (SB3's, SBX's) with them under the protocol.
 """
 
 from __future__ import annotations
 
+import argparse
 import ast
 import subprocess
 import sys
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-__all__ = ["ZOO_VERSION", "zoo_dqn_settings"]
+from benchmarks.peers.protocol import PeerRun
+
+__all__ = ["ZOO_VERSION", "train_with_zoo_settings", "zoo_dqn_settings"]
 
 ZOO_VERSION = "2.9.2"
 ZOO_DIR = Path(__file__).resolve().parents[2] / "runs" / "peer-venvs" / f"rl_zoo3-{ZOO_VERSION}"
@@ -75,3 +80,31 @@ def zoo_dqn_settings(env_id: str) -> tuple[dict[str, Any], int]:
     if "policy_kwargs" in settings:
         settings["policy_kwargs"] = _policy_kwargs(settings["policy_kwargs"])
     return settings, timesteps
+
+
+def train_with_zoo_settings(
+    name: str,
+    dqn_class: Callable[..., Any],
+    args: argparse.Namespace,
+    watch: Callable[[PeerRun, Any], None],
+) -> dict:
+    """Train ``dqn_class`` (Stable-Baselines3's ``DQN``, or one that takes its arguments) with
+    rl-zoo3's settings for ``args.env_id`` under the protocol; ``watch(run, model)`` shows the
+    run the model's Q-network. Returns the run's summary."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    run = PeerRun(name, args)
+    settings, timesteps = zoo_dqn_settings(args.env_id)
+    fraction = settings.get("exploration_fraction", 0.1)  # SB3's default where zoo sets none
+    settings["exploration_fraction"] = fraction * timesteps / args.total_frames  # zoo's, in steps
+    model = dqn_class("MlpPolicy", args.env_id, seed=args.seed, device="cpu", verbose=0, **settings)
+    watch(run, model)
+
+    class ProtocolCallback(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps % args.eval_interval:
+                return True
+            return not run.evaluate(self.num_timesteps)
+
+    model.learn(total_timesteps=args.total_frames, callback=ProtocolCallback())
+    return run.finish(model.num_timesteps, model._n_updates)
