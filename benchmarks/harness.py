@@ -129,16 +129,18 @@ def provenance_line(record: dict[str, Any]) -> str:
 def peer_python(peer: str) -> str:
     """The interpreter that runs ``peer``: this one, or its own virtual environment's.
 
-    The environment is ``runs/peer-venvs/<peer>``; a ``.complete`` marker is written once its
-    install succeeded, so one cut off midway is made again. Runs of the benchmark's worker
+    The environment is ``runs/peer-venvs/<peer>``; a ``.complete`` marker naming its packages is
+    written once its install succeeded, so one cut off midway, or made for other pins, is made
+    again. Runs of the benchmark's worker
     threads that ask at the same time wait for the first to make it.
     """
     if peer not in PEER_VENVS:
         return sys.executable
     venv = (REPOSITORY / PEER_VENV_ROOT / peer).resolve()
     python = venv / "bin" / "python"
+    complete = venv / ".complete"  # the packages installed, once the install succeeded
     with _PEER_VENV_LOCK:
-        if not (venv / ".complete").is_file():
+        if not complete.is_file() or complete.read_text().split() != PEER_VENVS[peer]:
             _make_peer_venv(peer, venv)
     return str(python)
 

@@ -255,8 +255,8 @@ def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkey
     def slow_make(peer, venv):  # stands in for venv + pip: slow enough for the threads to meet
         made.append(peer)
         time.sleep(0.2)
-        venv.mkdir(parents=True)
-        (venv / ".complete").write_text("done\n")
+        venv.mkdir(parents=True, exist_ok=True)
+        (venv / ".complete").write_text(" ".join(harness.PEER_VENVS[peer]) + "\n")
 
     monkeypatch.setattr(harness, "REPOSITORY", tmp_path)
     monkeypatch.setattr(harness, "_make_peer_venv", slow_make)
@@ -273,6 +273,9 @@ def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkey
     expected = tmp_path / "runs" / "peer-venvs" / "tianshou_dqn" / "bin" / "python"
     assert pythons == [str(expected), str(expected)]
     assert harness.peer_python("sb3_dqn") == harness.sys.executable  # no venv of its own
+    monkeypatch.setitem(harness.PEER_VENVS, "tianshou_dqn", ["tianshou==2.0.2"])
+    harness.peer_python("tianshou_dqn")  # other pins: made again
+    assert made == ["tianshou_dqn", "tianshou_dqn"]
 
 
 def test_a_preset_with_overrides_of_its_own_runs_them_after_the_shared_ones(tmp_path, monkeypatch):
