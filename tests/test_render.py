@@ -14,6 +14,7 @@ from trl_cartpole.policy.video import (
     _drawn,
     _gif_palette,
     _in_palette,
+    _label,
     _Shot,
     _write_shots,
     write_video,
@@ -70,23 +71,33 @@ def test_unknown_video_format_is_refused(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-def test_a_gif_of_a_dark_game_has_a_frame_per_step_drawn_as_in_rgb(tmp_path):
+def test_a_gif_of_a_dark_game_has_a_frame_per_step(tmp_path):
     """On a black game screen the step's caption still tells the frames apart (drawn black on
-    black, they looked alike and Pillow merged them), and a frame drawn in the GIF's palette
-    is the RGB frame mapped to it, the scene and the agent's view enlarged by whole pixels."""
-    scene = np.zeros((210, 160, 3), np.uint8)  # [H, W, 3]: a dark screen, one brick
-    scene[100:104, 70:90] = (200, 72, 72)
+    black, they looked alike and Pillow merged them into one)."""
+    scene = np.zeros((210, 160, 3), np.uint8)  # [H, W, 3]: a dark screen
     patch = np.full((84, 84), 40, np.uint8)  # [h, w]: the agent's gray view
     shots = [_Shot(scene, patch, f"episode 1  step {step}  return 0") for step in range(5)]
     path = _write_shots(shots, tmp_path / "dark.gif", fps=50, scale=3.0)
-    # the view is enlarged x5 (480 // 84) under the scene and its caption band
-    with Image.open(path) as gif:
+    with Image.open(path) as gif:  # the view enlarged x5 (480 // 84) under the scene and band
         assert gif.n_frames == 5 and gif.size == (480, 630 + VIEW_CAPTION_HEIGHT + 84 * 5)
-    in_rgb = _drawn(shots[4], 3.0)
+
+
+@pytest.mark.parametrize("scale", [0.5, 1.0, 3.0])
+@pytest.mark.parametrize("with_patch", [True, False])
+def test_a_frame_drawn_in_the_gifs_palette_is_the_rgb_frame_mapped_to_it(scale, with_patch):
+    """Drawing a GIF's frame part by part in its palette (each part mapped before it is
+    enlarged) gives exactly the RGB frame mapped whole, caption, label and view included."""
+    scene = np.zeros((210, 160, 3), np.uint8)  # [H, W, 3]: a dark screen, one brick
+    scene[100:104, 70:90] = (200, 72, 72)
+    scene[:, 150:] = (142, 142, 142)  # a wall
+    patch = np.linspace(0, 255, 84 * 84).astype(np.uint8).reshape(84, 84) if with_patch else None
+    shot = _Shot(scene, patch, "episode 2  step 17  return 4")
+    in_rgb = _drawn(shot, scale)
     palette = _gif_palette([np.asarray(in_rgb)])
-    mapped = np.asarray(_in_palette(in_rgb, palette))  # [1064, 480] palette indices
-    drawn = np.asarray(_drawn(shots[4], 3.0, palette))
-    assert drawn.shape == mapped.shape == (1064, 480)
-    assert (drawn == mapped).mean() > 0.99  # only the text's soft edges differ
-    brick, view = drawn[300:312, 210:270], drawn[-420:, :420]  # x3 and x5
-    assert (brick == mapped[301, 211]).all() and (view == mapped[-1, 0]).all()
+    drawn = np.asarray(_drawn(shot, scale, palette))  # [H', W'] palette indices
+    np.testing.assert_array_equal(drawn, np.asarray(_in_palette(in_rgb, palette)))
+    box, (left, top) = _label(shot.caption, (6, 6), margin=2)
+    white = _in_palette(Image.new("RGB", (1, 1), (255, 255, 255)), palette).getpixel((0, 0))
+    margin = drawn[top, left : min(left + box.width, drawn.shape[1])]  # the label's top edge
+    assert (margin == white).all() and 0 <= top <= 6 and left == 4
+    assert len(np.unique(drawn[: round(210 * scale)])) > 3  # the scene, its label and text

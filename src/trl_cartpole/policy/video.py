@@ -68,7 +68,7 @@ _BLACK, _WHITE = (0, 0, 0), (255, 255, 255)
 
 @functools.cache
 def _font() -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
-    """Pillow's default font, loaded once (Pillow loads it again for each text it draws)."""
+    """Pillow's default font, loaded once (Pillow loads it anew for every ``ImageDraw``)."""
     return ImageFont.load_default()
 
 
@@ -80,53 +80,66 @@ def _in_palette(image: Image.Image, palette: Image.Image | None) -> Image.Image:
 
 
 def _resized(image: Image.Image, scale: float, palette: Image.Image | None) -> Image.Image:
-    """``image`` resized by ``scale`` (enlarged by whole pixels, as a game's screen is drawn)
-    and mapped to ``palette``: before enlarging, which gives the same picture for a fraction
-    of the work, or after shrinking, which blends colours."""
+    """``image`` resized by ``scale`` (enlarged by whole pixels, as a game's screen is drawn;
+    shrunk with Pillow's bicubic filter) and mapped to ``palette``: before enlarging, which
+    gives the same picture for a fraction of the work, or after shrinking, which blends
+    colours."""
     if scale >= 1:
         image = _in_palette(image, palette)
     if scale != 1:
         size = (max(1, round(image.width * scale)), max(1, round(image.height * scale)))
-        image = image.resize(size, Image.Resampling.NEAREST if scale > 1 else None)
+        shrink = Image.Resampling.BICUBIC
+        image = image.resize(size, Image.Resampling.NEAREST if scale > 1 else shrink)
     return image if scale >= 1 else _in_palette(image, palette)
 
 
-def _colour(rgb: tuple[int, int, int], palette: Image.Image | None) -> tuple[int, ...] | int:
-    """``rgb`` as an image drawn in ``palette`` takes it: its nearest index, or ``rgb``."""
-    if palette is None:
-        return rgb
-    return _in_palette(Image.new("RGB", (1, 1), rgb), palette).getpixel((0, 0))
+def _label(text: str, where: tuple[int, int], margin: int) -> tuple[Image.Image, tuple[int, int]]:
+    """``text`` as drawn at ``where``: black, anti-aliased, on a white box ``margin`` pixels
+    larger on each side; returns the box (RGB) and the corner to paste it at."""
+    left, top, right, bottom = ImageDraw.Draw(Image.new("RGB", (1, 1))).textbbox(
+        where, text, font=_font()
+    )
+    corner = (left - margin, top - margin)
+    box = Image.new("RGB", (right - left + 2 * margin, bottom - top + 2 * margin), _WHITE)
+    offset = (where[0] - corner[0], where[1] - corner[1])
+    ImageDraw.Draw(box).text(offset, text, fill=_BLACK, font=_font())
+    return box, corner
 
 
 def _drawn(shot: _Shot, scale: float, palette: Image.Image | None = None) -> Image.Image:
-    """``shot`` as one video frame: the scene resized by ``scale`` with its caption in the
-    top-left corner and, for a policy from pixels, a caption band and the agent's patch,
-    enlarged to the scene's width by whole pixels, under it. In RGB, or in ``palette``'s
-    colours (a GIF's), mapped before enlarging: a Breakout frame at x3 maps 41 000 pixels
-    instead of the finished frame's 511 000."""
-    ink, paper = _colour(_BLACK, palette), _colour(_WHITE, palette)
+    """``shot`` as one video frame: the scene resized by ``scale`` with its caption on a white
+    label in the top-left corner (legible on a dark game screen) and, for a policy from pixels,
+    a caption band and the agent's patch, enlarged to the scene's width by whole pixels, under
+    it. In RGB, or in ``palette``'s colours (a GIF's): the RGB frame mapped to them, pixel for
+    pixel, but each part mapped before it is enlarged: a Breakout frame at x3 maps 41 000
+    pixels instead of the finished frame's 511 000."""
     scene = _resized(Image.fromarray(shot.scene), scale, palette)
-    draw = ImageDraw.Draw(scene)  # black on a white label: legible on a dark game screen too
-    left, top, right, bottom = draw.textbbox((6, 6), shot.caption, font=_font())
-    draw.rectangle((left - 2, top - 2, right + 2, bottom + 2), fill=paper)
-    draw.text((6, 6), shot.caption, fill=ink, font=_font())
+    label, corner = _label(shot.caption, (6, 6), margin=2)
+    scene.paste(_in_palette(label, palette), corner)
     if shot.patch is None:
         return scene
     height, width = shot.patch.shape
     factor = max(scene.width // width, 1)
     view = _resized(Image.fromarray(shot.patch).convert("RGB"), factor, palette)
-    canvas = Image.new(
-        scene.mode,
-        (max(scene.width, view.width), scene.height + VIEW_CAPTION_HEIGHT + view.height),
-        paper,
-    )
-    if palette is not None:
-        canvas.putpalette(scene.getpalette())
-    canvas.paste(scene, (0, 0))
-    canvas.paste(view, (0, scene.height + VIEW_CAPTION_HEIGHT))
+    full_width = max(scene.width, view.width)  # a game's small screen may be the narrower
+    band = Image.new("RGB", (full_width, VIEW_CAPTION_HEIGHT), _WHITE)
     caption = f"what the network sees: its last {height}x{width} patch, x{factor}"
-    ImageDraw.Draw(canvas).text((6, scene.height + 1), caption, fill=ink, font=_font())
-    return canvas
+    ImageDraw.Draw(band).text((6, 1), caption, fill=_BLACK, font=_font())
+    size = (full_width, scene.height + VIEW_CAPTION_HEIGHT + view.height)
+    frame = Image.new(scene.mode, size, _colour(_WHITE, palette))
+    if palette is not None:
+        frame.putpalette(scene.getpalette())
+    frame.paste(scene, (0, 0))
+    frame.paste(_in_palette(band, palette), (0, scene.height))
+    frame.paste(view, (0, scene.height + VIEW_CAPTION_HEIGHT))
+    return frame
+
+
+def _colour(rgb: tuple[int, int, int], palette: Image.Image | None) -> tuple[int, ...] | int:
+    """``rgb`` as an image drawn in ``palette`` takes it: the index it maps to, or ``rgb``."""
+    if palette is None:
+        return rgb
+    return _in_palette(Image.new("RGB", (1, 1), rgb), palette).getpixel((0, 0))
 
 
 def _play(
@@ -138,7 +151,7 @@ def _play(
 
     def shot(td: TensorDictBase, caption: str) -> _Shot:
         patch = td[PIXELS_KEY][-1].numpy().copy() if PIXELS_KEY in td else None  # [h, w]
-        return _Shot(gymnasium_env.render(), patch, caption)
+        return _Shot(np.array(gymnasium_env.render()), patch, caption)  # its own copy
 
     for episode in range(1, episodes + 1):
         td = env.reset()
@@ -174,7 +187,7 @@ def render_episodes(
         yield EpisodeFrames([np.asarray(_drawn(shot, scale)) for shot in shots], episode_return)
 
 
-def _spread(count: int, most: int = 8) -> list[int]:
+def _evenly_spaced(count: int, most: int = 8) -> list[int]:
     """Up to ``most`` indices spread evenly over ``range(count)``, the first and last included."""
     return np.linspace(0, count - 1, num=min(most, count)).round().astype(int).tolist()
 
@@ -203,7 +216,7 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Pa
     path = Path(path)
     check_video_output(str(path))
     if path.suffix == ".gif":
-        palette = _gif_palette([frames[i] for i in _spread(len(frames))])
+        palette = _gif_palette([frames[i] for i in _evenly_spaced(len(frames))])
         return _write_gif((_in_palette(Image.fromarray(f), palette) for f in frames), path, fps)
     import imageio.v3 as iio  # an .mp4: check_video_output found imageio
 
@@ -219,7 +232,9 @@ def _write_shots(shots: list[_Shot], path: Path, fps: int, scale: float) -> Path
     beside a training run)."""
     if path.suffix != ".gif":
         return write_video([np.asarray(_drawn(shot, scale)) for shot in shots], path, fps)
-    palette = _gif_palette([np.asarray(_drawn(shots[i], scale)) for i in _spread(len(shots))])
+    palette = _gif_palette(
+        [np.asarray(_drawn(shots[i], scale)) for i in _evenly_spaced(len(shots))]
+    )
     return _write_gif((_drawn(shot, scale, palette) for shot in shots), path, fps)
 
 
