@@ -227,8 +227,8 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Pa
 
 def _write_shots(shots: list[_Shot], path: Path, fps: int, scale: float) -> Path:
     """:func:`write_video` of ``shots`` drawn at ``scale``; a GIF's frames are drawn in its
-    palette (300 Breakout frames at x3 with the agent's view: 3.4-3.7 ms a frame to draw and
-    write, against 9.5-15 ms drawn in RGB and mapped when finished, measured side by side
+    palette (300 Breakout frames at x3 with the agent's view: 3.4-3.8 ms a frame to draw and
+    write, against 8.0-14.9 ms drawn in RGB and mapped when finished, measured side by side
     beside a training run)."""
     if path.suffix != ".gif":
         return write_video([np.asarray(_drawn(shot, scale)) for shot in shots], path, fps)
