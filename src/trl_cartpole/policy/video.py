@@ -215,6 +215,8 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: int = 50) -> Pa
     """Write ``frames`` to ``path`` (``.gif`` or ``.mp4``) under a temporary name, then rename."""
     path = Path(path)
     check_video_output(str(path))
+    if not frames:
+        raise ConfigError(f"no frames to write to {shown_path(path)}: pass at least one")
     if path.suffix == ".gif":
         palette = _gif_palette([frames[i] for i in _evenly_spaced(len(frames))])
         return _write_gif((_in_palette(Image.fromarray(f), palette) for f in frames), path, fps)
