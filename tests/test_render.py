@@ -68,7 +68,7 @@ def test_human_mode_without_a_display_is_a_clear_error(smoke_checkpoint, tmp_pat
 def test_unknown_video_format_is_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"choose a \.gif or \.mp4"):
         write_video([], tmp_path / "x.avi")
-    with pytest.raises(ConfigError, match="no frames to write to .*x.gif: pass at least one"):
+    with pytest.raises(ConfigError, match=r"no frames to write to .*x\.gif: pass at least one"):
         write_video([], tmp_path / "x.gif")
     assert not list(tmp_path.iterdir())
 
