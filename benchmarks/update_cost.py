@@ -22,6 +22,10 @@ the ``dqn`` updates batch by batch so that the machine's drift slows all alike:
   ``randint``), eager;
 - the FLOP floor: the update's matrix-product arithmetic (:func:`update_flops`) at the rate
   this core multiplies a large matrix in the same process (:func:`matmul_rate`);
+- for a CNN (``network.torso=cnn``), ``dqn, channels-last``: the same update with the
+  convolution kernels of both networks in channels-last memory format (NHWC), in which
+  oneDNN then runs the convolutions (:func:`to_channels_last`); the state-vector rows above
+  (raw, floor) are an MLP's only;
 
 then the framework tax (the ``dqn`` row's total over the raw one; the target is at most 1.2).
 """
@@ -162,6 +166,16 @@ def _built(algo: str, seed: int, overrides: list[str]):
     return cfg, learner, env
 
 
+def to_channels_last(learner) -> int:
+    """Put the 4-d parameters and buffers (convolution kernels) of ``learner``'s loss, the
+    online network's and the target's, in channels-last memory format, in place (before its
+    first step, so that the optimizer's state follows); returns how many were changed."""
+    kernels = [t for t in chain(learner.loss.parameters(), learner.loss.buffers()) if t.dim() == 4]
+    for kernel in kernels:
+        kernel.data = kernel.data.contiguous(memory_format=torch.channels_last)
+    return len(kernels)
+
+
 def _learner_batch(learner, count: int) -> Timing:
     """Per-update (sample, update, priority) seconds of one batch of ``count`` updates, phase
     by phase as ``Learner.step`` runs them ("update" includes the target network's step)."""
@@ -202,6 +216,11 @@ def time_learner(
         _learner_batch(compiled, 1)  # the first call compiles
         others.setdefault("compile_s", []).append(time.perf_counter() - start)
         contenders["compiled"] = lambda count: _learner_batch(compiled, count)
+    if others is not None and cfg.network.torso == "cnn":
+        _, channels_last, _ = _built(algo, seed, overrides)
+        if to_channels_last(channels_last) == 0:
+            raise RuntimeError("the CNN learner has no convolution kernel to make channels-last")
+        contenders["channels_last"] = lambda count: _learner_batch(channels_last, count)
     plain = cfg.network.head == "plain" and not cfg.network.noisy and not cfg.network.distributional
     if others is not None and plain and "observation" in env.observation_spec:  # a plain MLP
         raw_step = raw_update(cfg, *_sizes(env))
@@ -280,6 +299,8 @@ def summary_line(record: dict) -> str:
 COMPILED = "dqn, compile=true (the whole update compiled)"
 RAW = "raw PyTorch, the dqn math, eager"
 FLOOR = "FLOP floor: the matrix products at this core's rate"
+CHANNELS_LAST = "dqn, channels-last (the convolution kernels in NHWC)"
+OTHER_ROWS = (COMPILED, CHANNELS_LAST, RAW, FLOOR)  # recorded beside the dqn row, this order
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -315,6 +336,8 @@ def main(args: argparse.Namespace) -> None:
         print(lines[-1], flush=True)
     if "compiled" in others:
         rows.append(_row(COMPILED, others["compiled"]))
+        if "channels_last" in others:
+            rows.append(_row(CHANNELS_LAST, others["channels_last"]))
         if "raw" in others:
             floor = 1e3 * statistics.median(others["flop_floor"])
             rows += [
@@ -323,7 +346,7 @@ def main(args: argparse.Namespace) -> None:
             ]
         record = {
             "num_threads": torch.get_num_threads(),  # as the last run set it (num_threads)
-            "rows": [row for row in rows if row["name"] in ("dqn", COMPILED, RAW, FLOOR)],
+            "rows": [row for row in rows if row["name"] in ("dqn", *OTHER_ROWS)],
             "compile_seconds": others["compile_s"][0],  # the first seed's: a run's compile
         }
         added = len(record["rows"]) - 1
@@ -337,8 +360,8 @@ def main(args: argparse.Namespace) -> None:
 
 def _record(args: argparse.Namespace, record: dict) -> None:
     """Add the measurement to ``args.record`` with its command, machine and date; one with the
-    same overrides on the same kind of processor (its vector units) is replaced
-    (docs/results/speed.md is generated from the file)."""
+    same overrides on the same kind of processor (its vector units and the limits held on its
+    kernels) is replaced (docs/results/speed.md is generated from the file)."""
     from benchmarks.harness import provenance
 
     command = " ".join(
@@ -353,10 +376,11 @@ def _record(args: argparse.Namespace, record: dict) -> None:
     if args.note:
         measurement["note"] = args.note
     existing = json.loads(args.record.read_text()) if args.record.exists() else {"runs": []}
-    runs = [
-        run
-        for run in existing["runs"]
-        if (run["overrides"], run["machine"]["vector_units"])
-        != (args.overrides, measurement["machine"]["vector_units"])
-    ]
+
+    def kind(run: dict) -> tuple:
+        machine = run["machine"]
+        limits = machine.get("kernels", {}).get("limits", {})
+        return run["overrides"], machine["vector_units"], sorted(limits.items())
+
+    runs = [run for run in existing["runs"] if kind(run) != kind(measurement)]
     args.record.write_text(json.dumps({"runs": [*runs, measurement]}, indent=2) + "\n")

@@ -800,11 +800,11 @@ def update_cost() -> str:
 def atari_update_cost() -> str:
     """docs/atari.md's table of one Breakout update on each kind of processor measured: from
     the ``env=breakout`` runs of ``docs/results/update_cost.json``."""
-    from benchmarks.update_cost import COMPILED
+    from benchmarks.update_cost import CHANNELS_LAST, COMPILED
 
     rows = [
-        "| processor | number type | threads | ms per update, eager | compiled |",
-        "| --- | --- | --- | --- | --- |",
+        "| processor | number type | threads | ms per update, eager | compiled | channels-last |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     runs = json.loads(UPDATE_COST.read_text())["runs"]
     for run in (run for run in runs if "env=breakout" in run["overrides"]):
@@ -823,7 +823,8 @@ def atari_update_cost() -> str:
         total = {row["name"]: row["total_ms"] for row in run["rows"]}
         rows.append(
             f"| {run['machine']['cpu']}, {processor} | {kind} | {run['num_threads']} "
-            f"| {total['dqn']:.1f} | {total[COMPILED]:.1f} |"
+            f"| {total['dqn']:.1f} | {total[COMPILED]:.1f} | "
+            + (f"{total[CHANNELS_LAST]:.1f} |" if CHANNELS_LAST in total else "- |")
         )
     return "\n".join(rows)
 

@@ -381,3 +381,45 @@ def test_provenance_says_which_kernels_torch_runs_and_the_limits_set(monkeypatch
     assert harness.provenance()["machine"]["kernels"]["limits"] == {
         "MKL_ENABLE_INSTRUCTIONS": "AVX2"
     }
+
+
+def test_channels_last_kernels_give_the_same_q_values_and_update(tmp_path):
+    """The update-cost's channels-last row changes the memory format of the convolution
+    kernels, online and target, not what the network computes."""
+    import torch
+
+    from benchmarks import update_cost
+
+    overrides = ["env=cartpole_pixels", "collector.updates_per_batch=1"]
+    _, plain, _ = update_cost._built("dqn", 0, overrides)
+    _, nhwc, _ = update_cost._built("dqn", 0, overrides)
+    assert update_cost.to_channels_last(nhwc) == 6  # 3 convolutions, online and target
+    kernels = [t for t in nhwc.loss.parameters() if t.dim() == 4]
+    assert kernels and all(t.is_contiguous(memory_format=torch.channels_last) for t in kernels)
+    sample = plain.buffer.sample()
+    for a, b in zip(plain.loss.parameters(), nhwc.loss.parameters(), strict=True):
+        assert torch.equal(a, b)  # the same values, another layout
+    plain.update(sample.clone())
+    nhwc.update(sample.clone())
+    for a, b in zip(plain.loss.parameters(), nhwc.loss.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)  # one step apart: the same
+
+
+def test_an_update_cost_held_to_avx2_is_kept_beside_the_native_one(tmp_path, monkeypatch):
+    import argparse
+
+    from benchmarks import update_cost
+
+    record = tmp_path / "update_cost.json"
+    args = argparse.Namespace(seeds=[0], updates=3, overrides=["env=breakout"], note="")
+    args.record = record
+    for name in ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY", "MKL_ENABLE_INSTRUCTIONS"):
+        monkeypatch.delenv(name, raising=False)
+    update_cost._record(args, {"rows": [], "first": True})
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
+    update_cost._record(args, {"rows": [], "first": False})
+    update_cost._record(args, {"rows": [], "again": True})  # the same kind: replaced
+    runs = json.loads(record.read_text())["runs"]
+    assert len(runs) == 2 and "first" not in runs[1]
+    assert runs[0]["first"] and runs[1]["again"]
+    assert runs[1]["machine"]["kernels"]["limits"] == {"ONEDNN_MAX_CPU_ISA": "AVX2"}

@@ -295,7 +295,7 @@ def test_the_guide_pages_stay_guides(page):
 
 
 def test_the_atari_update_table_names_the_processor_and_an_emulated_bfloat16(tmp_path, monkeypatch):
-    from benchmarks.update_cost import COMPILED
+    from benchmarks.update_cost import CHANNELS_LAST, COMPILED
 
     def run(units: list[str], autocast: str, threads: int, eager: float) -> dict:
         rows = [{"name": "dqn", "total_ms": eager}, {"name": COMPILED, "total_ms": eager / 2}]
@@ -305,11 +305,19 @@ def test_the_atari_update_table_names_the_processor_and_an_emulated_bfloat16(tmp
 
     native, avx2 = ["avx2", "avx512f", "avx512_bf16"], ["avx2", "fma"]
     cartpole = {**run(avx2, "none", 1, 1.0), "overrides": []}  # not Breakout: left out
-    runs = [run(native, "bfloat16", 1, 30.0), run(avx2, "bfloat16", 2, 600.0), cartpole]
+    held = run(native, "none", 2, 40.0)  # an AVX-512 BF16 processor held to AVX2
+    held["machine"]["kernels"] = {
+        "torch": "AVX2",
+        "computes_bfloat16": False,
+        "limits": {"ONEDNN_MAX_CPU_ISA": "AVX2", "MKL_ENABLE_INSTRUCTIONS": "AVX2"},
+    }
+    held["rows"].append({"name": CHANNELS_LAST, "total_ms": 36.0})
+    runs = [run(native, "bfloat16", 1, 30.0), run(avx2, "bfloat16", 2, 600.0), cartpole, held]
     path = tmp_path / "update_cost.json"
     path.write_text(json.dumps({"runs": runs}))
     monkeypatch.setattr(docs, "UPDATE_COST", path)
     assert docs.atari_update_cost().splitlines()[2:] == [
-        "| test CPU, AVX-512 BF16 | bfloat16 | 1 | 30.0 | 15.0 |",
-        "| test CPU, AVX2 | bfloat16 (emulated) | 2 | 600.0 | 300.0 |",
+        "| test CPU, AVX-512 BF16 | bfloat16 | 1 | 30.0 | 15.0 | - |",
+        "| test CPU, AVX2 | bfloat16 (emulated) | 2 | 600.0 | 300.0 | - |",
+        "| test CPU, AVX-512 BF16 (oneDNN, MKL held to AVX2) | float32 | 2 | 40.0 | 20.0 | 36.0 |",
     ]
