@@ -103,3 +103,14 @@ def test_a_frame_drawn_in_the_gifs_palette_is_the_rgb_frame_mapped_to_it(scale, 
     margin = drawn[top, left : min(left + box.width, drawn.shape[1])]  # the label's top edge
     assert (margin == white).all() and 0 <= top <= 6 and left == 4
     assert len(np.unique(drawn[: round(210 * scale)])) > 3  # the scene, its label and text
+
+
+def test_a_game_plays_on_one_torch_thread_and_gives_the_threads_back():
+    import torch
+
+    from trl_cartpole.policy.video import _one_torch_thread
+
+    before = torch.get_num_threads()
+    with _one_torch_thread():
+        assert torch.get_num_threads() == 1 and not torch.is_grad_enabled()
+    assert torch.get_num_threads() == before and torch.is_grad_enabled()
