@@ -12,6 +12,7 @@ import argparse
 import json
 import math
 import os
+import queue
 import re
 import shutil
 import statistics
@@ -84,6 +85,13 @@ PEER_VENVS = {
     ],
 }
 PEER_VENV_ROOT = Path("runs") / "peer-venvs"
+# Peers whose library spreads over every core whatever its thread settings (XLA's CPU client):
+# each run is pinned to a core of its own for its lifetime, as the others' one torch thread
+# takes one core's work (``--jobs 2``: two such runs on two cores).
+PINNED_PEERS = {"sbx_dqn"}
+_FREE_CORES: queue.Queue[int] = queue.Queue()
+for _core in sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []:
+    _FREE_CORES.put(_core)
 _PEER_VENV_LOCK = threading.Lock()  # --jobs 2 starts two runs of a peer at once: make it once
 
 
@@ -120,9 +128,11 @@ def provenance() -> dict[str, Any]:
 def provenance_line(record: dict[str, Any]) -> str:
     """``Measured 2026-11-25 at commit abc1234 on <CPU> (2 cores).``"""
     machine = record["machine"]
+    limits = machine.get("kernels", {}).get("limits", {})
+    held = f", {', '.join(f'{k}={v}' for k, v in limits.items())}" if limits else ""
     return (
         f"Measured {record['date']} at commit `{record['commit'][:7]}` on {machine['cpu']} "
-        f"({machine['cores']} cores)."
+        f"({machine['cores']} cores{held})."
     )
 
 
@@ -140,23 +150,27 @@ def peer_python(peer: str) -> str:
     python = venv / "bin" / "python"
     complete = venv / ".complete"  # the packages installed, once the install succeeded
     with _PEER_VENV_LOCK:
-        if not complete.is_file() or complete.read_text().split() != PEER_VENVS[peer]:
+        if not complete.is_file() or complete.read_text().split() != _venv_packages(peer):
             _make_peer_venv(peer, venv)
     return str(python)
 
 
 def _make_peer_venv(peer: str, venv: Path) -> None:
     """Make ``venv`` afresh: this project, the same torch build and ``PEER_VENVS[peer]``."""
-    import torch
-
     python = venv / "bin" / "python"
     shutil.rmtree(venv, ignore_errors=True)
     print(f"making {venv} for {peer} (once; a few minutes)", file=sys.stderr, flush=True)
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-    torch_pin = f"torch=={torch.__version__.split('+')[0]}"  # the CPU build on disk
-    install = [str(python), "-m", "pip", "install", "-q", torch_pin, *PEER_VENVS[peer]]
+    install = [str(python), "-m", "pip", "install", "-q", *_venv_packages(peer)]  # CPU torch
     subprocess.run([*install, "-e", str(REPOSITORY)], check=True)
-    (venv / ".complete").write_text(" ".join(PEER_VENVS[peer]) + "\n")
+    (venv / ".complete").write_text(" ".join(_venv_packages(peer)) + "\n")
+
+
+def _venv_packages(peer: str) -> list[str]:
+    """What ``peer``'s virtual environment is made of: the torch build of this one, and its pins."""
+    import torch
+
+    return [f"torch=={torch.__version__.split('+')[0]}", *PEER_VENVS[peer]]
 
 
 def subprocess_env() -> dict[str, str]:
@@ -165,9 +179,10 @@ def subprocess_env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": os.pathsep.join(paths)}
 
 
-def _run_once(command: list[str], run_dir: Path) -> dict[str, Any]:
+def _run_once(command: list[str], run_dir: Path, core: int | None = None) -> dict[str, Any]:
     """Run ``command`` in the repository root unless ``run_dir/summary.json`` exists; return
-    that summary."""
+    that summary. With ``core``, the process and every thread it starts run on that core
+    only (set before it executes, so no thread escapes)."""
     summary_path = run_dir / "summary.json"
     if not summary_path.exists():
         subprocess.run(
@@ -176,6 +191,7 @@ def _run_once(command: list[str], run_dir: Path) -> dict[str, Any]:
             stdout=subprocess.DEVNULL,
             cwd=REPOSITORY,
             env=subprocess_env(),
+            preexec_fn=None if core is None else lambda: os.sched_setaffinity(0, {core}),
         )
     return json.loads(summary_path.read_text())
 
@@ -189,6 +205,10 @@ def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ())
     ``_`` (``dqn_fast_true-seed0``), a value the config's parser takes.
     """
     preset, *own = algo.split("+")
+    if not preset or not all(own):
+        raise SystemExit(
+            f"error: --algos {algo!r}: write a preset, then key=value pieces joined by +"
+        )
     folder = re.sub(r"[^A-Za-z0-9.-]", "_", algo)
     run_dir = (out / f"{folder}-seed{seed}").resolve()  # the process runs in the repository root
     command = [
@@ -208,7 +228,13 @@ def run_peer(peer: str, seed: int, out: Path, peer_args: Sequence[str] = ()) -> 
     """Run the peer ``peer`` (a key of ``PEERS``) with ``seed`` into ``out/<peer>-seed<seed>``."""
     run_dir = (out / f"{peer}-seed{seed}").resolve()
     command = [peer_python(peer), "-m", PEERS[peer], "--seed", str(seed), "--run-dir", str(run_dir)]
-    return _run_once([*command, *peer_args], run_dir)
+    if peer not in PINNED_PEERS or not hasattr(os, "sched_setaffinity"):  # macOS: no pinning
+        return _run_once([*command, *peer_args], run_dir)
+    core = _FREE_CORES.get()  # waits while every core holds a pinned run
+    try:
+        return _run_once([*command, *peer_args], run_dir, core=core)
+    finally:
+        _FREE_CORES.put(core)
 
 
 def _job_count(text: str) -> int:
@@ -246,6 +272,9 @@ def run_presets(
     every preset and peer on a seed before the next seed, so a machine that drifts over the
     benchmark slows them all alike.
     """
+    folders = [re.sub(r"[^A-Za-z0-9.-]", "_", name) for name in [*algos, *peers]]
+    if len(set(folders)) < len(folders):
+        raise SystemExit(f"error: --algos {' '.join(algos)}: two entries would share a run folder")
     tasks = [(run_training, algo, overrides) for algo in algos]
     tasks += [(run_peer, peer, peer_args) for peer in peers]
     with ThreadPoolExecutor(max_workers=jobs) as pool:

@@ -4,7 +4,8 @@
         [--peers tutorial_loop sb3_dqn sbx_dqn tianshou_dqn] [--eval-interval 1000 [2500]]
         [--jobs 1] [--out runs/benchmark] [key=value ...]
 
-docs/performance.md's 20-seed table, both protocols, on seeds no preset was tuned on:
+docs/performance.md's 20-seed table, both protocols, on seeds no preset was tuned on (recorded
+at b68e802, when the default ran the project's fused rewrites: ``fast=true`` today):
 
     python -m benchmarks run --algos dqn --peers sb3_dqn --eval-interval 1000 2500
         --seeds $(seq 100 119) --out runs/perf20 --record docs/results/performance.json

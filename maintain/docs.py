@@ -380,13 +380,14 @@ def _trained_on(run: dict) -> str:
 
 def _held(kernels: dict) -> str:
     """`` (oneDNN, ATen held to AVX2)`` for kernels held below the processor's instructions
-    (``trl_cartpole.run.summary.ISA_LIMITS``), naming the libraries held; else ``""``."""
+    (``trl_cartpole.run.summary.ISA_LIMITS``): the libraries held to each level; else ``""``."""
     from trl_cartpole.run.summary import ISA_LIMITS
 
-    if not kernels.get("limits"):
-        return ""
-    held = ", ".join(ISA_LIMITS[name] for name in kernels["limits"])
-    return f" ({held} held to {kernels['torch']})"
+    levels: dict[str, list[str]] = {}
+    for name, level in kernels.get("limits", {}).items():
+        levels.setdefault(level.upper(), []).append(ISA_LIMITS[name])
+    held = "; ".join(f"{', '.join(names)} held to {level}" for level, names in levels.items())
+    return f" ({held})" if held else ""
 
 
 def _spaced(number: float) -> str:
@@ -845,6 +846,8 @@ def _against_float32(run: dict, runs: list[dict]) -> str:
             for other in runs
             if [override for override in other["overrides"] if override != none] == plain
             and other["machine"]["vector_units"] == run["machine"]["vector_units"]
+            and _held(other["machine"].get("kernels", {}))
+            == _held(run["machine"].get("kernels", {}))
         ),
         None,
     )

@@ -8,6 +8,7 @@ import os
 import subprocess
 import threading
 import time
+from itertools import chain
 
 import pytest
 
@@ -256,7 +257,7 @@ def test_a_peer_venv_asked_for_by_two_runs_at_once_is_made_once(tmp_path, monkey
         made.append(peer)
         time.sleep(0.2)
         venv.mkdir(parents=True, exist_ok=True)
-        (venv / ".complete").write_text(" ".join(harness.PEER_VENVS[peer]) + "\n")
+        (venv / ".complete").write_text(" ".join(harness._venv_packages(peer)) + "\n")
 
     monkeypatch.setattr(harness, "REPOSITORY", tmp_path)
     monkeypatch.setattr(harness, "_make_peer_venv", slow_make)
@@ -383,9 +384,10 @@ def test_provenance_says_which_kernels_torch_runs_and_the_limits_set(monkeypatch
     }
 
 
-def test_channels_last_kernels_give_the_same_q_values_and_update(tmp_path):
+@pytest.mark.slow  # two pixel learners on 3 000 random frames each
+def test_channels_last_kernels_give_the_same_q_values_and_update():
     """The update-cost's channels-last row changes the memory format of the convolution
-    kernels, online and target, not what the network computes."""
+    kernels, online and target, not what the update computes nor what the target copies."""
     import torch
 
     from benchmarks import update_cost
@@ -394,15 +396,22 @@ def test_channels_last_kernels_give_the_same_q_values_and_update(tmp_path):
     _, plain, _ = update_cost._built("dqn", 0, overrides)
     _, nhwc, _ = update_cost._built("dqn", 0, overrides)
     assert update_cost.to_channels_last(nhwc) == 6  # 3 convolutions, online and target
-    kernels = [t for t in nhwc.loss.parameters() if t.dim() == 4]
-    assert kernels and all(t.is_contiguous(memory_format=torch.channels_last) for t in kernels)
+    kernels = [t for t in chain(nhwc.loss.parameters(), nhwc.loss.buffers()) if t.dim() == 4]
+    assert len(kernels) == 6
+    assert all(t.is_contiguous(memory_format=torch.channels_last) for t in kernels)
     sample = plain.buffer.sample()
-    for a, b in zip(plain.loss.parameters(), nhwc.loss.parameters(), strict=True):
-        assert torch.equal(a, b)  # the same values, another layout
-    plain.update(sample.clone())
-    nhwc.update(sample.clone())
-    for a, b in zip(plain.loss.parameters(), nhwc.loss.parameters(), strict=True):
-        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)  # one step apart: the same
+    for _ in range(2):  # an update, the target's copy, an update from the copied target
+        plain.update(sample.clone())
+        nhwc.update(sample.clone())
+        plain.target_updater.init_()  # the online weights copied into the target's
+        nhwc.target_updater.init_()
+    plain_state = [*plain.loss.parameters(), *plain.loss.buffers()]
+    nhwc_state = [*nhwc.loss.parameters(), *nhwc.loss.buffers()]
+    for a, b in zip(plain_state, nhwc_state, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+    assert all(t.is_contiguous(memory_format=torch.channels_last) for t in kernels)
+    online, target = kernels[:3], kernels[3:]  # the copy reached the channels-last target
+    assert all(torch.equal(a, b) for a, b in zip(online, target, strict=True))
 
 
 def test_an_update_cost_held_to_avx2_is_kept_beside_the_native_one(tmp_path, monkeypatch):
@@ -423,3 +432,42 @@ def test_an_update_cost_held_to_avx2_is_kept_beside_the_native_one(tmp_path, mon
     assert len(runs) == 2 and "first" not in runs[1]
     assert runs[0]["first"] and runs[1]["again"]
     assert runs[1]["machine"]["kernels"]["limits"] == {"ONEDNN_MAX_CPU_ISA": "AVX2"}
+
+
+def test_two_pinned_peer_runs_at_once_get_a_core_each(tmp_path, monkeypatch):
+    """XLA spreads over every core, so the harness pins an SBX run to a core no other pinned
+    run holds, and gives it back when the run ends."""
+    import queue
+
+    cores = queue.Queue()
+    for core in (3, 7):
+        cores.put(core)
+    held = []
+
+    def run_once(command, run_dir, core=None):
+        held.append(core)
+        time.sleep(0.2)  # both runs at once
+        return {"core": core}
+
+    monkeypatch.setattr(harness, "_FREE_CORES", cores)
+    monkeypatch.setattr(harness, "_run_once", run_once)
+    monkeypatch.setattr(harness, "peer_python", lambda peer: harness.sys.executable)
+    threads = [
+        threading.Thread(target=harness.run_peer, args=("sbx_dqn", seed, tmp_path))
+        for seed in (0, 1)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(held) == [3, 7]
+    assert sorted([cores.get_nowait(), cores.get_nowait()]) == [3, 7]  # given back
+    harness.run_peer("sb3_dqn", 0, tmp_path)  # torch's one thread: not pinned
+    assert held[-1] is None
+
+
+def test_a_preset_spec_with_an_empty_piece_or_a_shared_folder_is_refused(tmp_path):
+    with pytest.raises(SystemExit, match=r"--algos 'dqn\+\+a=1': write a preset"):
+        harness.run_training("dqn++a=1", 0, tmp_path)
+    with pytest.raises(SystemExit, match="two entries would share a run folder"):
+        harness.run_presets(["dqn+a=1", "dqn+a_1"], [0], tmp_path)

@@ -77,14 +77,3 @@ def test_tutorial_loop_repeats_itself_with_the_same_seed(tmp_path):
     ]
     first, second = (s["eval_curve"]["returns"] + [s["final_eval_return_mean"]] for s in summaries)
     assert first == second
-
-
-def test_the_sbx_peer_takes_one_core_chosen_by_its_seed(monkeypatch):
-    """XLA spreads over every core whatever its flags, so the SBX peer pins itself to one."""
-    from benchmarks.peers import sbx_dqn
-
-    pinned = []
-    monkeypatch.setattr(sbx_dqn.os, "sched_getaffinity", lambda pid: {5, 2, 9})
-    monkeypatch.setattr(sbx_dqn.os, "sched_setaffinity", lambda pid, cores: pinned.append(cores))
-    assert [sbx_dqn.pin_to_one_core(seed) for seed in (0, 1, 2, 3)] == [2, 5, 9, 2]
-    assert pinned == [{2}, {5}, {9}, {2}]

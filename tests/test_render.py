@@ -110,7 +110,11 @@ def test_a_game_plays_on_one_torch_thread_and_gives_the_threads_back():
 
     from trl_cartpole.policy.video import _one_torch_thread
 
-    before = torch.get_num_threads()
-    with _one_torch_thread():
-        assert torch.get_num_threads() == 1 and not torch.is_grad_enabled()
-    assert torch.get_num_threads() == before and torch.is_grad_enabled()
+    before = torch.get_num_threads()  # the tests' one thread (conftest): set two to see it
+    torch.set_num_threads(2)
+    try:
+        with _one_torch_thread():
+            assert torch.get_num_threads() == 1 and not torch.is_grad_enabled()
+        assert torch.get_num_threads() == 2 and torch.is_grad_enabled()
+    finally:
+        torch.set_num_threads(before)

@@ -20,6 +20,7 @@ from .conftest import SCRIPTS, SMOKE_OVERRIDES, TIMING_KEYS, run_script
 SUMMARY_KEYS = {
     "autocast",
     "num_threads",
+    "cpu_kernels",
     "solve_status",
     "env_id",
     "seed",
@@ -96,6 +97,8 @@ def test_summary_has_every_key_with_consistent_values(smoke_run):
     assert summary["env_id"] == "CartPole-v1" and summary["seed"] == 1
     assert summary["algo"] == "dqn"
     assert summary["frames"] == 300
+    # the kernels this process's torch runs (the run was a subprocess of the same interpreter)
+    assert summary["cpu_kernels"]["torch"] == torch.backends.cpu.get_cpu_capability()
     # Updates start once the buffer holds init_random_frames=64 (> batch 32) transitions. A
     # batch of 4 frames is one step of each of the 4 envs, and the 3-step buffer stores a step
     # once the 3 after it are in: after k batches it holds 4 * (k - 3) transitions, >= 64 from

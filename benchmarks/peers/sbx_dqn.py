@@ -13,12 +13,12 @@ that; where zoo names none, SB3's default [64, 64] is passed; another shape is r
 clips no gradient (SB3 clips the norm at 10), and it
 samples one batch of ``batch_size * gradient_steps`` transitions for each training call.
 
-XLA's CPU client spreads its work over every core, and no flag of JAX 0.10 holds it to one
-thread (with ``--xla_cpu_multi_thread_eigen=false``, five threads still took CPU time in a jit
-matrix product, as without it), so the process is pinned to one core before JAX starts: one
-core, as every other run of the benchmark gets (``seed % cores`` picks which, so that two
-runs side by side, ``--jobs 2``, take both). The protocol evaluates and keeps the flax
-network's parameters through :class:`FlaxQValues`.
+XLA's CPU client spreads its work over every core, and no flag of JAX 0.10 we tried holds it to
+one thread (with ``--xla_cpu_multi_thread_eigen=false``, five threads still took CPU time in a
+jit matrix product, as without it), so ``python -m benchmarks run`` pins this peer's process to
+a core of its own (``benchmarks.harness.PINNED_PEERS``), as every other run's one torch thread
+takes one core's work; run by hand, ``taskset -c 0`` does the same. The protocol evaluates and
+keeps the flax network's parameters through :class:`FlaxQValues`.
 """
 
 from __future__ import annotations
@@ -55,18 +55,8 @@ class FlaxQValues(torch.nn.Module):
         self.policy.qf_state = self.policy.qf_state.replace(params=state_dict["params"])
 
 
-def pin_to_one_core(seed: int) -> int:
-    """Pin this process, and every thread it starts from now on, to one of the cores it may use
-    (the ``seed % cores``-th); returns that core."""
-    cores = sorted(os.sched_getaffinity(0))
-    core = cores[seed % len(cores)]
-    os.sched_setaffinity(0, {core})
-    return core
-
-
 def main() -> None:
     args = parse_peer_args(__doc__.splitlines()[0])
-    pin_to_one_core(args.seed)  # before JAX makes its thread pool
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     try:
         from sbx import DQN

@@ -43,7 +43,8 @@ from trl_cartpole.store.files import write_json_atomic
 __all__ = ["ISA_LIMITS", "cpu_kernels", "finish", "peak_rss_mb", "record_failure", "run_summary"]
 
 # environment variables that hold a library's CPU kernels below the processor's instructions
-# (all three at AVX2 make a processor with AVX-512 compute as one without it)
+# (all three at AVX2 stand in for a processor without AVX-512: torch.compile's generated code
+# and other libraries choose their own)
 ISA_LIMITS = {
     "ONEDNN_MAX_CPU_ISA": "oneDNN",
     "ATEN_CPU_CAPABILITY": "ATen",
