@@ -136,11 +136,15 @@ ATARI_RECORDS = (
     (
         ATARI_AVX2,
         "the AVX2 seeds",
-        "The sixth form (the preset) on a processor without AVX-512: an AMD EPYC with AVX2 and "
-        "FMA only, where `optim.autocast=auto` chose float32 and `num_threads=0` both cores; "
-        "seeds 311, 312 and 313 named for it before any ran (commit `d1a2d84`), each on the "
-        "whole 2-core machine; 311 at `d1a2d84`, beside this project's tests and two read-only "
-        "code reviews for about 25 of its minutes",
+        "The sixth form (the preset) on processors without AVX-512, where "
+        "`optim.autocast=auto` chose float32 and `num_threads=0` both cores; seeds 311, 312 "
+        "and 313 named for it before any ran (commit `d1a2d84`), each on the whole 2-core "
+        "machine. 311 at `d1a2d84` on an AMD EPYC with AVX2 and FMA only, beside this "
+        "project's tests and two read-only code reviews for about 25 of its minutes; 312 at "
+        "`626c967` on an Intel Xeon with AVX-512 BF16 and AMX held to AVX2 "
+        "(`ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2`; MKL's matrix products, the dense "
+        "layers', were not held), beside this project's short tests, profiling, a peer's "
+        "install (at nice 19) and two read-only reviews for about 40 of its minutes",
     ),
 )
 # The taper's ablation: the fourth form (no taper) on the fifth form's seeds, trained to the same
