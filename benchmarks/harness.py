@@ -141,8 +141,8 @@ def peer_python(peer: str) -> str:
 
     The environment is ``runs/peer-venvs/<peer>``; a ``.complete`` marker naming its packages is
     written once its install succeeded, so one cut off midway, or made for other pins, is made
-    again. Runs of the benchmark's worker
-    threads that ask at the same time wait for the first to make it.
+    again. Runs of the benchmark's worker threads that ask at the same time wait for the first
+    to make it.
     """
     if peer not in PEER_VENVS:
         return sys.executable
@@ -161,9 +161,10 @@ def _make_peer_venv(peer: str, venv: Path) -> None:
     shutil.rmtree(venv, ignore_errors=True)
     print(f"making {venv} for {peer} (once; a few minutes)", file=sys.stderr, flush=True)
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-    install = [str(python), "-m", "pip", "install", "-q", *_venv_packages(peer)]  # CPU torch
+    packages = _venv_packages(peer)  # the CPU torch build first
+    install = [str(python), "-m", "pip", "install", "-q", *packages]
     subprocess.run([*install, "-e", str(REPOSITORY)], check=True)
-    (venv / ".complete").write_text(" ".join(_venv_packages(peer)) + "\n")
+    (venv / ".complete").write_text(" ".join(packages) + "\n")
 
 
 def _venv_packages(peer: str) -> list[str]:
@@ -196,21 +197,27 @@ def _run_once(command: list[str], run_dir: Path, core: int | None = None) -> dic
     return json.loads(summary_path.read_text())
 
 
+def _run_folder(name: str) -> str:
+    """A preset or peer as a run folder's name: every character but letters, digits, ``.`` and
+    ``-`` made ``_`` (``dqn+fast=true`` -> ``dqn_fast_true``), a value Hydra's parser takes."""
+    return re.sub(r"[^A-Za-z0-9.-]", "_", name)
+
+
 def run_training(algo: str, seed: int, out: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
     """Train ``algo`` with ``seed`` into ``out/<algo>-seed<seed>`` and return its summary.
 
     ``algo`` is a preset, or a preset with overrides of its own joined by ``+``
-    (``dqn+fast=true``: the dqn preset on the fast path), given after ``overrides``; its
-    directory names it with every other character than letters, digits, ``.`` and ``-`` as
-    ``_`` (``dqn_fast_true-seed0``), a value the config's parser takes.
+    (``dqn+fast=true``: the dqn preset on the fast path), given after ``overrides``, in the
+    folder :func:`_run_folder` names (``dqn_fast_true-seed0``).
     """
     preset, *own = algo.split("+")
     if not preset or not all(own):
         raise SystemExit(
             f"error: --algos {algo!r}: write a preset, then key=value pieces joined by +"
         )
-    folder = re.sub(r"[^A-Za-z0-9.-]", "_", algo)
-    run_dir = (out / f"{folder}-seed{seed}").resolve()  # the process runs in the repository root
+    run_dir = (
+        out / f"{_run_folder(algo)}-seed{seed}"
+    ).resolve()  # the process runs in the repository root
     command = [
         sys.executable,
         str(TRAIN_SCRIPT),
@@ -272,7 +279,7 @@ def run_presets(
     every preset and peer on a seed before the next seed, so a machine that drifts over the
     benchmark slows them all alike.
     """
-    folders = [re.sub(r"[^A-Za-z0-9.-]", "_", name) for name in [*algos, *peers]]
+    folders = [_run_folder(name) for name in [*algos, *peers]]
     if len(set(folders)) < len(folders):
         raise SystemExit(f"error: --algos {' '.join(algos)}: two entries would share a run folder")
     tasks = [(run_training, algo, overrides) for algo in algos]
