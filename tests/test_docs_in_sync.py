@@ -241,7 +241,52 @@ def test_the_readme_results_table_has_one_row_per_protocol_and_env():
     protocols = json.loads(docs.PERFORMANCE.read_text())["protocols"]
     assert len(cartpole) == len(protocols)
     for row in cartpole:
-        assert re.search(r"\| [0-9.]+ s \| Stable-Baselines3: [0-9.]+ s \|", row), row
+        ours = r"[0-9.]+ s( \(`[^`]+`: [0-9.]+ s\))*"  # the default, then each variant
+        assert re.search(rf"\| {ours} \| Stable-Baselines3: [0-9.]+ s", row), row
+
+
+def test_the_readme_results_row_names_each_variant_and_peer(tmp_path, monkeypatch):
+    """A comparison with the fast path and SBX: the default's IQM, then the variant's named by
+    its overrides; Stable-Baselines3, then SBX. IQM of 1..8 s: the mean of 3..6 = 4.5 s."""
+    runs = [{"seconds_to_solve": float(s)} for s in range(1, 9)]
+    twice = [{"seconds_to_solve": 2.0 * s} for s in range(1, 9)]
+    results = {"dqn": runs, "dqn+fast=true": twice, "sb3_dqn": twice, "sbx_dqn": runs}
+    record = {"machine": {"cpu": "CPU"}, "date": "today", "protocols": {"1000": results}}
+    path = tmp_path / "performance.json"
+    path.write_text(json.dumps(record))
+    monkeypatch.setattr(docs, "PERFORMANCE", path)
+    monkeypatch.setattr(docs, "RACES", {})
+    row = next(r for r in docs.readme_results().splitlines() if r.startswith("| CartPole-v1"))
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    assert cells[1:3] == ["4.5 s (`fast=true`: 9.0 s)", "Stable-Baselines3: 9.0 s; SBX: 4.5 s"]
+
+
+def test_the_cartpole_targets_are_judged_per_preset_and_protocol(tmp_path, monkeypatch):
+    """Seconds 1..8: IQM and median 4.5 s (<= 5); a peer at 10x those is 45 s, 10.0x, and its
+    interval lies above ours; a peer at ours overlaps. An unsolved seed makes the slowest inf."""
+    ours = [{"seconds_to_solve": float(s), "solved": True} for s in range(1, 9)]
+    tenfold = [{"seconds_to_solve": 10.0 * s, "solved": True} for s in range(1, 9)]
+    unsolved = [*ours[:7], {"seconds_to_solve": None, "solved": False}]
+    results = {"dqn": ours, "dqn+fast=true": unsolved, "sb3_dqn": tenfold, "sbx_dqn": ours}
+    path = tmp_path / "performance.json"
+    path.write_text(json.dumps({"protocols": {"1000": results, "2500": results}}))
+    monkeypatch.setattr(docs, "PERFORMANCE", path)
+    rows = [
+        [cell.strip() for cell in row.strip("|").split("|")]
+        for row in docs.performance_targets().splitlines()
+    ]
+    assert rows[0] == ["target", "preset", "every 1 000 frames", "every 2 500 frames", "met"]
+    judged = {(row[0], row[1]): row[2:] for row in rows[2:]}
+    assert len(judged) == 2 * 4  # 4 targets for each of 2 presets
+    assert judged["every seed solved", "dqn"] == ["8/8", "8/8", "yes"]
+    assert judged["every seed solved", "dqn+fast=true"] == ["7/8", "7/8", "no"]
+    median = "median seconds to solve <= 5 s"
+    assert judged[median, "dqn"] == ["median 4.5 s, slowest 8.0 s"] * 2 + ["yes"]
+    assert judged[median, "dqn+fast=true"][0] == "median 4.5 s, slowest inf s"
+    sb3 = judged["interquartile mean 6x below Stable-Baselines3's, 95 % intervals apart", "dqn"]
+    assert sb3[0].startswith("45.0 [") and sb3[0].endswith("10.0x, apart") and sb3[2] == "yes"
+    sbx = judged["interquartile mean below SBX's, 95 % intervals apart", "dqn"]
+    assert sbx[0].endswith("1.0x, overlapping") and sbx[2] == "no"
 
 
 def test_the_taper_ablation_sets_each_seed_beside_its_tapered_run(tmp_path, monkeypatch):
