@@ -155,8 +155,9 @@ ATARI_RECORDS = (
         "The sixth form (the preset) trained for 1 hour, `collector.max_train_seconds=3600`, on "
         "a processor with AVX-512 BF16, where `optim.autocast=auto` chose bfloat16 and "
         "`num_threads=0` both cores; seeds 411, 412 and 413 named for it before any ran "
-        "(commit `73288a3`), each on the whole 2-core machine. 411 at `73288a3` on an Intel "
-        "Xeon with AVX-512 BF16 and AMX, with edits and lint beside it",
+        "(commit `73288a3`), each on the whole 2-core machine. 411 at `d35b2df` (the same "
+        "training code) on an Intel Xeon with AVX-512 BF16 and AMX, with doc edits, lint and "
+        "two short doc tests at nice 19 beside it",
     ),
 )
 # The taper's ablation: the fourth form (no taper) on the fifth form's seeds, trained to the same
@@ -413,8 +414,8 @@ def _seconds_cell(seconds: float) -> str:
 
 def _readme_atari_rows() -> list[str]:
     """Breakout's rows (the preset's seeds with bfloat16 on AVX-512 BF16, then on processors
-    without AVX-512, then for 1 hour on AVX-512 BF16; each seed's best policy over 30 whole
-    games) and one row per Atari-100k game beside DrQ(epsilon)'s published mean."""
+    without AVX-512; each seed's best policy over 30 whole games) and one row per Atari-100k
+    game beside DrQ(epsilon)'s published mean."""
     rows = []
     if ATARI_PRESET_FORM.is_file():
         record = json.loads(ATARI_PRESET_FORM.read_text())
@@ -426,11 +427,6 @@ def _readme_atari_rows() -> list[str]:
         machines = ", ".join(dict.fromkeys(_trained_on(run) for run in runs))
         where = f"{machines}, {max(run['measured']['date'] for run in runs)}"
         rows.append(_breakout_row(runs, f"2 hours, {kinds} on AVX2", where))
-    if ATARI_STRETCH.is_file():
-        runs = json.loads(ATARI_STRETCH.read_text())["runs"]
-        where = ", ".join(dict.fromkeys(_trained_on(run) for run in runs))
-        where += f", {max(run['measured']['date'] for run in runs)}"
-        rows.append(_breakout_row(runs, "1 hour, bfloat16 on AVX-512 BF16", where))
     if ATARI_100K.is_file():
         record = json.loads(ATARI_100K.read_text())
         for run in _atari_100k_runs(record):
