@@ -34,7 +34,7 @@ wrote, never from a hand copy:
 - ``atari-loop-gap`` (docs/results/breakout.md): the best policies in Gymnasium's loop against
   their runs' own final evaluations, over the tables of ``atari-runs``;
 - ``atari-loop-seeds``, ``atari-100k``, ``atari-torchrl-settings``
-  (docs/results/breakout.md): kept policies over 100 games of Gymnasium's loop, the Atari-100k
+  (docs/results/breakout.md): best policies over 100 games of Gymnasium's loop, the Atari-100k
   runs beside published means, and TorchRL's example's settings, from
   ``docs/results/atari_loop_seeds.json``, ``atari_100k.json`` and
   ``atari_torchrl_settings.json`` (the same command);
@@ -487,7 +487,7 @@ def _seed_rows(runs: list[dict], target: float) -> list[str]:
     rows = [
         "| seed | frames | train s | greedy return at each evaluation | first evaluation >= "
         f"{target:g}: frames, train s | best | candidates: frames, evaluation -> new "
-        "episodes (the kept one in bold) | final (100 episodes) | frames/s, updates/s | "
+        "episodes (the chosen one in bold) | final (100 episodes) | frames/s, updates/s | "
         "peak memory, MiB |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
@@ -584,7 +584,7 @@ def _candidates_cell(run: dict) -> str:
             f"{_spaced(score['frames'])}: {score['eval_return_mean']:.0f} -> "
             f"{score['replay_return_mean']:.1f}"
         )
-        cells.append(f"**{cell}**" if score["frames"] == run["kept_policy_frames"] else cell)
+        cells.append(f"**{cell}**" if score["frames"] == run["best_policy_frames"] else cell)
     return "; ".join(cells)
 
 
@@ -665,7 +665,7 @@ def atari_100k() -> str:
             f"| {_game_name(run['env_id'])} | {run['seed']} | "
             f"{_spaced(run['frames'])} | {_duration(run['train_seconds'])} | "
             f"{', '.join(f'{value:.1f}' for value in run['eval_curve']['returns'])} | "
-            f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
+            f"{_spaced(run['best_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
             f"{run['final_eval_return_std']:.1f} | {run['plain_loop']['mean']:.1f} +/- "
             f"{run['plain_loop']['std']:.1f} | "
             + " | ".join(f"{published[name]:.1f}" if name in published else "-" for name in authors)
@@ -805,7 +805,7 @@ def _atari_table(
             f"| {run['seed']} | {_spaced(run['frames'])} | {_spaced(run['updates'])} | "
             f"{_duration(run['train_seconds'])} | "
             f"{', '.join(f'{value:.1f}' for value in run['eval_curve']['returns'])} | "
-            f"{_spaced(run['kept_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
+            f"{_spaced(run['best_policy_frames'])} | {run['final_eval_return_mean']:.1f} +/- "
             f"{run['final_eval_return_std']:.1f} ({min(finals):.0f} to {max(finals):.0f}) | "
             f"{plain['mean']:.1f} +/- {plain['std']:.1f} | "
             f"{run['collect_frames_per_second']}, {run['updates_per_second']} | "

@@ -109,7 +109,7 @@ def test_candidates_survive_a_checkpoint(tmp_path):
 
 
 @pytest.mark.parametrize("candidates", [pytest.param(1, marks=pytest.mark.slow), 2])
-def test_a_run_records_the_kept_policy_and_saves_it_as_best(compose, tmp_path, candidates):
+def test_a_run_records_the_best_policy_and_saves_it_as_best(compose, tmp_path, candidates):
     overrides = [o for o in SMOKE_OVERRIDES if not o.startswith("eval.interval_frames")]
     cfg = compose(
         *overrides,
@@ -121,17 +121,17 @@ def test_a_run_records_the_kept_policy_and_saves_it_as_best(compose, tmp_path, c
     summary = train(cfg)
     curve = summary["eval_curve"]
     manifest = Checkpoint.manifest(tmp_path / "run" / "checkpoints" / "best")["metadata"]
-    assert manifest["frames"] == summary["kept_policy_frames"]
+    assert manifest["frames"] == summary["best_policy_frames"]
     if candidates == 1:
         assert "candidates" not in summary
         best = curve["returns"].index(max(curve["returns"]))
-        assert summary["kept_policy_frames"] == curve["frames"][best]
+        assert summary["best_policy_frames"] == curve["frames"][best]
         return
     scores = summary["candidates"]
     ranked = sorted(zip(curve["returns"], curve["frames"], strict=True), key=lambda p: -p[0])
     assert [s["eval_return_mean"] for s in scores] == [mean for mean, _ in ranked[:2]]
     assert len({s["frames"] for s in scores}) == 2
     kept = max(scores, key=lambda s: s["replay_return_mean"])
-    assert summary["kept_policy_frames"] == kept["frames"]
+    assert summary["best_policy_frames"] == kept["frames"]
     saved = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert saved["candidates"] == scores

@@ -302,7 +302,7 @@ def test_the_taper_ablation_sets_each_seed_beside_its_tapered_run(tmp_path, monk
             "updates": updates,
             "train_seconds": 6_000.0,
             "eval_curve": {"returns": [1.0, score]},
-            "kept_policy_frames": 10_000,
+            "best_policy_frames": 10_000,
             "final_eval_return_mean": score,
             "final_eval_return_std": 1.0,
             "final_eval_returns": [score - 1.0, score + 1.0],

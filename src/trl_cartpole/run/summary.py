@@ -72,7 +72,7 @@ def finish(run: Components) -> dict[str, Any]:
     """Save the last state, choose and evaluate the best policy, draw the plots, write
     ``summary.json``."""
     _save_last_state(run)
-    kept, scores = _choose_kept_policy(run)
+    kept, scores = _choose_best_of_candidates(run)
     final = _final_evaluation(run)
     if run.settings.plots:
         run.progress_bar.status("drawing the plots")
@@ -101,7 +101,7 @@ def finish(run: Components) -> dict[str, Any]:
         autocast=settings.autocast,
         num_threads=settings.num_threads,
         cpu_kernels=cpu_kernels(),
-        kept_policy_frames=None if kept is None else kept.frames,
+        best_policy_frames=None if kept is None else kept.frames,
         **({"candidates": [asdict(score) for score in scores]} if scores else {}),
         **({} if run.ray_nodes is None else {"ray_nodes": run.ray_nodes}),
         versions={
@@ -131,7 +131,7 @@ def _save_last_state(run: Components) -> None:
         run.live_plot.flush()
 
 
-def _choose_kept_policy(run: Components) -> tuple[Candidate | None, list[CandidateScore]]:
+def _choose_best_of_candidates(run: Components) -> tuple[Candidate | None, list[CandidateScore]]:
     """The best policy, in the network and, when it is not the best periodic one, saved as
     ``checkpoints/best`` (:func:`~trl_cartpole.run.best_policy.choose_best_policy`)."""
     protocol, evaluator = run.protocol, run.evaluator
@@ -139,7 +139,7 @@ def _choose_kept_policy(run: Components) -> tuple[Candidate | None, list[Candida
         protocol,
         evaluator,  # its network is run.actor: the candidates play through it
         on_candidate=lambda number, count: run.progress_bar.status(
-            f"choosing the policy to keep: candidate {number} of {count} over "
+            f"choosing the best policy: candidate {number} of {count} over "
             f"{protocol.candidate_episodes} new episodes"
         ),
     )
