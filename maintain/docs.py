@@ -147,7 +147,9 @@ ATARI_RECORDS = (
         "`626c967` on an Intel Xeon with AVX-512 BF16 and AMX held to AVX2 "
         "(`ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2`; MKL's matrix products, the dense "
         "layers', were not held), beside this project's short tests, profiling, a peer's "
-        "install (at nice 19) and two read-only reviews for about 40 of its minutes",
+        "install (at nice 19) and two read-only reviews for about 40 of its minutes; 313 at "
+        "`82c9db7` (the same training code) on an Intel Xeon with AVX-512 BF16 and AMX held "
+        "to AVX2 with MKL's too (`MKL_ENABLE_INSTRUCTIONS=AVX2` added), alone but for doc edits",
     ),
     (
         ATARI_STRETCH,
