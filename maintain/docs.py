@@ -149,7 +149,8 @@ ATARI_RECORDS = (
         "layers', were not held), beside this project's short tests, profiling, a peer's "
         "install (at nice 19) and two read-only reviews for about 40 of its minutes; 313 at "
         "`82c9db7` (the same training code) on an Intel Xeon with AVX-512 BF16 and AMX held "
-        "to AVX2 with MKL's too (`MKL_ENABLE_INSTRUCTIONS=AVX2` added), alone but for doc edits",
+        "to AVX2, MKL included (`MKL_ENABLE_INSTRUCTIONS=AVX2` as well), with only doc edits "
+        "beside it",
     ),
     (
         ATARI_STRETCH,
